@@ -1,0 +1,88 @@
+"""lionjax: Lion's identification method in JAX, a device twin, and sim-to-real diagnosis."""
+
+from . import datasets as datasets
+from ._errors import (
+    RESULTS as RESULTS,
+)
+from ._errors import (
+    IdentificationError as IdentificationError,
+)
+from ._errors import (
+    InputError as InputError,
+)
+from ._errors import (
+    raise_if_failed as raise_if_failed,
+)
+from ._estimators import (
+    AbstractGain as AbstractGain,
+)
+from ._estimators import (
+    AbstractStepper as AbstractStepper,
+)
+from ._estimators import (
+    AutoGain as AutoGain,
+)
+from ._estimators import (
+    DiffraxStep as DiffraxStep,
+)
+from ._estimators import (
+    EulerStep as EulerStep,
+)
+from ._estimators import (
+    ExactStep as ExactStep,
+)
+from ._estimators import (
+    FixedGain as FixedGain,
+)
+from ._estimators import (
+    LionSolution as LionSolution,
+)
+from ._estimators import (
+    default_bank as default_bank,
+)
+from ._estimators import (
+    lion as lion,
+)
+from ._filters import FilterBank as FilterBank
+from ._io import (
+    load_record as load_record,
+)
+from ._io import (
+    load_records as load_records,
+)
+from ._io import (
+    parse_columns as parse_columns,
+)
+from ._io import (
+    save_record as save_record,
+)
+from ._least_squares import LSSolution as LSSolution
+from ._least_squares import least_squares as least_squares
+from ._models import (
+    AbstractEffect as AbstractEffect,
+)
+from ._models import (
+    AbstractModel as AbstractModel,
+)
+from ._models import (
+    Augmented as Augmented,
+)
+from ._models import (
+    Column as Column,
+)
+from ._models import (
+    MassDamper as MassDamper,
+)
+from ._models import (
+    Offset as Offset,
+)
+from ._models import (
+    Piecewise as Piecewise,
+)
+from ._models import (
+    Regressors as Regressors,
+)
+from ._record import Record as Record
+from ._record import resample as resample
+
+__version__ = "0.1.0"

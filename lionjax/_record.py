@@ -1,0 +1,187 @@
+"""A uniformly sampled record of one device axis: position x [m] and force F [N]."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._errors import InputError
+
+#: Largest accepted relative deviation of any sampling interval from the mean interval.
+JITTER_TOLERANCE = 1e-3
+#: Fewest samples a record may have (the filter transient alone needs more than this).
+MIN_SAMPLES = 16
+
+
+class Record(eqx.Module):
+    """One uniformly sampled record (or a batch of them, leading axes on every array).
+
+    Attributes:
+        x: position samples, shape ``(T,)`` [m].
+        F: force samples, shape ``(T,)`` [N] (as applied: calibration is the user's choice).
+        dt: sampling interval, shape ``()`` [s].
+        t0: time of the first sample, shape ``()`` [s].
+        extras: further measured signals a model may use, each shape ``(T,)``.
+
+    Build one from raw samples with :meth:`Record.from_samples`, which checks the samples
+    (finite, strictly increasing uniform time) and names the first bad index. The constructor
+    itself only converts to arrays, so a ``Record`` can be built inside ``jit``/``vmap``.
+    """
+
+    x: Float[Array, "*batch T"]
+    F: Float[Array, "*batch T"]
+    dt: Float[Array, "*batch"]
+    t0: Float[Array, "*batch"]
+    extras: dict[str, Float[Array, "*batch T"]]
+
+    def __init__(
+        self,
+        x: ArrayLike,
+        F: ArrayLike,
+        dt: ArrayLike,
+        t0: ArrayLike = 0.0,
+        extras: Mapping[str, ArrayLike] | None = None,
+    ):
+        self.x = jnp.asarray(x)
+        self.F = jnp.asarray(F)
+        self.dt = jnp.asarray(dt, dtype=self.x.dtype)
+        self.t0 = jnp.asarray(t0, dtype=self.x.dtype)
+        self.extras = {k: jnp.asarray(v) for k, v in (extras or {}).items()}
+
+    def __check_init__(self):
+        if self.x.shape != self.F.shape:
+            raise InputError(
+                f"Record: x and F must have the same shape, got x {self.x.shape} and "
+                f"F {self.F.shape}. Pass one force sample per position sample."
+            )
+        if self.x.ndim < 1:
+            raise InputError("Record: x must have a time axis (shape (T,)), got a scalar.")
+        for k, v in self.extras.items():
+            if v.shape != self.x.shape:
+                raise InputError(
+                    f"Record: extra signal {k!r} has shape {v.shape}, expected {self.x.shape} "
+                    "(the shape of x)."
+                )
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples T."""
+        return self.x.shape[-1]
+
+    @property
+    def t(self) -> Float[Array, "*batch T"]:
+        """Sample times ``t0 + k·dt`` [s]."""
+        k = jnp.arange(self.n_samples, dtype=self.x.dtype)
+        return self.t0[..., None] + self.dt[..., None] * k
+
+    @classmethod
+    def from_samples(
+        cls,
+        t: ArrayLike,
+        x: ArrayLike,
+        F: ArrayLike,
+        *,
+        extras: Mapping[str, ArrayLike] | None = None,
+        source: str = "record",
+        jitter_tolerance: float = JITTER_TOLERANCE,
+        min_samples: int = MIN_SAMPLES,
+        dtype=None,
+    ) -> Record:
+        """Check raw samples and build a :class:`Record`.
+
+        Arguments:
+            t: sample times, shape ``(T,)`` [s], strictly increasing and uniform within
+                ``jitter_tolerance`` (relative deviation of each interval from the mean).
+            x: positions, shape ``(T,)`` [m].
+            F: forces, shape ``(T,)`` [N].
+            extras: further signals, each shape ``(T,)``.
+            source: how to name the data in error messages (a file name, say).
+            dtype: array dtype (default: JAX's default float, float64 under ``jax_enable_x64``).
+
+        Raises:
+            InputError: naming ``source``, the column and the first bad index, for: wrong
+                shapes, NaN/inf, time not strictly increasing, jitter beyond tolerance, fewer
+                than ``min_samples`` samples.
+        """
+        cols = {"t": t, "x": x, "F": F, **dict(extras or {})}
+        arrays = {}
+        n = None
+        for name, v in cols.items():
+            a = np.asarray(v, dtype=np.float64)
+            if a.ndim != 1:
+                raise InputError(
+                    f"{source}: column {name!r} must be one-dimensional (one value per sample), "
+                    f"got shape {a.shape}."
+                )
+            if n is None:
+                n = a.shape[0]
+            elif a.shape[0] != n:
+                raise InputError(
+                    f"{source}: column {name!r} has {a.shape[0]} samples but 't' has {n}; every "
+                    "column needs one value per sample."
+                )
+            bad = np.flatnonzero(~np.isfinite(a))
+            if bad.size:
+                raise InputError(
+                    f"{source}: column {name!r} has a non-finite value ({a[bad[0]]}) at index "
+                    f"{bad[0]} ({bad.size} non-finite in all); remove or repair those samples "
+                    "(lionjax does not drop or interpolate them for you)."
+                )
+            arrays[name] = a
+        if n < min_samples:
+            raise InputError(
+                f"{source}: {n} samples is too few; at least {min_samples} are needed (and many "
+                "more for the filter transient to settle)."
+            )
+        ta = arrays["t"]
+        d = np.diff(ta)
+        nonpos = np.flatnonzero(d <= 0)
+        if nonpos.size:
+            i = nonpos[0]
+            raise InputError(
+                f"{source}: column 't' must be strictly increasing, but t[{i + 1}] = {ta[i + 1]!r}"
+                f" <= t[{i}] = {ta[i]!r}. Sort the record or remove duplicated samples."
+            )
+        dt = (ta[-1] - ta[0]) / (n - 1)
+        rel = np.abs(d - dt) / dt
+        jit = np.flatnonzero(rel > jitter_tolerance)
+        if jit.size:
+            i = jit[0]
+            raise InputError(
+                f"{source}: sampling is not uniform: interval t[{i + 1}] - t[{i}] = {d[i]:.6g} s "
+                f"deviates {rel[i]:.2%} from the mean interval {dt:.6g} s (tolerance "
+                f"{jitter_tolerance:.2%}). Resample the record to a uniform grid first "
+                "(lionjax.resample) if that is what you want."
+            )
+        kw = {} if dtype is None else {"dtype": dtype}
+        ext = {k: jnp.asarray(arrays[k], **kw) for k in (extras or {})}
+        return cls(
+            jnp.asarray(arrays["x"], **kw),
+            jnp.asarray(arrays["F"], **kw),
+            dt,
+            ta[0],
+            ext,
+        )
+
+
+def resample(
+    t: ArrayLike, x: ArrayLike, F: ArrayLike, *, dt: float | None = None, source: str = "record"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Resample a non-uniformly sampled record onto a uniform grid (linear interpolation).
+
+    Only on request: lionjax never resamples silently. ``dt`` defaults to the median interval.
+    Returns ``(t_uniform, x, F)`` as numpy arrays.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.ndim != 1 or t.size < 2 or np.any(np.diff(t) <= 0):
+        raise InputError(f"{source}: resample needs a strictly increasing 1-D 't' column.")
+    step = float(np.median(np.diff(t))) if dt is None else float(dt)
+    if not step > 0:
+        raise InputError(f"resample: dt must be positive, got {dt!r}.")
+    n = int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1
+    tu = t[0] + step * np.arange(n)
+    return tu, np.interp(tu, t, np.asarray(x, float)), np.interp(tu, t, np.asarray(F, float))
