@@ -144,7 +144,8 @@ class Piecewise(AbstractModel):
         b = np.atleast_1d(np.asarray(bounds, dtype=np.float64))
         if b.ndim != 1 or b.size < 1:
             raise InputError(
-                f"Piecewise: bounds must be a non-empty 1-D sequence of positions [m], got {bounds!r}."
+                "Piecewise: bounds must be a non-empty 1-D sequence of positions [m], got "
+                f"{bounds!r}."
             )
         if not np.all(np.isfinite(b)):
             raise InputError(f"Piecewise: bounds must be finite, got {b.tolist()}.")

@@ -33,8 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray, Scalar
 
+from .._checks import check, check_finite, check_nonnegative, check_positive, concrete, param
 from .._errors import InputError
-from ._checks import check, check_finite, check_nonnegative, check_positive, concrete, param
 
 #: Counts per motor revolution of the Falcon encoder: 320 lines, 4-state (quadrature) decoding.
 FALCON_COUNTS_PER_REV = 4 * 320
@@ -258,7 +258,8 @@ class SmoothCoulombFriction(AbstractForceEffect):
     An approximation of :class:`CoulombFriction` without events and without sticking (the axis
     creeps at |ẋ| ≲ ε under forces below F_c). Use the exact class to simulate a device; this
     one exists to study the smoothing the identification side uses. Its deviation from the exact
-    model is tested (tests/test_plant.py).
+    model is tested (tests/test_plant.py). The smoothed sign is stiff (slope b·F_c/ε 1/s): keep
+    ``n_substeps`` ≳ dt·b·F_c/(2ε) in :func:`simulate` (e.g. 8 for F_c = 0.4 N, ε = 1e-4 m/s).
 
     Attributes:
         fc: F_c [N], shape ``()``, ≥ 0.
@@ -499,7 +500,13 @@ class PositionDependence(AbstractCoefficientEffect):
 
 
 class AbstractMeasurement(AbstractPlantEffect):
-    """What a sensor makes of the true signals at one sample (applied in the order given)."""
+    """What a sensor makes of the true signals at one sample (applied in the order given).
+
+    Attributes:
+        random: class constant, whether :meth:`measure` draws from its PRNG key.
+    """
+
+    random: ClassVar[bool] = False
 
     @abc.abstractmethod
     def measure(self, x: Scalar, F: Scalar, key: PRNGKeyArray) -> tuple[Scalar, Scalar]:
@@ -542,6 +549,7 @@ class PositionNoise(AbstractMeasurement):
         std: σ_x [m], shape ``()``, ≥ 0.
     """
 
+    random: ClassVar[bool] = True
     std: Float[ArrayLike, ""]
 
     def __init__(self, std: ArrayLike):
@@ -561,6 +569,7 @@ class ForceNoise(AbstractMeasurement):
         std: σ_F [N], shape ``()``, ≥ 0.
     """
 
+    random: ClassVar[bool] = True
     std: Float[ArrayLike, ""]
 
     def __init__(self, std: ArrayLike):

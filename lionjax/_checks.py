@@ -13,7 +13,7 @@ import jax
 import numpy as np
 from jaxtyping import ArrayLike
 
-from .._errors import InputError
+from ._errors import InputError
 
 
 def param(value: ArrayLike, name: str, owner: str, *, ndim: int | None = 0):

@@ -1,0 +1,66 @@
+"""Argument parsing shared by the subcommands: floats lists, filter, gain, JSON output."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .._errors import InputError
+
+
+def float_list(text: str, argument: str) -> list[float]:
+    """Parse ``"-0.01,0.01"`` (commas; complex allowed as ``-6+2j``) into a list of numbers."""
+    out = []
+    for item in text.split(","):
+        item = item.strip()
+        try:
+            v = complex(item.replace(" ", ""))
+        except ValueError:
+            raise InputError(
+                f"{argument}: expected numbers separated by commas, got {item!r} in {text!r}."
+            ) from None
+        out.append(v.real if v.imag == 0 else v)
+    return out
+
+
+def to_jsonable(obj):
+    """numpy/jax scalars and arrays → plain JSON values; non-finite floats → null."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [to_jsonable(v) for v in obj]
+    if hasattr(obj, "shape") or isinstance(obj, np.generic):
+        a = np.asarray(obj)
+        return to_jsonable(a.tolist()) if a.ndim else to_jsonable(a.item())
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    return obj
+
+
+def write_json(path: str | Path, payload) -> Path:
+    path = Path(path)
+    if path.parent and not path.parent.exists():
+        raise InputError(f"--json: folder {str(path.parent)!r} does not exist; create it first.")
+    path.write_text(json.dumps(to_jsonable(payload), indent=2) + "\n")
+    return path
+
+
+def format_table(headers: list[str], rows: list[list], title: str | None = None) -> str:
+    """A plain fixed-width text table."""
+    cells = [[str(h) for h in headers]] + [[_fmt(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    lines = [title] if title else []
+    lines.append("  ".join(h.ljust(w) for h, w in zip(cells[0], widths, strict=True)))
+    lines.append("  ".join("-" * w for w in widths))
+    for r in cells[1:]:
+        lines.append("  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)))
+    return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float | np.floating):
+        return "nan" if not np.isfinite(v) else f"{v:.6g}"
+    return str(v)
