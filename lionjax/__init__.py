@@ -1,6 +1,10 @@
 """lionjax: Lion's identification method in JAX, a device twin, and sim-to-real diagnosis."""
 
-from . import datasets as datasets
+from . import datasets as datasets, twin as twin
+
+# --- experiments (issue 3) ---
+# --- studies and batched estimation (issue 4) ---
+# --- diagnosis (issue 5) ---
 from ._errors import (
     RESULTS as RESULTS,
 )
