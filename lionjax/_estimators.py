@@ -36,7 +36,7 @@ from ._errors import RESULTS, InputError
 from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
 from ._record import Record
-from ._solution import finish, transient_mask
+from ._solution import check_duration, finish, transient_mask
 
 # ----------------------------------------------------------------------------------------------
 # φ(Z)/h = E(Z) = (I − e^{−Z}) Z⁻¹ for a symmetric 2×2 Z, elementwise over leading axes.
@@ -376,6 +376,7 @@ def lion(
     ):
         if not isinstance(val, typ):
             raise InputError(f"lion: {arg} must be a {typ.__name__}, got {type(val).__name__}.")
+    check_duration(record, bank, "lion")
     sol = _lion(model, record, bank, gain, stepper, normalisation, theta0, save_every, transient)
     return finish(sol, throw, what="lion")
 

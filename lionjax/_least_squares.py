@@ -33,7 +33,7 @@ from ._estimators import default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel
 from ._record import Record
-from ._solution import finish, transient_mask
+from ._solution import check_duration, finish, transient_mask
 
 
 class LSSolution(eqx.Module):
@@ -108,6 +108,7 @@ def least_squares(
         raise InputError(f"least_squares: model must be a lionjax model, got {type(model)}.")
     if not isinstance(record, Record):
         raise InputError(f"least_squares: record must be a Record, got {type(record)}.")
+    check_duration(record, bank, "least_squares")
     if initial not in ("estimate", "discard"):
         raise InputError(
             f"least_squares: initial must be 'estimate' or 'discard', got {initial!r}."

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ._errors import RESULTS, raise_if_failed
+from ._errors import RESULTS, InputError, raise_if_failed
 from ._filters import FilterBank
 from ._record import Record
 
@@ -24,6 +24,22 @@ def transient_mask(record: Record, bank: FilterBank, transient=None) -> Array:
     tr = default_transient(bank) if transient is None else jnp.asarray(transient)
     elapsed = record.dt * jnp.arange(record.n_samples, dtype=record.x.dtype)
     return (elapsed >= tr).astype(record.x.dtype)
+
+
+def check_duration(record: Record, bank: FilterBank, what: str) -> None:
+    """Refuse a record shorter than the filter transient (when the values are concrete)."""
+    if is_traced((record.dt, bank.coeffs)):
+        return
+    import numpy as np
+
+    need = float(np.max(np.asarray(default_transient(bank))))
+    have = float(np.min(np.asarray(record.dt))) * (record.n_samples - 1)
+    if have < need:
+        raise InputError(
+            f"{what}: the record lasts {have:.4g} s ({record.n_samples} samples), shorter than "
+            f"the filter transient {need:.4g} s (3·λₙ₋₁/λₙ of Λ with coefficients "
+            f"{np.asarray(bank.coeffs).tolist()}). Use a longer record or faster filter poles."
+        )
 
 
 def is_traced(tree) -> bool:

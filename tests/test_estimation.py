@@ -177,7 +177,7 @@ def test_exact_step_matches_diffrax():
 
 
 def test_exact_step_matches_diffrax_piecewise_fixed_gain(crossing):
-    rec = lj.Record(crossing.x[:2000], crossing.F[:2000], DT)
+    rec = lj.Record(crossing.x[:2400], crossing.F[:2400], DT)
     kw = dict(bank=lj.FilterBank.paper(), gain=lj.FixedGain(1e4), save_every=20)
     exact = lj.lion(lj.Piecewise((-0.01, 0.01)), rec, **kw)
     ode = lj.lion(lj.Piecewise((-0.01, 0.01)), rec, stepper=lj.DiffraxStep(), **kw)
@@ -246,14 +246,19 @@ def test_normalised_law_converges():
 
 
 def test_jit_equals_no_jit(single):
-    rec = lj.Record(single.x[:3000], single.F[:3000], DT)
-    jitted = lj.lion(lj.MassDamper(), rec, save_every=100)
+    # disable_jit runs every op eagerly (slow): keep the records short.
+    rec = lj.Record(single.x[1000:1030], single.F[1000:1030], DT)
+    fast = lj.FilterBank.from_poles([-400.0, -400.0, -400.0], unit_dc_gain=True)
+    kw = dict(save_every=3, transient=0.005, gain=lj.AutoGain(50.0), bank=fast)
+    jitted = lj.lion(lj.MassDamper(), rec, **kw)
     with jax.disable_jit():
-        plain = lj.lion(lj.MassDamper(), rec, save_every=100)
+        plain = lj.lion(lj.MassDamper(), rec, **kw)
+    assert np.max(np.abs(np.asarray(jitted.theta[-1]))) > 0.1  # it moved
     np.testing.assert_allclose(jitted.theta, plain.theta, rtol=1e-10, atol=1e-12)
-    ls_j = lj.least_squares(lj.MassDamper(), rec)
+    rec = lj.Record(single.x[:100], single.F[:100], DT)
+    ls_j = lj.least_squares(lj.MassDamper(), rec, bank=fast)
     with jax.disable_jit():
-        ls_p = lj.least_squares(lj.MassDamper(), rec)
+        ls_p = lj.least_squares(lj.MassDamper(), rec, bank=fast)
     np.testing.assert_allclose(ls_j.theta, ls_p.theta, rtol=1e-10)
 
 
@@ -350,7 +355,7 @@ def test_bad_arguments(make, match):
 
 
 def test_bad_call_arguments():
-    rec = single_region_record(T=2000)
+    rec = single_region_record(T=3000)
     with pytest.raises(lj.InputError, match=r"theta0 must have shape \(2,\)"):
         lj.lion(lj.MassDamper(), rec, theta0=np.zeros(3))
     with pytest.raises(lj.InputError, match="G has shape"):
@@ -359,5 +364,9 @@ def test_bad_call_arguments():
         lj.lion(lj.MassDamper(), rec, save_every=0)
     with pytest.raises(lj.InputError, match="initial must be"):
         lj.least_squares(lj.MassDamper(), rec, initial="guess")
+    with pytest.raises(lj.InputError, match="shorter than the filter transient"):
+        lj.least_squares(lj.MassDamper(), lj.Record(rec.x[:500], rec.F[:500], DT))
+    with pytest.raises(lj.InputError, match="shorter than the filter transient"):
+        lj.lion(lj.MassDamper(), lj.Record(rec.x[:500], rec.F[:500], DT))
     with pytest.raises(lj.InputError, match="record must be"):
         lj.lion(lj.MassDamper(), (rec.x, rec.F))

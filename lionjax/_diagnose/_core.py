@@ -1,0 +1,631 @@
+"""``lionjax.diagnose``: where, which and how far is the sim-to-real gap (GUIDE §7).
+
+Works on recorded data alone (no twin, GUIDE §12 layer 3). Outline:
+
+1. **Settings from the record** (:func:`settings`): the filter Λ = (s + λ)³ with λ = 2π·f_s/25
+   rad/s (40 Hz at 1 kHz: fast enough that the filter does not bias real data — EMPS at 10 Hz is
+   biased 3–7 % — and well below Nyquist), a zero-phase velocity filter at 2.5λ for sgn ẋ, the
+   smoothed-sign scale v_ε = 2 % of the median |v̂|, the restart interval H and the profile grids.
+2. **Baseline**: ẍ + aẋ = bF by least squares on the filtered equation error ε₁ of the training
+   record (:mod:`._fit`).
+3. **Gap**, on the validation record: the windowed simulation error (restart every H seconds from
+   the estimated state; default H = 1/a clipped to [20·dt, 2 s], the mechanical time constant;
+   the state is x and v̂ from the zero-phase filter of step 1), the filtered equation error ε₁
+   with θ fixed from training, and the noise floor of ε₁ from the position/force noise estimated
+   by robust third differences (σ² = Var(Δ³)/20 for white noise).
+4. **Which**: every candidate fitted on training, scored on validation by
+   score = N_eff·ln(RSS_before/RSS_after) − p·ln N_eff (a validated likelihood ratio with a BIC
+   parsimony penalty; N_eff corrects the sample count for the residual's autocorrelation).
+   A candidate is *significant* when its score exceeds ``threshold``, its parameters are physical
+   (F_c > 0, F_max inside the force range …) and it removes at least ``min_share`` of the gap in
+   excess of the noise floor. Greedy stacking adds the best significant candidate until none is.
+5. **Verdict**: the first of the stack; ``none`` when nothing is significant and the gap is within
+   ``floor_factor`` of the noise floor; ``unexplained`` when a gap above it remains that no
+   candidate removes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._effects import LinearPosition, Offset, Spring, zero_phase_velocity
+from .._errors import InputError
+from .._filters import FilterBank
+from .._models import Augmented, MassDamper
+from .._record import Record
+from ._candidates import DEFAULT_CANDIDATES, AbstractCandidate, Context
+from ._fit import apply_input, fit_batch, impulse_gains, residual, simulate_windows
+
+# ----------------------------------------------------------------------------- settings
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """Record-derived settings of a diagnosis (all SI). See the module docstring."""
+
+    dt: float
+    filter_hz: float
+    velocity_hz: float
+    v_eps: float
+    window_s: float | None
+    tau_grid: tuple[float, ...]
+    fmax_grid: tuple[float, ...]
+    x_center: float
+    x_scale: float
+
+    def bank(self) -> FilterBank:
+        w = 2 * math.pi * self.filter_hz
+        return FilterBank.from_poles(np.full(3, -w), unit_dc_gain=True)
+
+    def context(self) -> Context:
+        return Context(2 * math.pi * self.velocity_hz, self.v_eps, self.x_center, self.x_scale)
+
+
+def settings(
+    train: Record, *, filter_hz: float | None = None, window_s: float | None = None
+) -> Settings:
+    """Settings adapted to the training record: sample rate, velocity and force ranges."""
+    dt = float(train.dt)
+    fs = 1.0 / dt
+    fh = fs / 25.0 if filter_hz is None else float(filter_hz)
+    if not (0 < fh < fs / 2):
+        raise InputError(
+            f"filter_hz: expected 0 < filter_hz < f_s/2 = {fs / 2:.6g} Hz, got {filter_hz!r}."
+        )
+    vh = min(2.5 * fh, 0.15 * fs)
+    x = np.asarray(train.x, np.float64)
+    v = np.asarray(zero_phase_velocity(train.x, dt, 2 * math.pi * vh))
+    med = float(np.median(np.abs(v)))
+    v_eps = max(0.02 * med, 1e-12)
+    Fa = np.abs(np.asarray(train.F, np.float64))
+    taus = dt * np.geomspace(0.25, 60.0, 28)
+    fq = np.quantile(Fa, np.linspace(0.3, 0.995, 28))
+    fq = np.unique(fq[fq > 0])
+    return Settings(
+        dt=dt,
+        filter_hz=fh,
+        velocity_hz=vh,
+        v_eps=v_eps,
+        window_s=window_s,
+        tau_grid=tuple(float(t) for t in taus),
+        fmax_grid=tuple(float(f) for f in fq),
+        x_center=float(np.mean(x)),
+        x_scale=float(max(np.std(x), 1e-12)),
+    )
+
+
+# ----------------------------------------------------------------------------- structures
+
+
+@dataclasses.dataclass(frozen=True)
+class Fitted:
+    """One structure fitted on training and scored on validation."""
+
+    names: tuple[str, ...]
+    theta: np.ndarray
+    std: np.ndarray
+    physical: dict[str, float]
+    tau: float
+    fmax: float
+    rss_train: float
+    ms_valid: float  # mean square ε₁ on validation
+    residual: np.ndarray  # ε₁ on validation
+    sim_error: np.ndarray  # windowed simulation error on validation [m]
+    condition: float
+
+    @property
+    def gap(self) -> float:
+        return float(np.sqrt(np.mean(self.sim_error**2)))
+
+    @property
+    def equation_gap(self) -> float:
+        return float(np.sqrt(self.ms_valid))
+
+
+def _effects_of(cands: Sequence[AbstractCandidate], ctx: Context):
+    out, seen = [], set()
+    for c in cands:
+        for e in c.effects(ctx):
+            if type(e) not in seen:
+                seen.add(type(e))
+                out.append(e)
+    return tuple(out)
+
+
+class _Fitter:
+    """Fits structures (lists of candidates) on the train record and scores them on validation."""
+
+    def __init__(self, train: Record, valid: Record, st: Settings):
+        self.train, self.valid, self.st = train, valid, st
+        self.bank = st.bank()
+        self.ctx = st.context()
+        self.H = None
+        dt = st.dt
+        wv = 2 * math.pi * st.velocity_hz
+        self.v_valid = zero_phase_velocity(valid.x, dt, wv)
+        lp = FilterBank.from_poles(np.full(3, -wv), unit_dc_gain=True)
+        fwd = lp(valid.x, dt, "foh")[:, 0]
+        self.x_valid_smooth = lp(fwd[::-1], dt, "foh")[::-1, 0]
+
+    def _model(self, cands):
+        return Augmented(MassDamper(), _effects_of(cands, self.ctx))
+
+    def _profile(self, model, tau, fmax, which):
+        st, dt = self.st, self.st.dt
+        F = self.train.F
+        grid = np.asarray(st.tau_grid if which == "tau" else st.fmax_grid)
+        if which == "tau":
+            Fs = jnp.stack([apply_input(F, dt, t, fmax) for t in grid])
+        else:
+            Fs = jnp.stack([apply_input(F, dt, tau, f) for f in grid])
+        th, rss, cov, cond = fit_batch(model, self.train.x, Fs, dt, self.bank)
+        rss = np.asarray(rss)
+        i = int(np.argmin(rss))
+        best = float(grid[i])
+        if 0 < i < len(grid) - 1:  # parabolic refinement (log grid for τ)
+            g = np.log(grid[i - 1 : i + 2]) if which == "tau" else grid[i - 1 : i + 2]
+            r = rss[i - 1 : i + 2]
+            den = (g[0] - g[1]) * (g[0] - g[2]) * (g[1] - g[2])
+            A = (g[2] * (r[1] - r[0]) + g[1] * (r[0] - r[2]) + g[0] * (r[2] - r[1])) / den
+            B = (g[2] ** 2 * (r[0] - r[1]) + g[1] ** 2 * (r[2] - r[0]) + g[0] ** 2 * (r[1] - r[2]))
+            if A > 0:
+                v = -B / den / (2 * A)
+                v = float(np.clip(v, g[0], g[2]))
+                best = float(np.exp(v)) if which == "tau" else v
+        return best
+
+    def fit(self, cands: Sequence[AbstractCandidate]) -> Fitted:
+        st, dt = self.st, self.st.dt
+        model = self._model(cands)
+        prof = [c.profiled for c in cands if c.profiled]
+        tau, fmax = 0.0, math.inf
+        for _ in range(2 if len(prof) > 1 else 1):
+            for which in prof:
+                val = self._profile(model, tau, fmax, which)
+                tau, fmax = (val, fmax) if which == "tau" else (tau, val)
+        u_tr = apply_input(self.train.F, dt, tau, fmax)
+        th, rss, cov, cond = fit_batch(model, self.train.x, u_tr[None], dt, self.bank)
+        theta = np.asarray(th[0])
+        std = np.sqrt(np.maximum(np.diag(np.asarray(cov[0])), 0))
+        u_va = apply_input(self.valid.F, dt, tau, fmax)
+        rec_va = Record(self.valid.x, u_va, dt)
+        r = np.asarray(residual(model, jnp.asarray(theta), rec_va, self.bank))
+        phys = {k: float(v) for k, v in model.physical(jnp.asarray(theta)).items()}
+        names = tuple(c.name for c in cands)
+        if tau > 0:
+            phys["tau"] = tau
+        if math.isfinite(fmax):
+            phys["Fmax"] = fmax
+        if "k" in phys and "F0" in phys:
+            phys["x0"] = phys["F0"] / phys["k"] if phys["k"] != 0 else math.nan
+        sim = self._simulate(phys, u_va, cands)
+        return Fitted(
+            names=names,
+            theta=theta,
+            std=std,
+            physical=phys,
+            tau=tau,
+            fmax=fmax,
+            rss_train=float(rss[0]),
+            ms_valid=float(np.mean(r**2)),
+            residual=r,
+            sim_error=sim,
+            condition=float(cond[0]),
+        )
+
+    def window(self, a: float) -> int:
+        if self.H is None:
+            dt = self.st.dt
+            Hs = self.st.window_s
+            if Hs is None:
+                Hs = 1.0 / a if a > 0 else 0.1
+                Hs = min(max(Hs, 20 * dt), 2.0)
+            n = int(round(Hs / dt))
+            if n < 2 or n > self.valid.n_samples:
+                raise InputError(
+                    f"window_s: the restart interval H = {Hs!r} s gives {n} samples; expected "
+                    f"2 … {self.valid.n_samples} (the validation record's length)."
+                )
+            self.H = n
+        return self.H
+
+    def _simulate(self, phys, u, cands):
+        p = {k: jnp.asarray(v) for k, v in phys.items() if k in ("a", "b", "F0", "Fc", "k")}
+        for k in ("da_dx", "db_dx"):
+            if k in phys:
+                p[k] = jnp.asarray(phys[k])
+                p["xc"] = jnp.asarray(self.st.x_center)
+        H = self.window(float(phys["a"]))
+        e = simulate_windows(
+            p, u, self.valid.x, self.x_valid_smooth, self.v_valid, self.st.dt, H
+        )
+        return np.asarray(e)[: (self.valid.n_samples // H) * H]
+
+
+# ----------------------------------------------------------------------------- statistics
+
+
+def _robust_diff_std(u: np.ndarray) -> float:
+    """σ of white noise on a smooth signal from its third differences: Var(Δ³n) = 20σ²."""
+    d = np.diff(u, 3)
+    if d.size == 0:
+        return 0.0
+    mad = 1.4826 * np.median(np.abs(d - np.median(d)))
+    if mad == 0:
+        q = np.quantile(np.abs(d), 0.9)
+        sel = d[np.abs(d) <= q]
+        mad = float(np.sqrt(np.mean(sel**2))) if sel.size else 0.0
+    return float(mad / math.sqrt(20.0))
+
+
+def _n_eff(r: np.ndarray) -> float:
+    """Effective number of independent samples of a correlated residual (Bartlett sum)."""
+    r = r - np.mean(r)
+    n = r.size
+    f = np.fft.rfft(r, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[:n]
+    ac = ac / ac[0] if ac[0] > 0 else ac
+    below = np.flatnonzero(ac < 0.05)
+    K = int(below[0]) if below.size else n
+    tau_int = 1.0 + 2.0 * float(np.sum(ac[1:K]))
+    return float(max(n / max(tau_int, 1.0), 10.0))
+
+
+# ----------------------------------------------------------------------------- result
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectScore:
+    """One candidate (alone on the baseline, or as added to the stack)."""
+
+    name: str
+    params: dict[str, float]
+    gap: float
+    shrink: float
+    equation_gap: float
+    equation_shrink: float
+    score: float
+    share: float
+    significant: bool
+    reason: str
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Diagnosis:
+    """The answer of :func:`lionjax.diagnose` (see GUIDE §7 for the JSON contract).
+
+    Attributes:
+        baseline: {"model", "params", "gap", …} of ẍ + aẋ = bF.
+        where: findings (dicts with ``kind``, ``band``, ``share`` …, see :mod:`._where`).
+        effects: every candidate alone on the baseline, best first.
+        stack: names of the significant effects in the order added.
+        verdict: ``stack[0]``, ``"none"`` or ``"unexplained"``.
+        final: the stacked model's physical parameters and its ``gap``.
+        noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
+        series: validation signals for plotting (not in the JSON).
+    """
+
+    baseline: dict[str, Any]
+    where: list[dict[str, Any]]
+    effects: list[EffectScore]
+    stack: list[str]
+    verdict: str
+    final: dict[str, Any]
+    noise: dict[str, float]
+    settings: dict[str, Any]
+    steps: list[EffectScore]
+    series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON payload (plain Python types; non-finite numbers become ``None``)."""
+
+        def clean(o):
+            if isinstance(o, dict):
+                return {str(k): clean(v) for k, v in o.items()}
+            if isinstance(o, list | tuple):
+                return [clean(v) for v in o]
+            if isinstance(o, np.generic):
+                o = o.item()
+            if isinstance(o, float):
+                return o if math.isfinite(o) else None
+            return o
+
+        return clean(
+            {
+                "baseline": self.baseline,
+                "where": self.where,
+                "effects": [e.to_json() for e in self.effects],
+                "stack": self.stack,
+                "verdict": self.verdict,
+                "final": self.final,
+                "steps": [e.to_json() for e in self.steps],
+                "noise": self.noise,
+                "settings": self.settings,
+            }
+        )
+
+
+_UNITS = {
+    "a": "1/s",
+    "b": "1/kg",
+    "Fc": "N",
+    "F0": "N",
+    "k": "N/m",
+    "x0": "m",
+    "tau": "s",
+    "Fmax": "N",
+    "da_dx": "1/(s·m)",
+    "db_dx": "1/(kg·m)",
+}
+
+_EFFECT_PARAMS = {
+    "coulomb_friction": ("Fc",),
+    "offset": ("F0",),
+    "spring": ("k", "x0"),
+    "delay": ("tau",),
+    "saturation": ("Fmax",),
+    "position_dependent": ("da_dx", "db_dx"),
+}
+
+
+def _params_of(name: str, phys: dict[str, float]) -> dict[str, float]:
+    keys = _EFFECT_PARAMS.get(name, ())
+    return {k: phys[k] for k in keys if k in phys}
+
+
+def _plausible(name: str, fit: Fitted, st: Settings, Fabs_max: float) -> str:
+    p = fit.physical
+    if name == "coulomb_friction" and not p.get("Fc", 0) > 0:
+        return "friction would push along the motion (F_c ≤ 0)"
+    if name == "saturation" and not fit.fmax < 0.99 * Fabs_max:
+        return "F_max is not below the largest force"
+    if name == "delay" and not fit.tau > 0:
+        return "no positive delay"
+    if not p.get("b", 1.0) > 0:
+        return "b ≤ 0"
+    return ""
+
+
+# ----------------------------------------------------------------------------- diagnose
+
+
+def diagnose(
+    train: Record,
+    valid: Record | None = None,
+    *,
+    candidates: Sequence[AbstractCandidate] = DEFAULT_CANDIDATES,
+    filter_hz: float | None = None,
+    window_s: float | None = None,
+    threshold: float = 10.0,
+    min_share: float = 0.3,
+    floor_factor: float = 1.5,
+    max_effects: int = 3,
+) -> Diagnosis:
+    """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record (GUIDE §7).
+
+    Arguments:
+        train: training record (x [m], F [N], uniform dt).
+        valid: validation record (default: ``train`` — then nothing is validated; pass one).
+        candidates: the effect library (default: ``coulomb_friction``, ``offset``, ``spring``,
+            ``delay``, ``saturation``, ``position_dependent``).
+        filter_hz: corner λ/2π [Hz] of the filter (s + λ)³ (default f_s/25).
+        window_s: restart interval H [s] of the windowed simulation error (default 1/a clipped
+            to [20·dt, 2 s]).
+        threshold: score (validated log-likelihood gain minus the BIC penalty) above which an
+            effect is significant.
+        min_share: least fraction of the excess gap (above the noise floor, in mean square) an
+            effect must remove to be named.
+        floor_factor: the gap is "at the noise floor" when ε₁'s rms ≤ floor_factor × floor.
+        max_effects: largest stack.
+
+    Returns:
+        a :class:`Diagnosis`; ``.to_json()`` gives the GUIDE §7 payload.
+    """
+    for nm, rec in (("train", train), ("valid", valid)):
+        if rec is not None and not isinstance(rec, Record):
+            raise InputError(
+                f"diagnose: argument {nm!r} must be a lionjax.Record (lionjax.load_record(path)), "
+                f"got {type(rec).__name__}."
+            )
+        if rec is not None and rec.x.ndim != 1:
+            raise InputError(
+                f"diagnose: argument {nm!r} must be one record, x of shape (T,), got "
+                f"{rec.x.shape}; loop over a batch."
+            )
+    valid = train if valid is None else valid
+    if abs(float(valid.dt) - float(train.dt)) > 1e-6 * float(train.dt):
+        raise InputError(
+            f"diagnose: train and valid must share the sample interval, got dt = "
+            f"{float(train.dt)!r} s and {float(valid.dt)!r} s; resample one of them."
+        )
+    if not 0 <= min_share < 1 or not threshold >= 0 or not floor_factor >= 1:
+        raise InputError(
+            "diagnose: expected 0 ≤ min_share < 1, threshold ≥ 0, floor_factor ≥ 1, got "
+            f"{min_share!r}, {threshold!r}, {floor_factor!r}."
+        )
+    names = [c.name for c in candidates]
+    if len(set(names)) != len(names):
+        raise InputError(f"diagnose: candidate names repeat: {names}.")
+    st = settings(train, filter_hz=filter_hz, window_s=window_s)
+    min_len = int(20 * 25 / (st.filter_hz * st.dt * 25)) if st.filter_hz else 0
+    for nm, rec in (("train", train), ("valid", valid)):
+        if rec.n_samples < max(min_len, 200):
+            raise InputError(
+                f"diagnose: the {nm} record has {rec.n_samples} samples; at least "
+                f"{max(min_len, 200)} are needed (20 filter time constants)."
+            )
+    fitter = _Fitter(train, valid, st)
+    base = fitter.fit([])
+    a, b = base.physical["a"], base.physical["b"]
+
+    # noise floor of ε₁ on the validation record
+    sx = _robust_diff_std(np.asarray(valid.x))
+    sF = _robust_diff_std(np.asarray(valid.F))
+    gx, gF = (float(g) for g in impulse_gains(fitter.bank, st.dt, a))
+    floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
+    n_eff = _n_eff(base.residual)
+    Fabs_max = float(np.max(np.abs(np.asarray(train.F))))
+
+    def excess(ms):
+        return max(ms - floor**2, 0.0)
+
+    def score_of(cur: Fitted, new: Fitted, p: int) -> float:
+        return n_eff * math.log(cur.ms_valid / max(new.ms_valid, 1e-300)) - p * math.log(n_eff)
+
+    def assess(cur, new, cand) -> EffectScore:
+        sc = score_of(cur, new, cand.n_params)
+        ex0 = excess(cur.ms_valid)
+        share = 1 - excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
+        why = _plausible(cand.name, new, st, Fabs_max)
+        sig = sc > threshold and share >= min_share and not why
+        if not why:
+            why = (
+                "significant"
+                if sig
+                else (f"score {sc:.3g} ≤ {threshold}" if sc <= threshold else "removes too little")
+            )
+        return EffectScore(
+            name=cand.name,
+            params=_params_of(cand.name, new.physical),
+            gap=new.gap,
+            shrink=1 - new.gap / base.gap if base.gap > 0 else 0.0,
+            equation_gap=new.equation_gap,
+            equation_shrink=1 - new.equation_gap / base.equation_gap,
+            score=sc,
+            share=share,
+            significant=bool(sig),
+            reason=why,
+        )
+
+    # every candidate alone
+    alone: dict[str, tuple[EffectScore, Fitted]] = {}
+    for c in candidates:
+        f = fitter.fit([c])
+        alone[c.name] = (assess(base, f, c), f)
+    effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
+
+    # greedy stacking
+    stack: list[AbstractCandidate] = []
+    steps: list[EffectScore] = []
+    cur = base
+    pool = list(candidates)
+    while pool and len(stack) < max_effects:
+        trials = []
+        for c in pool:
+            f = alone[c.name][1] if not stack else fitter.fit([*stack, c])
+            trials.append((assess(cur, f, c), f, c))
+        trials.sort(key=lambda t: -t[0].score)
+        best = next((t for t in trials if t[0].significant), None)
+        if best is None:
+            break
+        steps.append(best[0])
+        stack.append(best[2])
+        cur = best[1]
+        pool = [c for c in pool if c is not best[2]]
+        # a spring with equilibrium already carries the offset column (and vice versa)
+        if best[2].name in ("spring", "offset"):
+            pool = [c for c in pool if c.name != "offset"]
+
+    at_floor = base.equation_gap <= floor_factor * floor
+    if stack:
+        verdict = stack[0].name
+    elif at_floor:
+        verdict = "none"
+    else:
+        verdict = "unexplained"
+
+    final_params = {k: v for k, v in cur.physical.items()}
+    if "spring" in [c.name for c in stack] and "offset" not in [c.name for c in stack]:
+        final_params.pop("F0", None)
+    elif "x0" in final_params and "spring" not in [c.name for c in stack]:
+        final_params.pop("x0", None)
+    final = {
+        "model": "MassDamper+" + "+".join(c.name for c in stack) if stack else "MassDamper",
+        "params": final_params,
+        "units": {k: _UNITS.get(k, "") for k in final_params},
+        "std": _std_physical(cur),
+        "gap": cur.gap,
+        "shrink": 1 - cur.gap / base.gap if base.gap > 0 else 0.0,
+        "equation_gap": cur.equation_gap,
+        "equation_shrink": 1 - cur.equation_gap / base.equation_gap,
+        "remaining_excess_share": (
+            excess(cur.ms_valid) / excess(base.ms_valid) if excess(base.ms_valid) > 0 else 0.0
+        ),
+    }
+    final.update(final_params)
+    from ._where import where_findings
+
+    series = {
+        "t": np.asarray(valid.t),
+        "x": np.asarray(valid.x),
+        "F": np.asarray(valid.F),
+        "v": np.asarray(fitter.v_valid),
+        "residual_base": base.residual,
+        "residual_final": cur.residual,
+        "sim_base": base.sim_error,
+        "sim_final": cur.sim_error,
+        "H": np.asarray(fitter.H),
+    }
+    where = where_findings(series, st, floor)
+    baseline = {
+        "model": "MassDamper",
+        "params": {"a": a, "b": b},
+        "units": {"a": "1/s", "b": "1/kg"},
+        "std": {"a": float(base.std[0]), "b": float(base.std[1])},
+        "gap": base.gap,
+        "gap_units": "m",
+        "gap_relative": base.gap / max(float(np.std(np.asarray(valid.x))), 1e-300),
+        "equation_gap": base.equation_gap,
+        "equation_gap_units": "m/s²",
+        "noise_floor": floor,
+        "at_noise_floor": bool(at_floor),
+        "condition": base.condition,
+    }
+    return Diagnosis(
+        baseline=baseline,
+        where=where,
+        effects=effects,
+        stack=[c.name for c in stack],
+        verdict=verdict,
+        final=final,
+        noise={
+            "position_std": sx,
+            "force_std": sF,
+            "equation_floor": floor,
+            "n_effective": n_eff,
+        },
+        settings={
+            "dt": st.dt,
+            "filter_hz": st.filter_hz,
+            "velocity_filter_hz": st.velocity_hz,
+            "v_eps": st.v_eps,
+            "window_s": fitter.H * st.dt,
+            "window_note": (
+                "windowed simulation restarts every window_s seconds from x and v̂ of a "
+                "zero-phase (s+ω)³ low-pass/derivative filter at velocity_filter_hz"
+            ),
+            "threshold": threshold,
+            "min_share": min_share,
+            "floor_factor": floor_factor,
+        },
+        steps=steps,
+        series=series,
+    )
+
+
+def _std_physical(f: Fitted) -> dict[str, float]:
+    """First-order standard deviations of a, b (nominal, lower bounds: rows are correlated)."""
+    return {"a": float(f.std[0]), "b": float(f.std[1])}
+
+
+__all__ = ["Diagnosis", "EffectScore", "diagnose", "settings", "Settings"]
+_ = (LinearPosition, Offset, Spring)

@@ -1,0 +1,148 @@
+"""Candidate *regressor* effects for identification and diagnosis (GUIDE §6, layer 1).
+
+Sign convention of the augmented model (fixed, GUIDE §6; effects act on the force, in N):
+
+    ẍ + aẋ = b·(F_applied + F₀ − F_c·sgn(ẋ) − k·(x − x₀)),   F_applied = sat_Fmax(F(t − τ)).
+
+Every effect here is linear in its parameters and adds :class:`~lionjax.Column` s to the model
+through :class:`~lionjax.Augmented`; its parameters are b times the physical ones, and
+:meth:`physical` divides by b. With ε₁ = V₃ + aV₂ − bQ₁ + … (GUIDE §2), the columns are
+
+- offset       −(1/Λ)[1]            parameter b·F₀                          (:class:`Offset`)
+- Coulomb      +(1/Λ)[sgñ v̂]         parameter b·F_c                         (:class:`Coulomb`)
+- spring       +(1/Λ)[x]  (+ offset)  parameter b·k (with equilibrium: b·(F₀ + k·x₀) on [1])  (:class:`Spring`)
+- position     +(s/Λ)[ℓξ²/2], −(1/Λ)[ξ·F], ξ = (x − x_c)/ℓ: parameters a₁, b₁ of
+  a(x) = a + a₁ξ, b(x) = b + b₁ξ (exact: ξẋ = d/dt(ℓξ²/2), the §3 construction) (:class:`LinearPosition`)
+
+sgñ v̂ = tanh(v̂/v_ε) is a smoothed sign of a zero-phase derivative-filter velocity v̂: x is
+passed forward and backward through the low-pass λₙ/Λ_v(s) = (ω/(s + ω))³ and differentiated by
+central differences. Delay and saturation are not linear in their parameter; the diagnosis
+profiles them (:mod:`lionjax._diagnose`).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._checks import concrete
+from ._errors import InputError
+from ._filters import FilterBank, Hold
+from ._models import AbstractEffect, Column, Offset
+from ._record import Record
+
+__all__ = ["Coulomb", "LinearPosition", "Offset", "Spring", "zero_phase_velocity"]
+
+
+def zero_phase_velocity(x: Float[Array, " T"], dt: ArrayLike, omega: ArrayLike) -> Float[Array, " T"]:
+    """Velocity [m/s] of x [m] by a zero-phase derivative filter.
+
+    x is low-passed forward and backward by (ω/(s + ω))³ (``FilterBank`` with unit DC gain,
+    exact first-order-hold discretisation), then differentiated by central differences. The
+    net filter is |ω²/(s² + ω²)|³·s: no phase lag, so reversals are located without delay.
+
+    Arguments:
+        x: positions, shape ``(T,)`` [m]; dt: sample interval [s]; omega: ω [rad/s] > 0.
+    """
+    bank = FilterBank.from_poles(-jnp.full((3,), omega), unit_dc_gain=True)
+    fwd = bank(x, dt, "foh")[:, 0]
+    bwd = bank(fwd[::-1], dt, "foh")[::-1, 0]
+    return jnp.gradient(bwd, dt)
+
+
+class Coulomb(AbstractEffect):
+    """Coulomb friction F_c·sgn(ẋ) [N]: column +(1/Λ)[tanh(v̂/v_ε)], parameter b·F_c.
+
+    Attributes:
+        omega: bandwidth ω [rad/s] of the zero-phase velocity filter (:func:`zero_phase_velocity`).
+        v_eps: velocity scale v_ε [m/s] of the smoothed sign.
+    """
+
+    omega: Float[Array, ""]
+    v_eps: Float[Array, ""]
+
+    def __init__(self, omega: ArrayLike, v_eps: ArrayLike):
+        self.omega = jnp.asarray(omega, jnp.result_type(float))
+        self.v_eps = jnp.asarray(v_eps, jnp.result_type(float))
+        for name in ("omega", "v_eps"):
+            c = concrete(getattr(self, name))
+            if c is not None and not np.all(c > 0):
+                raise InputError(
+                    f"Coulomb: argument {name!r} must be > 0 (omega in rad/s, v_eps in m/s), "
+                    f"got {c.tolist()}."
+                )
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("bFc",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("sgn_v", 0, 1.0),)
+
+    def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
+        v = zero_phase_velocity(record.x, record.dt, self.omega)
+        return {"sgn_v": (jnp.tanh(v / self.v_eps), "foh")}
+
+    def physical(self, theta: Array, b: Array) -> dict[str, Array]:
+        return {"Fc": theta[..., 0] / b}
+
+
+class Spring(AbstractEffect):
+    """Spring force −k·x [N]: column +(1/Λ)[x], parameter b·k.
+
+    With an equilibrium, −k(x − x₀) = −kx + kx₀: the constant kx₀ is an :class:`Offset` column,
+    so a spring with equilibrium is ``(Spring(), Offset())`` and x₀ = F₀/k when no separate
+    offset is assumed (a spring's equilibrium and a constant force are the same column).
+    """
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("bk",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("x_spring", 0, 1.0),)
+
+    def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
+        return {"x_spring": (record.x, "foh")}
+
+    def physical(self, theta: Array, b: Array) -> dict[str, Array]:
+        return {"k": theta[..., 0] / b}
+
+
+class LinearPosition(AbstractEffect):
+    """Position-dependent coefficients a(x) = a + a₁ξ, b(x) = b + b₁ξ, ξ = (x − x_c)/ℓ.
+
+    Exact columns (GUIDE §3): a₁ξẋ = d/dt(ℓξ²/2) → +(s/Λ)[ℓξ²/2]; b₁ξF → −(1/Λ)[ξF].
+    :meth:`physical` reports da/dx = a₁/ℓ [1/(s·m)] and db/dx = b₁/ℓ [1/(kg·m)].
+
+    Attributes:
+        center: x_c [m]; scale: ℓ [m] > 0 (the diagnosis uses the training record's mean and std).
+    """
+
+    center: Float[Array, ""]
+    scale: Float[Array, ""]
+
+    def __init__(self, center: ArrayLike, scale: ArrayLike):
+        self.center = jnp.asarray(center, jnp.result_type(float))
+        self.scale = jnp.asarray(scale, jnp.result_type(float))
+        c = concrete(self.scale)
+        if c is not None and not np.all(c > 0):
+            raise InputError(
+                f"LinearPosition: argument 'scale' must be > 0 [m], got {c.tolist()}; pass the "
+                "spread of the record's positions."
+            )
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("a1", "b1")
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("g_pos", 1, 1.0), Column("xiF", 0, -1.0))
+
+    def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
+        xi = (record.x - self.center) / self.scale
+        return {"g_pos": (0.5 * self.scale * xi**2, "foh"), "xiF": (xi * record.F, "zoh")}
+
+    def physical(self, theta: Array, b: Array) -> dict[str, Array]:
+        return {"da_dx": theta[..., 0] / self.scale, "db_dx": theta[..., 1] / self.scale}
