@@ -1,10 +1,28 @@
 """lionjax: Lion's identification method in JAX, a device twin, and sim-to-real diagnosis."""
 
-from . import datasets as datasets, twin as twin
+from . import datasets as datasets
+from . import twin as twin
 
-# --- experiments (issue 3) ---
 # --- studies and batched estimation (issue 4) ---
 # --- diagnosis (issue 5) ---
+from ._diagnose import (
+    AbstractCandidate as AbstractCandidate,
+)
+from ._diagnose import (
+    Diagnosis as Diagnosis,
+)
+from ._diagnose import (
+    diagnose as diagnose,
+)
+from ._effects import (
+    Coulomb as Coulomb,
+)
+from ._effects import (
+    LinearPosition as LinearPosition,
+)
+from ._effects import (
+    Spring as Spring,
+)
 from ._errors import (
     RESULTS as RESULTS,
 )
@@ -46,6 +64,71 @@ from ._estimators import (
 )
 from ._estimators import (
     lion as lion,
+)
+
+# --- experiments (issue 3) ---
+from ._experiments import (
+    Calibration as Calibration,
+)
+from ._experiments import (
+    EffectCase as EffectCase,
+)
+from ._experiments import (
+    EffectRow as EffectRow,
+)
+from ._experiments import (
+    Identification as Identification,
+)
+from ._experiments import (
+    LionSettings as LionSettings,
+)
+from ._experiments import (
+    PaperConfig as PaperConfig,
+)
+from ._experiments import (
+    PaperResult as PaperResult,
+)
+from ._experiments import (
+    PaperTable as PaperTable,
+)
+from ._experiments import (
+    Verification as Verification,
+)
+from ._experiments import (
+    calibrate_force as calibrate_force,
+)
+from ._experiments import (
+    effect_study as effect_study,
+)
+from ._experiments import (
+    identify_records as identify_records,
+)
+from ._experiments import (
+    identify_regions as identify_regions,
+)
+from ._experiments import (
+    paper_records as paper_records,
+)
+from ._experiments import (
+    paper_table as paper_table,
+)
+from ._experiments import (
+    realistic_effects as realistic_effects,
+)
+from ._experiments import (
+    reproduce_paper as reproduce_paper,
+)
+from ._experiments import (
+    twin_runs as twin_runs,
+)
+from ._experiments import (
+    verification_record as verification_record,
+)
+from ._experiments import (
+    verify as verify,
+)
+from ._figures import (
+    paper_figures as paper_figures,
 )
 from ._filters import FilterBank as FilterBank
 from ._io import (

@@ -677,6 +677,7 @@ def _lion_batched(
         records.extras,
     )
     sig_vals = jax.vmap(lambda r: {k: v[0] for k, v in model.signals(r).items()})(full)
+    order = list(model.signals(rec0))  # the plan's signal order (a dict out of vmap is sorted)
     masked = lengths is not None
     dt = jnp.broadcast_to(jnp.asarray(records.dt, dtype), (B,))
     length = (
@@ -709,10 +710,10 @@ def _lion_batched(
             jax.vmap(lambda b, u0: b.steady_state(u0), in_axes=(0 if batched_bank else None, 0))(
                 bank, sig_vals[k][:, 0]
             )
-            for k in sig_vals
+            for k in order
         ]
     ).astype(dtype)  # (S, B, n)
-    U = jnp.stack([sig_vals[k] for k in sig_vals]).astype(dtype)  # (S, B, T)
+    U = jnp.stack([sig_vals[k] for k in order]).astype(dtype)  # (S, B, T)
 
     def plan(**kw):
         base = dict(

@@ -8,11 +8,12 @@ Every effect here is linear in its parameters and adds :class:`~lionjax.Column` 
 through :class:`~lionjax.Augmented`; its parameters are b times the physical ones, and
 :meth:`physical` divides by b. With ε₁ = V₃ + aV₂ − bQ₁ + … (GUIDE §2), the columns are
 
-- offset       −(1/Λ)[1]            parameter b·F₀                          (:class:`Offset`)
-- Coulomb      +(1/Λ)[sgñ v̂]         parameter b·F_c                         (:class:`Coulomb`)
-- spring       +(1/Λ)[x]  (+ offset)  parameter b·k (with equilibrium: b·(F₀ + k·x₀) on [1])  (:class:`Spring`)
-- position     +(s/Λ)[ℓξ²/2], −(1/Λ)[ξ·F], ξ = (x − x_c)/ℓ: parameters a₁, b₁ of
-  a(x) = a + a₁ξ, b(x) = b + b₁ξ (exact: ξẋ = d/dt(ℓξ²/2), the §3 construction) (:class:`LinearPosition`)
+- offset (:class:`Offset`): −(1/Λ)[1], parameter b·F₀;
+- Coulomb (:class:`Coulomb`): +(1/Λ)[sgñ v̂], parameter b·F_c;
+- spring (:class:`Spring`): +(1/Λ)[x], parameter b·k; with an equilibrium add the offset
+  column, whose parameter is then b·(F₀ + k·x₀);
+- position (:class:`LinearPosition`): +(s/Λ)[ℓξ²/2], −(1/Λ)[ξ·F], ξ = (x − x_c)/ℓ, parameters
+  a₁, b₁ of a(x) = a + a₁ξ, b(x) = b + b₁ξ (exact: ξẋ = d/dt(ℓξ²/2), the §3 construction).
 
 sgñ v̂ = tanh(v̂/v_ε) is a smoothed sign of a zero-phase derivative-filter velocity v̂: x is
 passed forward and backward through the low-pass λₙ/Λ_v(s) = (ω/(s + ω))³ and differentiated by
@@ -22,6 +23,7 @@ profiles them (:mod:`lionjax._diagnose`).
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -32,23 +34,41 @@ from ._filters import FilterBank, Hold
 from ._models import AbstractEffect, Column, Offset
 from ._record import Record
 
-__all__ = ["Coulomb", "LinearPosition", "Offset", "Spring", "zero_phase_velocity"]
+__all__ = [
+    "Coulomb",
+    "LinearPosition",
+    "Offset",
+    "Spring",
+    "zero_phase_lowpass",
+    "zero_phase_velocity",
+]
 
 
-def zero_phase_velocity(x: Float[Array, " T"], dt: ArrayLike, omega: ArrayLike) -> Float[Array, " T"]:
+@eqx.filter_jit
+def zero_phase_lowpass(
+    x: Float[Array, " T"], dt: ArrayLike, omega: ArrayLike
+) -> Float[Array, " T"]:
+    """x low-passed forward and backward by (ω/(s + ω))³ (unit DC gain, first-order hold):
+    the zero-phase smoother |ω²/(s² + ω²)|³ [same unit as x]; ω in rad/s."""
+    bank = FilterBank.from_poles(-jnp.full((3,), omega), unit_dc_gain=True)
+    fwd = bank(x, dt, "foh")[:, 0]
+    return bank(fwd[::-1], dt, "foh")[::-1, 0]
+
+
+@eqx.filter_jit
+def zero_phase_velocity(
+    x: Float[Array, " T"], dt: ArrayLike, omega: ArrayLike
+) -> Float[Array, " T"]:
     """Velocity [m/s] of x [m] by a zero-phase derivative filter.
 
-    x is low-passed forward and backward by (ω/(s + ω))³ (``FilterBank`` with unit DC gain,
-    exact first-order-hold discretisation), then differentiated by central differences. The
-    net filter is |ω²/(s² + ω²)|³·s: no phase lag, so reversals are located without delay.
+    x is smoothed by :func:`zero_phase_lowpass` (forward and backward through (ω/(s + ω))³),
+    then differentiated by central differences: no phase lag, so reversals are located without
+    delay.
 
     Arguments:
         x: positions, shape ``(T,)`` [m]; dt: sample interval [s]; omega: ω [rad/s] > 0.
     """
-    bank = FilterBank.from_poles(-jnp.full((3,), omega), unit_dc_gain=True)
-    fwd = bank(x, dt, "foh")[:, 0]
-    bwd = bank(fwd[::-1], dt, "foh")[::-1, 0]
-    return jnp.gradient(bwd, dt)
+    return jnp.gradient(zero_phase_lowpass(x, dt, omega), dt)
 
 
 class Coulomb(AbstractEffect):

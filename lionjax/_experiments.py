@@ -920,8 +920,8 @@ def effect_study(
         )
         out = []
         for d in range(recs.x.shape[0]):
-            rec_d = jax.tree.map(lambda z: z[d], recs)
-            ver_d = jax.tree.map(lambda z: z[d], vers)
+            rec_d = jax.tree.map(lambda z, d=d: z[d], recs)
+            ver_d = jax.tree.map(lambda z, d=d: z[d], vers)
             a, b, _ = identify_regions(rec_d, settings, save_every=config.save_every)
             out.append((a, b, verify(a, b, ver_d, config).nrmse))
         return out
@@ -1007,12 +1007,14 @@ def reproduce_paper(
     say = progress or (lambda s: None)
     k_cal, k_run = jax.random.split(key)
     say(
-        f"calibration: {len(config.calibration_points)} points × {len(config.calibration_levels)} set forces"
+        f"calibration: {len(config.calibration_points)} points × "
+        f"{len(config.calibration_levels)} set forces"
     )
     cal = calibrate_force(config, key=k_cal)
     R, I, K = config.shape
     say(
-        f"twin records: {R} operating points × {I} inputs × {K} repetitions of {config.duration:g} s, and the verification record"
+        f"twin records: {R} operating points × {I} inputs × {K} repetitions of "
+        f"{config.duration:g} s, and the verification record"
     )
     recs, vers = twin_runs(config, key=k_run, calibration_gain=cal.gain)
     recs = jax.tree.map(lambda z: z[0], recs)

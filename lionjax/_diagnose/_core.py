@@ -34,13 +34,20 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from .._effects import LinearPosition, Offset, Spring, zero_phase_velocity
+from .._effects import zero_phase_lowpass, zero_phase_velocity
 from .._errors import InputError
 from .._filters import FilterBank
 from .._models import Augmented, MassDamper
 from .._record import Record
 from ._candidates import DEFAULT_CANDIDATES, AbstractCandidate, Context
-from ._fit import apply_input, fit_batch, impulse_gains, residual, simulate_windows
+from ._fit import (
+    Regressors,
+    apply_input,
+    fit_batch,
+    impulse_gains,
+    residual,
+    simulate_windows,
+)
 
 # ----------------------------------------------------------------------------- settings
 
@@ -149,23 +156,21 @@ class _Fitter:
         dt = st.dt
         wv = 2 * math.pi * st.velocity_hz
         self.v_valid = zero_phase_velocity(valid.x, dt, wv)
-        lp = FilterBank.from_poles(np.full(3, -wv), unit_dc_gain=True)
-        fwd = lp(valid.x, dt, "foh")[:, 0]
-        self.x_valid_smooth = lp(fwd[::-1], dt, "foh")[::-1, 0]
+        self.x_valid_smooth = zero_phase_lowpass(valid.x, dt, wv)
+        self.rtr = Regressors(train, self.bank)
+        self.rva = Regressors(valid, self.bank)
 
     def _model(self, cands):
         return Augmented(MassDamper(), _effects_of(cands, self.ctx))
 
     def _profile(self, model, tau, fmax, which):
-        st, dt = self.st, self.st.dt
-        F = self.train.F
+        st = self.st
         grid = np.asarray(st.tau_grid if which == "tau" else st.fmax_grid)
         if which == "tau":
-            Fs = jnp.stack([apply_input(F, dt, t, fmax) for t in grid])
+            inputs = [(float(t), fmax) for t in grid]
         else:
-            Fs = jnp.stack([apply_input(F, dt, tau, f) for f in grid])
-        th, rss, cov, cond = fit_batch(model, self.train.x, Fs, dt, self.bank)
-        rss = np.asarray(rss)
+            inputs = [(tau, float(f)) for f in grid]
+        rss = fit_batch(self.rtr, model, inputs)[1]
         i = int(np.argmin(rss))
         best = float(grid[i])
         if 0 < i < len(grid) - 1:  # parabolic refinement (log grid for τ)
@@ -173,7 +178,7 @@ class _Fitter:
             r = rss[i - 1 : i + 2]
             den = (g[0] - g[1]) * (g[0] - g[2]) * (g[1] - g[2])
             A = (g[2] * (r[1] - r[0]) + g[1] * (r[0] - r[2]) + g[0] * (r[2] - r[1])) / den
-            B = (g[2] ** 2 * (r[0] - r[1]) + g[1] ** 2 * (r[2] - r[0]) + g[0] ** 2 * (r[1] - r[2]))
+            B = g[2] ** 2 * (r[0] - r[1]) + g[1] ** 2 * (r[2] - r[0]) + g[0] ** 2 * (r[1] - r[2])
             if A > 0:
                 v = -B / den / (2 * A)
                 v = float(np.clip(v, g[0], g[2]))
@@ -181,7 +186,7 @@ class _Fitter:
         return best
 
     def fit(self, cands: Sequence[AbstractCandidate]) -> Fitted:
-        st, dt = self.st, self.st.dt
+        dt = self.st.dt
         model = self._model(cands)
         prof = [c.profiled for c in cands if c.profiled]
         tau, fmax = 0.0, math.inf
@@ -189,13 +194,11 @@ class _Fitter:
             for which in prof:
                 val = self._profile(model, tau, fmax, which)
                 tau, fmax = (val, fmax) if which == "tau" else (tau, val)
-        u_tr = apply_input(self.train.F, dt, tau, fmax)
-        th, rss, cov, cond = fit_batch(model, self.train.x, u_tr[None], dt, self.bank)
-        theta = np.asarray(th[0])
-        std = np.sqrt(np.maximum(np.diag(np.asarray(cov[0])), 0))
+        th, rss, cov, cond = fit_batch(self.rtr, model, [(tau, fmax)])
+        theta = th[0]
+        std = np.sqrt(np.maximum(np.diag(cov[0]), 0))
         u_va = apply_input(self.valid.F, dt, tau, fmax)
-        rec_va = Record(self.valid.x, u_va, dt)
-        r = np.asarray(residual(model, jnp.asarray(theta), rec_va, self.bank))
+        r = residual(self.rva, model, theta, (tau, fmax))
         phys = {k: float(v) for k, v in model.physical(jnp.asarray(theta)).items()}
         names = tuple(c.name for c in cands)
         if tau > 0:
@@ -236,15 +239,11 @@ class _Fitter:
         return self.H
 
     def _simulate(self, phys, u, cands):
-        p = {k: jnp.asarray(v) for k, v in phys.items() if k in ("a", "b", "F0", "Fc", "k")}
-        for k in ("da_dx", "db_dx"):
-            if k in phys:
-                p[k] = jnp.asarray(phys[k])
-                p["xc"] = jnp.asarray(self.st.x_center)
+        keys = ("a", "b", "F0", "Fc", "k", "da_dx", "db_dx")
+        p = {k: jnp.asarray(float(phys.get(k, 0.0))) for k in keys}
+        p["xc"] = jnp.asarray(self.st.x_center)
         H = self.window(float(phys["a"]))
-        e = simulate_windows(
-            p, u, self.valid.x, self.x_valid_smooth, self.v_valid, self.st.dt, H
-        )
+        e = simulate_windows(p, u, self.valid.x, self.x_valid_smooth, self.v_valid, self.st.dt, H)
         return np.asarray(e)[: (self.valid.n_samples // H) * H]
 
 
@@ -535,6 +534,26 @@ def diagnose(
         if best[2].name in ("spring", "offset"):
             pool = [c for c in pool if c.name != "offset"]
 
+    # parsimony pass: a spring added while other effects were missing may stand for a mere
+    # offset (closed loop: a constant force shifts the equilibrium); keep the simpler structure
+    # unless the spring's stiffness is itself significant on validation data.
+    names_now = [c.name for c in stack]
+    if "spring" in names_now and "offset" not in names_now:
+        off = next((c for c in candidates if c.name == "offset"), None)
+        if off is not None:
+            alt = [off if c.name == "spring" else c for c in stack]
+            f_alt = fitter.fit(alt)
+            if score_of(f_alt, cur, 1) <= threshold:
+                stack, cur = alt, f_alt
+                steps = [
+                    dataclasses.replace(
+                        s, name="offset", params=_params_of("offset", f_alt.physical)
+                    )
+                    if s.name == "spring"
+                    else s
+                    for s in steps
+                ]
+
     at_floor = base.equation_gap <= floor_factor * floor
     if stack:
         verdict = stack[0].name
@@ -627,5 +646,4 @@ def _std_physical(f: Fitted) -> dict[str, float]:
     return {"a": float(f.std[0]), "b": float(f.std[1])}
 
 
-__all__ = ["Diagnosis", "EffectScore", "diagnose", "settings", "Settings"]
-_ = (LinearPosition, Offset, Spring)
+__all__ = ["Diagnosis", "EffectScore", "Settings", "diagnose", "settings"]

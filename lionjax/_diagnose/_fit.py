@@ -13,9 +13,12 @@ does) with the core's regressors and filter bank.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._filters import FilterBank
@@ -35,59 +38,114 @@ def apply_input(F: Float[Array, " T"], dt, tau, fmax) -> Float[Array, " T"]:
     return jnp.clip(Fd, -fmax, fmax)
 
 
-def _design(model: AbstractModel, record: Record, bank: FilterBank):
-    regs = model.regressors(record, bank)
-    T = record.n_samples
-    N = bank.free_response(record.dt, T)[:, :, 0]  # (T, n): V₁ of each free response
-    return regs.W[:, 0, :], regs.W0[:, 0], N.astype(regs.W.dtype)
-
-
-def _lstsq(Phi, y):
-    norms = jnp.sqrt(jnp.sum(Phi * Phi, axis=0))
-    scale = jnp.where(norms > 0, norms, 1.0)
-    U, s, Vt = jnp.linalg.svd(Phi / scale, full_matrices=False)
-    keep = s > s[0] * 1e-12
-    sinv = jnp.where(keep, 1.0 / jnp.where(keep, s, 1.0), 0.0)
-    coef = (Vt.T * sinv) @ (U.T @ y)
-    cond = s[0] / jnp.maximum(s[-1], jnp.finfo(s.dtype).tiny)
-    cov_n = (Vt.T * sinv**2) @ Vt
-    return coef / scale, cov_n / scale[:, None] / scale[None, :], cond
-
-
-def _fit_one(model, x, F, dt, bank):
-    rec = Record(x, F, dt)
-    W1, W01, N = _design(model, rec, bank)
-    p = W1.shape[1]
-    Phi = jnp.concatenate([W1, N], axis=1)
-    coef, cov, cond = _lstsq(Phi, -W01)
-    r = Phi @ coef + W01
-    rss = jnp.sum(r * r)
-    sigma2 = rss / jnp.maximum(r.shape[0] - Phi.shape[1], 1)
-    return coef[:p], rss, sigma2 * cov[:p, :p], cond
+@eqx.filter_jit
+def _filter(bank: FilterBank, u, dt, hold: str):
+    return bank(u, dt, hold)
 
 
 @eqx.filter_jit
-def fit_batch(
-    model: AbstractModel, x: Float[Array, " T"], Fs: Float[Array, "G T"], dt, bank: FilterBank
-):
-    """ε₁ least squares for each force variant in ``Fs`` (the profile grid of τ or F_max).
+def _filter_batch(bank: FilterBank, U, dt, hold: str):
+    return jax.vmap(lambda u: bank(u, dt, hold))(U)
 
-    Returns θ ``(G, p)``, the training RSS ``(G,)``, the nominal covariance σ²(ΦᵀΦ)⁻¹
-    ``(G, p, p)`` and the condition number ``(G,)`` of the column-normalised regressors.
+
+@eqx.filter_jit
+def free_response(bank: FilterBank, dt, T: int):
+    return bank.free_response(dt, T)[:, :, 0]
+
+
+class Regressors:
+    """ε₁ regressors of :class:`~lionjax.Augmented` structures on one record, built from the
+    models' own :meth:`signals`/:meth:`columns` (as :meth:`AbstractModel.regressors` does), with
+    every raw signal filtered once and cached: many structures and profile grids share them.
+
+    The input u = sat_Fmax(F(t − τ)) replaces F in every signal that uses it (``"F"`` and the
+    position-dependent ``ξ·F``); ``variants`` holds the filtered grid of such signals.
     """
-    return jax.vmap(lambda F: _fit_one(model, x, F, dt, bank))(Fs)
+
+    def __init__(self, record: Record, bank: FilterBank):
+        self.record, self.bank = record, bank
+        self.cache: dict = {}
+        self.N = np.asarray(free_response(bank, record.dt, record.n_samples))
+
+    def filtered(self, model: AbstractModel, inputs: Sequence[tuple[float, float]]):
+        """{signal: (G, T, 4)} for each input map (τ, F_max) in ``inputs``."""
+        rec = self.record
+        out = {}
+        base = model.signals(rec)
+        F_dep = {"F", "xiF", "F_1"}
+        for name, (u, hold) in base.items():
+            if name not in F_dep:
+                key = (name, None)
+                if key not in self.cache:
+                    self.cache[key] = np.asarray(_filter(self.bank, u, rec.dt, hold))[None]
+                out[name] = np.broadcast_to(
+                    self.cache[key], (len(inputs),) + self.cache[key].shape[1:]
+                )
+        need = [n for n in base if n in F_dep]
+        for n in need:
+            missing = [i for i in inputs if (n, i) not in self.cache]
+            if missing:
+                us = [apply_input(rec.F, rec.dt, t, f) for t, f in missing]
+                sigs = [model.signals(Record(rec.x, uu, rec.dt))[n] for uu in us]
+                U = jnp.stack([sg[0] for sg in sigs])
+                V = np.asarray(_filter_batch(self.bank, U, rec.dt, sigs[0][1]))
+                for i, v in zip(missing, V, strict=True):
+                    self.cache[(n, i)] = v
+            out[n] = np.stack([self.cache[(n, i)] for i in inputs])
+        return out
+
+    def design(self, model: AbstractModel, inputs: Sequence[tuple[float, float]]):
+        """(W₁ (G, T, p), W₀₁ (T,)) for the first equation error."""
+        filt = self.filtered(model, inputs)
+        cols = [c.sign * filt[c.signal][:, :, c.order] for c in model.columns()]
+        return np.stack(cols, axis=-1), filt["x"][0, :, 2]
 
 
-@eqx.filter_jit
-def residual(
-    model: AbstractModel, theta: Float[Array, " p"], record: Record, bank: FilterBank
-) -> Float[Array, " T"]:
-    """ε₁ at every sample of ``record`` for fixed θ (validation): only the filter's
-    initial-state nuisance coefficients are refitted on this record."""
-    W1, W01, N = _design(model, record, bank)
-    r0 = W1 @ theta + W01
-    eta, _, _ = _lstsq(N, -r0)
-    return r0 + N @ eta
+def lstsq(Phi: np.ndarray, y: np.ndarray):
+    """Column-normalised least squares by the normal equations (eigen-decomposition of the
+    p×p Gram matrix; float64, condition numbers ≲ 1e6 here): (coef, (ΦᵀΦ)⁻¹, condition number
+    of the normalised Φ)."""
+    norms = np.sqrt(np.sum(Phi * Phi, axis=0))
+    scale = np.where(norms > 0, norms, 1.0)
+    Pn = Phi / scale
+    G = Pn.T @ Pn
+    lam, V = np.linalg.eigh(G)
+    keep = lam > lam[-1] * 1e-24
+    inv = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
+    Ginv = (V * inv) @ V.T
+    coef = Ginv @ (Pn.T @ y)
+    cond = float(np.sqrt(lam[-1] / max(lam[0], np.finfo(lam.dtype).tiny)))
+    return coef / scale, Ginv / scale[:, None] / scale[None, :], cond
+
+
+def fit_batch(regs: Regressors, model: AbstractModel, inputs):
+    """ε₁ least squares on the training record for each input map (τ, F_max) in ``inputs``.
+
+    Returns θ ``(G, p)``, the RSS ``(G,)``, σ²(ΦᵀΦ)⁻¹ ``(G, p, p)`` and condition numbers.
+    """
+    W, W0 = regs.design(model, inputs)
+    p = W.shape[-1]
+    th, rss, cov, cond = [], [], [], []
+    for g in range(W.shape[0]):
+        Phi = np.concatenate([W[g], regs.N], axis=1)
+        coef, c, k = lstsq(Phi, -W0)
+        r = Phi @ coef + W0
+        rs = float(r @ r)
+        s2 = rs / max(r.size - Phi.shape[1], 1)
+        th.append(coef[:p])
+        rss.append(rs)
+        cov.append(s2 * c[:p, :p])
+        cond.append(k)
+    return np.array(th), np.array(rss), np.array(cov), np.array(cond)
+
+
+def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
+    """ε₁ on ``regs.record`` for fixed θ (validation): only the filter's initial-state
+    nuisance coefficients are refitted on this record."""
+    W, W0 = regs.design(model, [inp])
+    r0 = W[0] @ theta + W0
+    eta = lstsq(regs.N, -r0)[0]
+    return r0 + regs.N @ eta
 
 
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[Array, Array]:
@@ -109,17 +167,14 @@ def _step(x, v, c, a, h):
     """Exact step of ẍ = −aẋ + c over h with c held (series for small a·h)."""
     ah = a * h
     small = jnp.abs(ah) < 1e-6
-    ahs = jnp.where(small, 1.0, ah)
     e = jnp.exp(-ah)
     phi1 = jnp.where(small, h * (1 - ah / 2), (1 - e) / jnp.where(small, 1.0, a))
     phi2 = jnp.where(small, h * h / 2 * (1 - ah / 3), (h - phi1) / jnp.where(small, 1.0, a))
-    del ahs
     return x + v * phi1 + c * phi2, v * e + c * phi1
 
 
-@eqx.filter_jit
 def simulate_windows(
-    p: dict[str, Array],
+    p: dict[str, float],
     u: Float[Array, " T"],
     x_meas: Float[Array, " T"],
     x_start: Float[Array, " T"],
@@ -135,21 +190,25 @@ def simulate_windows(
     within a step while the other forces stay inside ±F_c. Each window starts from the estimated
     state (x_start, v_start) at its first sample.
     """
+    return _simulate_windows(p, u, x_meas, x_start, v_start, dt, H)
+
+
+@eqx.filter_jit
+def _simulate_windows(p, u, x_meas, x_start, v_start, dt, H):
     T = u.shape[0]
     nw = T // H
     Tn = nw * H
     idx = jnp.arange(Tn).reshape(nw, H)
     u_w, xm_w = u[idx], x_meas[idx]
     x0, v0 = x_start[idx[:, 0]], v_start[idx[:, 0]]
-    a, b = p["a"], p["b"]
-    Fc = p.get("Fc", 0.0)
+    a, b, Fc = p["a"], p["b"], p["Fc"]
 
     def body(carry, k):
         x, v = carry
-        dx = x - p.get("xc", 0.0)
-        ak = a + p.get("da_dx", 0.0) * dx
-        bk = b + p.get("db_dx", 0.0) * dx
-        other = u_w[:, k] + p.get("F0", 0.0) + p.get("c", 0.0) - p.get("k", 0.0) * x
+        dx = x - p["xc"]
+        ak = a + p["da_dx"] * dx
+        bk = b + p["db_dx"] * dx
+        other = u_w[:, k] + p["F0"] - p["k"] * x
         s = jnp.sign(v)
         s = jnp.where(s == 0, jnp.sign(other) * (jnp.abs(other) > Fc), s)
         x1, v1 = _step(x, v, bk * (other - Fc * s), ak, dt)

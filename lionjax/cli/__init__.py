@@ -12,7 +12,7 @@ import importlib
 import re
 import sys
 
-SUBCOMMANDS = ("identify",)
+SUBCOMMANDS = ("identify", "reproduce", "diagnose")
 
 
 def _enable_x64() -> None:

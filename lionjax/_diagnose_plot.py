@@ -1,0 +1,73 @@
+"""One-page figure of a :class:`~lionjax.Diagnosis` (layer 4; matplotlib, Agg, imported lazily)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import InputError
+
+
+def plot_diagnosis(diagnosis, path: str | Path):
+    """Write a one-page summary of ``diagnosis`` to ``path`` (format from the extension).
+
+    Panels: measured position vs the windowed simulations of the baseline and the stacked model
+    (restarts every H s); the filtered equation error ε₁ before and after; the residual's shares
+    by band (the 'where' findings); the candidates ranked by score with their shrink.
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+    except ImportError as e:  # pragma: no cover
+        raise ImportError("plotting needs matplotlib: pip install lionjax[plot]") from e
+    path = Path(path)
+    if path.parent and not path.parent.exists():
+        raise InputError(f"--plot: folder {str(path.parent)!r} does not exist; create it first.")
+    s = diagnosis.series
+    t = s["t"]
+    n = s["sim_base"].size
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
+    a = ax[0, 0]
+    a.plot(t[:n], s["x"][:n] * 1e3, "k", lw=1.2, label="measured")
+    a.plot(t[:n], (s["x"][:n] + s["sim_base"]) * 1e3, "C1", lw=0.8, label="model (baseline)")
+    a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * 1e3, "C0", lw=0.8, label="augmented model")
+    a.set(
+        xlabel="t [s]", ylabel="x [mm]", title=f"validation, restarts every {float(s['H'])} samples"
+    )
+    a.legend(fontsize=8)
+    a = ax[0, 1]
+    a.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")
+    a.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
+    floor = diagnosis.noise["equation_floor"]
+    a.axhspan(-floor, floor, color="0.85", label="noise floor (±1σ)")
+    a.set(xlabel="t [s]", ylabel="ε₁ [m/s²]", title="filtered equation error")
+    a.legend(fontsize=8)
+    a = ax[1, 0]
+    bands = [w for w in diagnosis.where if w.get("share") is not None and "fraction" in w]
+    labels = [f"{w['kind']}: {w['band']}" for w in bands]
+    y = np.arange(len(bands))
+    a.barh(y, [w["share"] for w in bands], color="C3", label="share of residual")
+    a.barh(y, [w["fraction"] for w in bands], fill=False, edgecolor="k", label="share of samples")
+    a.set_yticks(y, labels, fontsize=6)
+    a.invert_yaxis()
+    a.set(xlabel="share", title="where: residual by band")
+    a.legend(fontsize=7)
+    a = ax[1, 1]
+    eff = diagnosis.effects
+    y = np.arange(len(eff))
+    colors = ["C2" if e.significant else "0.6" for e in eff]
+    a.barh(y, [e.shrink for e in eff], color=colors)
+    a.set_yticks(y, [f"{e.name} (score {e.score:.3g})" for e in eff], fontsize=8)
+    a.invert_yaxis()
+    a.axvline(0, color="k", lw=0.5)
+    a.set(
+        xlabel="shrink of the simulation gap (green: significant)",
+        title=f"which: verdict {diagnosis.verdict}; stack {', '.join(diagnosis.stack) or '—'}",
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,122 @@
+"""lionjax.diagnose: the JSON contract, EMPS against the published table, the CLI, bad input,
+and a small blind evaluation on twin records (benchmarks/diagnosis_blind.py)."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lionjax as lj
+from lionjax.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import diagnosis_blind as blind  # noqa: E402
+
+FIXED = ("coulomb_friction", "offset", "spring", "delay", "saturation", "position_dependent")
+
+
+@pytest.fixture(scope="module")
+def emps():
+    tr = lj.datasets.emps("estimation")
+    va = lj.datasets.emps("validation")
+    return lj.diagnose(tr, va)
+
+
+def test_emps_against_published(emps):
+    R = lj.datasets.EMPS_REFERENCE
+    j = emps.to_json()
+    assert j["verdict"] == "coulomb_friction"
+    assert j["stack"][0] == "coulomb_friction" and "offset" in j["stack"]
+    p = j["final"]["params"]
+    M = 1 / p["b"]
+    assert M == pytest.approx(R.M, rel=0.02)
+    assert p["a"] * M == pytest.approx(R.Fv, rel=0.02)
+    assert p["Fc"] == pytest.approx(R.Fc, rel=0.02)
+    assert p["F0"] == pytest.approx(R.F0, rel=0.02)  # F0 = −offset = +3.1648 N
+    assert j["final"]["gap"] < j["baseline"]["gap"]
+
+
+def test_json_contract(emps):
+    j = json.loads(json.dumps(emps.to_json()))
+    assert set(j["baseline"]) >= {"model", "params", "gap"}
+    assert isinstance(j["where"], list) and all("kind" in w for w in j["where"])
+    assert {e["name"] for e in j["effects"]} == set(FIXED)
+    scores = [e["score"] for e in j["effects"]]
+    assert scores == sorted(scores, reverse=True)
+    for e in j["effects"]:
+        assert set(e) >= {"name", "params", "gap", "shrink", "significant"}
+        assert e["shrink"] == pytest.approx(1 - e["gap"] / j["baseline"]["gap"])
+    assert j["verdict"] in (*j["stack"][:1], "none", "unexplained")
+    assert "gap" in j["final"] and "Fc" in j["final"]
+    kinds = {w["kind"] for w in j["where"]}
+    assert kinds >= {"position", "velocity", "force", "frequency", "time", "whiteness"}
+
+
+def test_cli_roundtrip_and_plot(tmp_path):
+    tr, va, _ = blind.make_case("offset", 11, duration=2.0)
+    for name, r in (("train", tr), ("valid", va)):
+        t = np.asarray(r.t)
+        data = np.c_[t, np.asarray(r.x), np.asarray(r.F) / 2.0]
+        np.savetxt(tmp_path / f"{name}.csv", data, delimiter=",", header="time,pos,u", comments="")
+    out, png = tmp_path / "out.json", tmp_path / "out.png"
+    rc = main(
+        [
+            "diagnose",
+            str(tmp_path / "train.csv"),
+            "--validate",
+            str(tmp_path / "valid.csv"),
+            "--columns",
+            "t=time,x=pos,F=u",
+            "--force-scale",
+            "2.0",
+            "--json",
+            str(out),
+            "--plot",
+            str(png),
+        ]
+    )
+    assert rc == 0
+    j = json.loads(out.read_text())
+    assert j["verdict"] == "offset" and j["stack"] == ["offset"]
+    assert png.stat().st_size > 10_000
+
+
+def test_cli_refuses_nonuniform(tmp_path, capsys):
+    t = np.cumsum(np.r_[0, np.full(999, 1e-3)])
+    t[500:] += 3e-4
+    np.savetxt(
+        tmp_path / "a.csv",
+        np.c_[t, np.sin(t), np.cos(t)],
+        delimiter=",",
+        header="t,x,F",
+        comments="",
+    )
+    rc = main(["diagnose", str(tmp_path / "a.csv")])
+    assert rc == 2
+    assert "not uniform" in capsys.readouterr().err
+
+
+def test_bad_arguments():
+    rec = lj.Record(np.zeros(1000), np.zeros(1000), 1e-3)
+    with pytest.raises(lj.InputError, match="valid"):
+        lj.diagnose(rec, "nope")
+    with pytest.raises(lj.InputError, match="filter_hz"):
+        lj.diagnose(rec, filter_hz=900.0)
+    other = lj.Record(np.zeros(1000), np.zeros(1000), 2e-3)
+    with pytest.raises(lj.InputError, match="sample interval"):
+        lj.diagnose(rec, other)
+
+
+def test_blind_small():
+    classes = ("none", *FIXED, "coulomb_friction+offset", "flexible_mode")
+    out = blind.run(per_class=1, seed0=500, classes=classes, duration=2.5)
+    rows = out["records"]
+    single = [r for r in rows if r["class"] in FIXED]
+    assert np.mean([r["verdict"] == r["class"] for r in single]) >= 5 / 6
+    clean = [r for r in rows if r["class"] == "none"]
+    assert all(r["verdict"] == "none" for r in clean)
+    ool = [r for r in rows if r["class"] == "flexible_mode"]
+    assert all(r["verdict"] == "unexplained" for r in ool)
