@@ -92,11 +92,7 @@ def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array,
     # --- series branch: M ← I + (−Z)M/k, M = aI + bZ; Z² = tr·Z − det·I.
     tr = jnp.where(small, zp + zr, 0.0)
     det = jnp.where(small, zp * zr - zq * zq, 0.0)
-    a = jnp.ones_like(m)
-    b = jnp.zeros_like(m)
-    for k in range(_series_terms(dtype), 1, -1):
-        # (−Z)(aI + bZ) = −aZ − b(tr Z − det I) = b·det I − (a + b·tr) Z
-        a, b = 1.0 + (b * det) / k, -(a + b * tr) / k
+    a, b = _series(tr, det, dtype)
     s_p, s_q, s_r = a + b * zp, b * zq, a + b * zr
     # --- eigen branch (values where ρ > 1; guarded inputs elsewhere).
     mm = jnp.where(small, 2.0, m)
@@ -116,10 +112,11 @@ def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array,
     ebar_far = 0.5 * (ep + em)
     g_far = (ep - em) / (2.0 * ddf)
     e = jnp.exp(-mm)
-    E0 = -jnp.expm1(-mm) / mm
-    E1 = (e - E0) / mm
-    E2 = (-e - 2.0 * E1) / mm
-    E3 = (e - 3.0 * E2) / mm
+    im = 1.0 / mm
+    E0 = (1.0 - e) * im  # m > 1/2 here: no cancellation
+    E1 = (e - E0) * im
+    E2 = (-e - 2.0 * E1) * im
+    E3 = (e - 3.0 * E2) * im
     dn2 = jnp.where(near, dd * dd, 0.0)
     ebar = jnp.where(near, E0 + 0.5 * E2 * dn2, ebar_far)
     g = jnp.where(near, E1 + E3 * dn2 / 6.0, g_far)
@@ -133,7 +130,29 @@ def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array,
     )
 
 
-def exact_step(theta, W1, W2, y1, y2, G, h, c=None):
+def _phi_switch(zp, zq, zr):
+    """:func:`phi_sym2`, evaluating only the series when every element of the batch is in its
+    range (ρ ≤ 1, the usual case h·‖GWᵀW‖ ≪ 1); the same values, fewer operations."""
+    small = jnp.all(0.5 * (zp + zr) + jnp.sqrt(0.25 * (zp - zr) ** 2 + zq * zq) <= 1.0)
+    return jax.lax.cond(small, _phi_series, phi_sym2, zp, zq, zr)
+
+
+def _phi_series(zp, zq, zr):
+    a, b = _series(zp + zr, zp * zr - zq * zq, jnp.result_type(zp, zq, zr))
+    return a + b * zp, b * zq, a + b * zr
+
+
+def _series(tr, det, dtype):
+    """E(Z) = αI + βZ from the series Σ (−Z)ⁿ/(n+1)! in Horner form (Cayley–Hamilton)."""
+    a = jnp.ones_like(tr)
+    b = jnp.zeros_like(tr)
+    for k in range(_series_terms(dtype), 1, -1):
+        # (−Z)(aI + bZ) = −aZ − b(tr Z − det I) = b·det I − (a + b·tr) Z
+        a, b = 1.0 + (b * det) * (1.0 / k), (a + b * tr) * (-1.0 / k)
+    return a, b
+
+
+def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None):
     """One exact step of θ̇ = −c·G Wᵀ(Wθ + W₀) over h, elementwise over any batch shape.
 
     Arguments (lists of arrays, all broadcastable): ``theta`` (p entries), ``W1``/``W2`` the
@@ -151,7 +170,7 @@ def exact_step(theta, W1, W2, y1, y2, G, h, c=None):
     S22 = sum(W2[i] * GW2[i] for i in range(p))
     e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
     e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
-    ep, eq, er = phi_sym2(h * S11, h * S12, h * S22)
+    ep, eq, er = (phi_sym2 if phi is None else phi)(h * S11, h * S12, h * S22)
     f1 = h * (ep * e1 + eq * e2)
     f2 = h * (eq * e1 + er * e2)
     return [theta[i] - (GW1[i] * f1 + GW2[i] * f2) for i in range(p)]
@@ -274,8 +293,8 @@ def _regressors(plan: _Plan, V, z, u):
 
 
 def _kernel(plan: _Plan, U, shared, per):
-    """Run one shard. U: (S, T, Bs) raw signals (time-major). Returns a dict of outputs."""
-    S, T, Bs = U.shape
+    """Run one shard. U: (T, S, Bs) raw signals (time-major). Returns a dict of outputs."""
+    T, S, Bs = U.shape
     dtype = U.dtype
     n, p = plan.n, len(plan.columns)
     coef = per["coef"] if "coef" in per else shared["coef"]  # dict of filter coefficients
@@ -309,7 +328,7 @@ def _kernel(plan: _Plan, U, shared, per):
     z0 = per["z0"]  # (S, n, Bs)
     carry = {
         "z": [[z0[s, i] for i in range(n)] for s in range(S)],
-        "u": [U[s, 0] for s in range(S)],
+        "u": [U[0, s] for s in range(S)],
         "k": jnp.zeros((), jnp.int32),
     }
     zero = jnp.zeros((Bs,), dtype)
@@ -365,7 +384,7 @@ def _kernel(plan: _Plan, U, shared, per):
             if plan.normalised:
                 cn = 1.0 / (1.0 + shared["mu"] * sum(w * w for w in W1 + W2))
             Gl = [[Gm[i, j] for j in range(p)] for i in range(p)]
-            th = exact_step(theta, W1, W2, y1, y2, Gl, h, cn)
+            th = exact_step(theta, W1, W2, y1, y2, Gl, h, cn, phi=_phi_switch)
             if plan.masked:
                 th = [jnp.where(act, a, b) for a, b in zip(th, theta, strict=True)]
             new["theta"] = th
@@ -395,8 +414,8 @@ def _kernel(plan: _Plan, U, shared, per):
         return new
 
     def run_chunk(c, ublk):
-        """ublk: (S, L, Bs) inputs u[k+1] for the L steps of this chunk."""
-        L = ublk.shape[1]
+        """ublk: (L, S, Bs) inputs u[k+1] for the L steps of this chunk."""
+        L = ublk.shape[0]
         local = {}
         if plan.ls:
             local["ls"] = [zero] * (len(c["ls"]) - 1)  # npp + p + 1 sums (then n)
@@ -406,7 +425,9 @@ def _kernel(plan: _Plan, U, shared, per):
             local["tail"] = [zero] * (2 * p + 1)
         cc = dict(c)
         for j in range(L):
-            cc = one(cc, [ublk[s, j] for s in range(S)], local)
+            cc = one(cc, [ublk[j, s] for s in range(S)], local)
+            if L > 1:  # materialise the carry: XLA would otherwise re-fuse (and re-compute)
+                cc, local = jax.lax.optimization_barrier((cc, local))
         if plan.ls:
             cc["ls"] = [a + b for a, b in zip(c["ls"], local["ls"] + [local["n"]], strict=True)]
         if plan.track:
@@ -417,17 +438,17 @@ def _kernel(plan: _Plan, U, shared, per):
     C = plan.chunk
     steps = T - 1
     nc, rem = divmod(steps, C)
-    body_in = U[:, 1 : 1 + nc * C].reshape(S, nc, C, Bs).transpose(1, 0, 2, 3)
+    body_in = U[1 : 1 + nc * C].reshape(nc, C, S, Bs)
     traj = None
     if plan.save_chunks:
         g = plan.save_chunks
         ng, nrest = divmod(nc, g)
 
-        def group(c, blk):  # blk: (g, S, C, Bs)
+        def group(c, blk):  # blk: (g, C, S, Bs)
             c, _ = jax.lax.scan(lambda cc, b: (run_chunk(cc, b), None), c, blk)
             return c, jnp.stack(c["theta"])
 
-        grp = body_in[: ng * g].reshape(ng, g, S, C, Bs)
+        grp = body_in[: ng * g].reshape(ng, g, C, S, Bs)
         carry, traj = jax.lax.scan(group, carry, grp)
         rest = body_in[ng * g :]
     else:
@@ -435,7 +456,7 @@ def _kernel(plan: _Plan, U, shared, per):
     if rest.shape[0]:
         carry, _ = jax.lax.scan(lambda cc, b: (run_chunk(cc, b), None), carry, rest)
     if rem:
-        carry = run_chunk(carry, U[:, 1 + nc * C :])
+        carry = run_chunk(carry, U[1 + nc * C :])
 
     out: dict[str, Any] = {}
     z, u = carry["z"], carry["u"]
@@ -713,7 +734,8 @@ def _lion_batched(
             for k in order
         ]
     ).astype(dtype)  # (S, B, n)
-    U = jnp.stack([sig_vals[k] for k in order]).astype(dtype)  # (S, B, T)
+    # time-major (T, S, B): one transpose, then every step reads contiguous (B,) rows
+    U = jnp.stack([sig_vals[k].T for k in order], axis=1).astype(dtype)
 
     def plan(**kw):
         base = dict(
@@ -733,14 +755,14 @@ def _lion_batched(
             per.pop("coef")
         # everything per-element: batch axis last
         perT = jax.tree.map(lambda a: jnp.moveaxis(a, 0, -1), per)
-        UT = jnp.swapaxes(U, 1, 2)  # (S, T, B)
+        UT = U
         perT["z0"] = jnp.moveaxis(z0, 1, -1)  # (S, n, B)
         mesh = _mesh() if shard else None
         f = lambda u, pe, sh: _kernel(pl, u, sh, pe)
         if mesh is not None and B % mesh.size == 0:
             spec_last = lambda a: PartitionSpec(*([None] * (a.ndim - 1) + ["batch"]))
             in_specs = (
-                PartitionSpec(None, None, "batch"),
+                PartitionSpec(None, None, "batch"),  # (T, S, B)
                 jax.tree.map(spec_last, perT),
                 jax.tree.map(lambda a: PartitionSpec(), shared),
             )

@@ -56,7 +56,7 @@ def test_json_contract(emps):
 
 
 def test_cli_roundtrip_and_plot(tmp_path):
-    tr, va, _ = blind.make_case("offset", 11, duration=2.0)
+    tr, va, _ = blind.make_case("offset", 11, duration=2.5)
     for name, r in (("train", tr), ("valid", va)):
         t = np.asarray(r.t)
         data = np.c_[t, np.asarray(r.x), np.asarray(r.F) / 2.0]
