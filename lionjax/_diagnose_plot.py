@@ -29,15 +29,30 @@ def plot_diagnosis(diagnosis, path: str | Path):
     s = diagnosis.series
     t = s["t"]
     n = s["sim_base"].size
-    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
-    a = ax[0, 0]
+    fig = plt.figure(figsize=(12, 9))
+    grid = fig.add_gridspec(2, 2)
+    top = grid[0, 0].subgridspec(2, 1, height_ratios=(2, 1), hspace=0.05)
+    ax = np.empty((2, 2), dtype=object)
+    ax[0, 1], ax[1, 0], ax[1, 1] = (
+        fig.add_subplot(grid[i, j]) for i, j in ((0, 1), (1, 0), (1, 1))
+    )
+    a = fig.add_subplot(top[0])
+    e = fig.add_subplot(top[1], sharex=a)
+    dt = float(t[1] - t[0]) if t.size > 1 else 1.0
     a.plot(t[:n], s["x"][:n] * 1e3, "k", lw=1.2, label="measured")
     a.plot(t[:n], (s["x"][:n] + s["sim_base"]) * 1e3, "C1", lw=0.8, label="model (baseline)")
     a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * 1e3, "C0", lw=0.8, label="augmented model")
     a.set(
-        xlabel="t [s]", ylabel="x [mm]", title=f"validation, restarts every {float(s['H'])} samples"
+        ylabel="x [mm]",
+        title=f"validation: windowed simulation, restart every {float(s['H']):.0f} samples "
+        f"({float(s['H']) * dt:.3g} s)",
     )
+    a.tick_params(labelbottom=False)
     a.legend(fontsize=8)
+    e.plot(t[:n], s["sim_base"] * 1e6, "C1", lw=0.6, label="baseline − measured")
+    e.plot(t[:n], s["sim_final"] * 1e6, "C0", lw=0.6, label="augmented − measured")
+    e.set(xlabel="t [s]", ylabel="sim. error [µm]")
+    e.legend(fontsize=7)
     a = ax[0, 1]
     a.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")
     a.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
@@ -65,7 +80,7 @@ def plot_diagnosis(diagnosis, path: str | Path):
     a.axvline(0, color="k", lw=0.5)
     a.set(
         xlabel="shrink of the simulation gap (green: significant)",
-        title=f"which: verdict {diagnosis.verdict}; stack {', '.join(diagnosis.stack) or '—'}",
+        title=f"which: verdict {diagnosis.verdict}\nstack: {', '.join(diagnosis.stack) or '—'}",
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
