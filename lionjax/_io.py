@@ -32,8 +32,7 @@ from typing import Any
 import numpy as np
 
 from ._errors import InputError
-from ._record import JITTER_TOLERANCE, MIN_SAMPLES, Record
-from ._record import resample as _resample
+from ._record import JITTER_TOLERANCE, MIN_SAMPLES, Record, resample as _resample
 
 logger = logging.getLogger(__name__)
 

@@ -71,8 +71,16 @@ def test_identify_columns_and_options(files, capsys):
     code, _, err = _run(["identify", files / "renamed.csv"], capsys)
     assert code == 2 and "renamed.csv" in err and "--columns" in err
     code, text, _ = _run(
-        ["identify", files / "renamed.csv", "--columns", "t=time,x=pos,F=force",
-         "--poles", "-5,-6,-7", "--x-hold", "foh"],
+        [
+            "identify",
+            files / "renamed.csv",
+            "--columns",
+            "t=time,x=pos,F=force",
+            "--poles",
+            "-5,-6,-7",
+            "--x-hold",
+            "foh",
+        ],
         capsys,
     )
     assert code == 0 and "MassDamper by ls" in text

@@ -1,0 +1,526 @@
+"""Throughput of Lion's batched estimator: lionjax against numba, numpy and naive JAX, in ONE run.
+
+The benchmark law (every implementation runs exactly this): the mass–damper ẍ + aẋ = bF,
+Λ = (s + 4)³ with unit DC gain, x filtered under a first-order hold, F under a zero-order hold
+(exact discretisation), midpoint regressors and the exact closed-form θ step
+θ ← θ − h·G Wᵀ E(hWGWᵀ)(Wθ + W₀), E(Z) = (I − e^{−Z})Z⁻¹ (``law = "exact"``), fixed G.
+
+    python benchmarks/throughput.py --batch 4096 --samples 8000 --dtype float32 --json out.json
+
+msps = million sample-updates per second = datasets × samples / seconds (min of ≥ 5 repeats
+after a warm-up, ``block_until_ready``). Compile time is reported separately; peak memory is the
+process's resident-set growth over each stage. Results of numba/numpy must equal lionjax's final
+θ within the stated tolerance (float64: 1e-9 relative, float32: 2e-3 relative).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    # one XLA CPU device runs a loop on one core: give XLA one host device per core
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "")
+        + f" --xla_force_host_platform_device_count={os.cpu_count() or 1}"
+    ).strip()
+
+import argparse
+import json
+import platform
+import resource
+import time
+
+import numpy as np
+
+ROOFLINE_MSPS = 1000.0  # GUIDE §9: ~1 G sample-updates/s on this 2-core machine
+
+
+def rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def best_time(fn, repeats: int) -> float:
+    fn()  # warm-up
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return min(ts)
+
+
+# ----------------------------------------------------------------------------------------------
+# data: a mass–damper per dataset (a, b spread ±20 %), multisine + noise force, exact zoh sim
+
+
+def make_data(B: int, T: int, dt: float, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    a = 22.0 * (1 + 0.2 * rng.uniform(-1, 1, B))
+    b = 1.916 * (1 + 0.2 * rng.uniform(-1, 1, B))
+    t = np.arange(T) * dt
+    freqs = np.array([0.7, 2.3, 5.1, 9.7])
+    ph = rng.uniform(0, 2 * np.pi, (B, 4))
+    F = np.zeros((B, T))
+    for j, f in enumerate(freqs):
+        F += 0.3 / (1 + j) * np.sin(2 * np.pi * f * t[None] + ph[:, j : j + 1])
+    F += 0.02 * rng.normal(size=(B, T))
+    # exact zero-order-hold step of (x, v): v' = -a v + b F
+    e = np.exp(-a * dt)
+    x = np.zeros((B, T))
+    xk = np.zeros(B)
+    vk = np.zeros(B)
+    for k in range(T):
+        x[:, k] = xk
+        u = F[:, k]
+        vinf = b * u / a
+        dv = vk - vinf
+        xk = xk + vinf * dt + dv * (1 - e) / a
+        vk = vinf + dv * e
+    return x, F
+
+
+# ----------------------------------------------------------------------------------------------
+# numba: one dataset per thread, scalar code, the same exact-step math (fastmath off)
+
+NUMBA_SRC = """
+@njit(parallel=True, fastmath=False, cache=False)
+def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
+    B, T = x.shape
+    NT = {nterms}
+    for bi in prange(B):
+        zx0 = x[bi, 0] / lam[2]; zx1 = R(0.0); zx2 = R(0.0)
+        zf0 = F[bi, 0] / lam[2]; zf1 = R(0.0); zf2 = R(0.0)
+        th0 = R(0.0); th1 = R(0.0)
+        ux = x[bi, 0]; uf = F[bi, 0]
+        for k in range(T - 1):
+            ux1 = x[bi, k + 1]; uf1 = F[bi, k + 1]
+            dux = ux1 - ux
+            nx0 = Phi[0, 0] * zx0 + Phi[0, 1] * zx1 + Phi[0, 2] * zx2 + G0[0] * ux + G1[0] * dux
+            nx1 = Phi[1, 0] * zx0 + Phi[1, 1] * zx1 + Phi[1, 2] * zx2 + G0[1] * ux + G1[1] * dux
+            nx2 = Phi[2, 0] * zx0 + Phi[2, 1] * zx1 + Phi[2, 2] * zx2 + G0[2] * ux + G1[2] * dux
+            nf0 = Phi[0, 0] * zf0 + Phi[0, 1] * zf1 + Phi[0, 2] * zf2 + G0[0] * uf
+            nf1 = Phi[1, 0] * zf0 + Phi[1, 1] * zf1 + Phi[1, 2] * zf2 + G0[1] * uf
+            nf2 = Phi[2, 0] * zf0 + Phi[2, 1] * zf1 + Phi[2, 2] * zf2 + G0[2] * uf
+            # midpoint regressors
+            mx0 = R(0.5) * (zx0 + nx0); mx1 = R(0.5) * (zx1 + nx1); mx2 = R(0.5) * (zx2 + nx2)
+            mf0 = R(0.5) * (zf0 + nf0); mf1 = R(0.5) * (zf1 + nf1)
+            mux = R(0.5) * (ux + ux1)
+            w11 = cdc * mx1; w21 = cdc * mx2
+            w12 = -cdc * mf0; w22 = -cdc * mf1
+            y1 = cdc * mx2
+            y2 = cdc * (mux - (lam[2] * mx0 + lam[1] * mx1 + lam[0] * mx2))
+            g11 = Gm[0, 0] * w11 + Gm[0, 1] * w12; g21 = Gm[1, 0] * w11 + Gm[1, 1] * w12
+            g12 = Gm[0, 0] * w21 + Gm[0, 1] * w22; g22 = Gm[1, 0] * w21 + Gm[1, 1] * w22
+            zp = h * (w11 * g11 + w12 * g21)
+            zq = h * (w11 * g12 + w12 * g22)
+            zr = h * (w21 * g12 + w22 * g22)
+            e1 = w11 * th0 + w12 * th1 + y1
+            e2 = w21 * th0 + w22 * th1 + y2
+            m = R(0.5) * (zp + zr); hd = R(0.5) * (zp - zr)
+            d = np.sqrt(hd * hd + zq * zq)
+            if m + d <= R(1.0):
+                tr = zp + zr; det = zp * zr - zq * zq
+                a = R(1.0); b = R(0.0)
+                for kk in range(NT, 1, -1):
+                    rk = R(1.0) / R(kk)
+                    a, b = R(1.0) + (b * det) * rk, -(a + b * tr) * rk
+                ep = a + b * zp; eq = b * zq; er = a + b * zr
+            else:
+                if d < R({thr}) * m:
+                    e = np.exp(-m); im = R(1.0) / m
+                    E0 = (R(1.0) - e) * im; E1 = (e - E0) * im
+                    E2 = (-e - R(2.0) * E1) * im; E3 = (e - R(3.0) * E2) * im
+                    ebar = E0 + R(0.5) * E2 * d * d; g = E1 + E3 * d * d / R(6.0)
+                else:
+                    lp = m + d; lm = m - d
+                    ep_ = -np.expm1(-lp) / lp
+                    em_ = R(1.0) - R(0.5) * lm if lm < R(1e-6) else -np.expm1(-lm) / lm
+                    ebar = R(0.5) * (ep_ + em_); g = (ep_ - em_) / (R(2.0) * d)
+                ep = ebar + g * hd; eq = g * zq; er = ebar - g * hd
+            f1 = h * (ep * e1 + eq * e2); f2 = h * (eq * e1 + er * e2)
+            th0 = th0 - (g11 * f1 + g12 * f2)
+            th1 = th1 - (g21 * f1 + g22 * f2)
+            zx0 = nx0; zx1 = nx1; zx2 = nx2; zf0 = nf0; zf1 = nf1; zf2 = nf2
+            ux = ux1; uf = uf1
+        theta_out[bi, 0] = th0
+        theta_out[bi, 1] = th1
+"""
+
+
+def build_numba(dtype):
+    import numba  # noqa: F401
+    from numba import njit, prange
+
+    ns = {"njit": njit, "prange": prange, "np": np, "R": getattr(np, dtype)}
+    f32 = dtype == "float32"
+    src = NUMBA_SRC.format(nterms=9 if f32 else 17, thr=3e-2 if f32 else 1e-3)
+    exec(src, ns)  # noqa: S102 — the kernel is written once above, typed per dtype
+    return ns["lion_numba"]
+
+
+# ----------------------------------------------------------------------------------------------
+# numpy: vectorised over the batch, Python loop over time (same math; both φ branches only when
+# some element needs the eigen branch)
+
+
+def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, nterms, thr):
+    R = x.dtype.type
+    B, T = x.shape
+    xt = np.ascontiguousarray(x.T)
+    Ft = np.ascontiguousarray(F.T)
+    zx = [xt[0] / lam[2], np.zeros(B, x.dtype), np.zeros(B, x.dtype)]
+    zf = [Ft[0] / lam[2], np.zeros(B, x.dtype), np.zeros(B, x.dtype)]
+    th0 = np.zeros(B, x.dtype)
+    th1 = np.zeros(B, x.dtype)
+    half = R(0.5)
+    for k in range(T - 1):
+        ux, ux1, uf = xt[k], xt[k + 1], Ft[k]
+        dux = ux1 - ux
+        nx = [
+            Phi[i, 0] * zx[0] + Phi[i, 1] * zx[1] + Phi[i, 2] * zx[2] + G0[i] * ux + G1[i] * dux
+            for i in range(3)
+        ]
+        nf = [
+            Phi[i, 0] * zf[0] + Phi[i, 1] * zf[1] + Phi[i, 2] * zf[2] + G0[i] * uf for i in range(3)
+        ]
+        mx = [half * (a + b) for a, b in zip(zx, nx, strict=True)]
+        mf = [half * (a + b) for a, b in zip(zf[:2], nf[:2], strict=True)]
+        mux = half * (ux + ux1)
+        w11, w21 = cdc * mx[1], cdc * mx[2]
+        w12, w22 = -cdc * mf[0], -cdc * mf[1]
+        y1 = cdc * mx[2]
+        y2 = cdc * (mux - (lam[2] * mx[0] + lam[1] * mx[1] + lam[0] * mx[2]))
+        g11 = Gm[0, 0] * w11 + Gm[0, 1] * w12
+        g21 = Gm[1, 0] * w11 + Gm[1, 1] * w12
+        g12 = Gm[0, 0] * w21 + Gm[0, 1] * w22
+        g22 = Gm[1, 0] * w21 + Gm[1, 1] * w22
+        zp = h * (w11 * g11 + w12 * g21)
+        zq = h * (w11 * g12 + w12 * g22)
+        zr = h * (w21 * g12 + w22 * g22)
+        e1 = w11 * th0 + w12 * th1 + y1
+        e2 = w21 * th0 + w22 * th1 + y2
+        m = half * (zp + zr)
+        hd = half * (zp - zr)
+        d = np.sqrt(hd * hd + zq * zq)
+        small = m + d <= 1.0
+        tr = zp + zr
+        det = zp * zr - zq * zq
+        a = np.ones_like(zp)
+        b = np.zeros_like(zp)
+        for kk in range(nterms, 1, -1):
+            rk = R(1.0 / kk)
+            a, b = R(1.0) + (b * det) * rk, -(a + b * tr) * rk
+        ep, eq, er = a + b * zp, b * zq, a + b * zr
+        if not small.all():
+            with np.errstate(all="ignore"):
+                e = np.exp(-m)
+                im = R(1.0) / m
+                E0 = (R(1.0) - e) * im
+                E1 = (e - E0) * im
+                E2 = (-e - R(2.0) * E1) * im
+                E3 = (e - R(3.0) * E2) * im
+                lp, lm = m + d, m - d
+                epp = -np.expm1(-lp) / lp
+                emm = np.where(lm < 1e-6, R(1.0) - half * lm, -np.expm1(-lm) / lm)
+                near = d < thr * m
+                ebar = np.where(near, E0 + half * E2 * d * d, half * (epp + emm))
+                g = np.where(near, E1 + E3 * d * d / R(6.0), (epp - emm) / (R(2.0) * d))
+            ep = np.where(small, ep, ebar + g * hd)
+            eq = np.where(small, eq, g * zq)
+            er = np.where(small, er, ebar - g * hd)
+        f1 = h * (ep * e1 + eq * e2)
+        f2 = h * (eq * e1 + er * e2)
+        th0 = th0 - (g11 * f1 + g12 * f2)
+        th1 = th1 - (g21 * f1 + g22 * f2)
+        zx, zf = nx, nf
+    return np.stack([th0, th1], axis=1)
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--batch", type=int, default=4096)
+    ap.add_argument("--samples", type=int, default=8000)
+    ap.add_argument("--dtype", choices=("float32", "float64"), default="float32")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--json", metavar="OUT.json")
+    ap.add_argument("--small-batch", type=int, default=2, help="batch of solve_ivp / diffrax")
+    ap.add_argument("--naive-batch", type=int, default=256, help="batch of the naive vmap")
+    ap.add_argument("--small-repeats", type=int, default=2, help="repeats of the slow paths")
+    ap.add_argument("--skip", default="", help="comma list of implementations to skip")
+    args = ap.parse_args(argv)
+    skip = set(filter(None, args.skip.split(",")))
+
+    import jax
+
+    if args.dtype == "float64":
+        jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    import lionjax as lj
+
+    B, T, dt = args.batch, args.samples, 1e-3
+    dtype = np.dtype(args.dtype)
+    rtol = 1e-9 if args.dtype == "float64" else 2e-3
+    x64, F64 = make_data(B, T, dt)
+    x, F = x64.astype(dtype), F64.astype(dtype)
+    model = lj.MassDamper()
+    bank = lj.default_bank()
+    # one fixed gain for all: AutoGain (rate 2/s) of the first dataset
+    xg, Fg = make_data(1, max(T, 4000), dt)
+    rec0 = lj.Record(jnp.asarray(xg[0], dtype), jnp.asarray(Fg[0], dtype), jnp.asarray(dt, dtype))
+    G = np.asarray(lj.lion(model, rec0, gain=lj.AutoGain(2.0), save_every=T).gain, np.float64)
+    G = 0.5 * (G + G.T)
+    Phi, Gam0, Gam1 = (np.asarray(a, dtype) for a in bank.discretise(jnp.asarray(dt)))
+    lam = np.asarray(bank.coeffs, dtype)
+    cdc = dtype.type(lam[2])
+    Gd = G.astype(dtype)
+    h = dtype.type(dt)
+    nterms, thr = (9, 3e-2) if args.dtype == "float32" else (17, 1e-3)
+    N = B * T
+    out: dict = {
+        "config": {
+            "batch": B,
+            "samples": T,
+            "dtype": args.dtype,
+            "law": "exact",
+            "repeats": args.repeats,
+            "gain": G.tolist(),
+            "filter": "(s+4)^3, unit DC gain; x foh, F zoh; midpoint regressors",
+            "tolerance_rel": rtol,
+        },
+        "environment": {
+            "python": platform.python_version(),
+            "jax": jax.__version__,
+            "numpy": np.__version__,
+            "devices": [str(d) for d in jax.local_devices()],
+            "cpu_count": os.cpu_count(),
+            "machine": platform.machine(),
+            "processor": platform.processor(),
+        },
+    }
+
+    def record(name, seconds, n_updates, **extra):
+        msps = n_updates / seconds / 1e6
+        out[name] = {"msps": msps, "seconds": seconds, **extra}
+        print(f"{name:>10}: {msps:9.2f} M sample-updates/s  ({seconds * 1e3:.1f} ms)", flush=True)
+
+    # --- lionjax
+    recs = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dt, dtype))
+    gain = lj.FixedGain(jnp.asarray(Gd))
+    run = lambda: lj.lion_batched(model, recs, gain=gain, throw=False).theta.block_until_ready()
+    m0 = rss_mb()
+    t0 = time.perf_counter()
+    theta_lj = np.asarray(run())
+    first = time.perf_counter() - t0
+    secs = best_time(run, args.repeats)
+    record(
+        "lionjax",
+        secs,
+        N,
+        law="exact",
+        compile_s=max(first - secs, 0.0),
+        peak_rss_growth_mb=rss_mb() - m0,
+        roofline_fraction=N / secs / 1e6 / ROOFLINE_MSPS,
+        devices=len(jax.local_devices()),
+    )
+
+    def check(name, theta, n=None):
+        ref = theta_lj[: theta.shape[0]] if n is None else n
+        err = float(np.max(np.abs(theta - ref) / np.maximum(np.abs(ref), 1e-12)))
+        out[name]["max_rel_diff_vs_lionjax"] = err
+        out[name]["agrees"] = bool(err <= rtol)
+        print(f"{'':>10}  max relative difference to lionjax {err:.2e} (tolerance {rtol:g})")
+
+    # --- numba
+    if "numba" not in skip:
+        try:
+            kern = build_numba(args.dtype)
+        except ImportError:
+            print("      numba: not installed (pip install lionjax[bench]); skipped")
+            kern = None
+        if kern is not None:
+            th = np.zeros((B, 2), dtype)
+            fn = lambda: kern(x, F, Phi, Gam0, Gam1, lam, cdc, Gd, h, th)
+            m0 = rss_mb()
+            t0 = time.perf_counter()
+            fn()
+            first = time.perf_counter() - t0
+            secs = best_time(fn, args.repeats)
+            import numba
+
+            record(
+                "numba",
+                secs,
+                N,
+                law="exact",
+                compile_s=max(first - secs, 0.0),
+                peak_rss_growth_mb=rss_mb() - m0,
+                threads=numba.get_num_threads(),
+                version=numba.__version__,
+            )
+            check("numba", th.copy())
+
+    # --- numpy
+    if "numpy" not in skip:
+        fn = lambda: lion_numpy(x, F, Phi, Gam0, Gam1, lam, cdc, Gd, h, nterms, thr)
+        m0 = rss_mb()
+        th = fn()
+        secs = best_time(fn, max(1, min(args.repeats, 5)))
+        record("numpy", secs, N, law="exact", peak_rss_growth_mb=rss_mb() - m0)
+        check("numpy", th)
+
+    # --- naive vmap of the per-dataset lax.scan (lionjax.lion, regressors stored)
+    if "vmap" not in skip:
+        nb = min(B, args.naive_batch)
+        sub = lj.Record(
+            jnp.asarray(x[:nb]),
+            jnp.asarray(F[:nb]),
+            jnp.full((nb,), dt, dtype),
+            jnp.zeros((nb,), dtype),
+        )
+        fv = jax.jit(
+            jax.vmap(lambda r: lj.lion(model, r, gain=gain, save_every=T, throw=False).theta_final)
+        )
+        fn = lambda: fv(sub).block_until_ready()
+        m0 = rss_mb()
+        t0 = time.perf_counter()
+        th = np.asarray(fn())
+        first = time.perf_counter() - t0
+        secs = best_time(fn, args.repeats)
+        record(
+            "vmap_scan",
+            secs,
+            nb * T,
+            law="exact",
+            batch=nb,
+            compile_s=max(first - secs, 0.0),
+            peak_rss_growth_mb=rss_mb() - m0,
+        )
+        check("vmap_scan", th)
+
+    # --- diffrax path (continuous-time joint ODE) at a small batch
+    if "diffrax" not in skip:
+        nb = min(B, args.small_batch)
+        fd = jax.jit(
+            jax.vmap(
+                lambda r: (
+                    lj.lion(
+                        model, r, gain=gain, stepper=lj.DiffraxStep(), save_every=T, throw=False
+                    ).theta_final
+                )
+            )
+        )
+        sub = lj.Record(
+            jnp.asarray(x[:nb]),
+            jnp.asarray(F[:nb]),
+            jnp.full((nb,), dt, dtype),
+            jnp.zeros((nb,), dtype),
+        )
+        fn = lambda: fd(sub).block_until_ready()
+        t0 = time.perf_counter()
+        th = np.asarray(fn())
+        first = time.perf_counter() - t0
+        secs = best_time(fn, args.small_repeats)
+        record(
+            "diffrax", secs, nb * T, law="continuous", batch=nb, compile_s=max(first - secs, 0.0)
+        )
+        err = float(np.max(np.abs(th - theta_lj[:nb]) / np.abs(theta_lj[:nb])))
+        out["diffrax"]["max_rel_diff_vs_lionjax"] = err
+        print(f"{'':>10}  continuous vs exact-step law: max relative difference {err:.2e}")
+
+    # --- scipy solve_ivp per dataset at a small batch (same joint ODE, RK45)
+    if "scipy" not in skip:
+        try:
+            from scipy.integrate import solve_ivp
+        except ImportError:
+            solve_ivp = None
+        if solve_ivp is not None:
+            nb = min(B, args.small_batch)
+            A, Bv, _, _ = (np.asarray(a, np.float64) for a in bank.state_space())
+            c3 = float(lam[2])
+            G64 = G.astype(np.float64)
+
+            def one(i):
+                xs, Fs = x64[i], F64[i]
+
+                def rhs(t, y):
+                    s = min(t / dt, T - 1 - 1e-9)
+                    k = int(s)
+                    fr = s - k
+                    ux = xs[k] + fr * (xs[k + 1] - xs[k])
+                    uf = Fs[k]
+                    zx, zf, th = y[0:3], y[3:6], y[6:8]
+                    W = c3 * np.array([[zx[1], -zf[0]], [zx[2], -zf[1]]])
+                    W0 = c3 * np.array(
+                        [zx[2], ux - lam[2] * zx[0] - lam[1] * zx[1] - lam[0] * zx[2]]
+                    )
+                    dth = -G64 @ (W.T @ (W @ th + W0))
+                    return np.concatenate([A @ zx + Bv * ux, A @ zf + Bv * uf, dth])
+
+                y0 = np.concatenate([[xs[0] / c3, 0, 0], [Fs[0] / c3, 0, 0], [0, 0]])
+                sol = solve_ivp(
+                    rhs, (0, (T - 1) * dt), y0, method="RK45", rtol=1e-8, atol=1e-12, max_step=dt
+                )
+                return sol.y[6:8, -1]
+
+            t0 = time.perf_counter()
+            th = np.stack([one(i) for i in range(nb)])
+            secs = time.perf_counter() - t0  # single run (seconds each)
+            record("scipy", secs, nb * T, law="continuous", batch=nb, repeats=1)
+            err = float(np.max(np.abs(th - theta_lj[:nb]) / np.abs(theta_lj[:nb])))
+            out["scipy"]["max_rel_diff_vs_lionjax"] = err
+            print(f"{'':>10}  continuous vs exact-step law: max relative difference {err:.2e}")
+
+    # --- least squares: streamed sufficient statistics (lionjax), and numpy lstsq reference
+    if "ls" not in skip:
+        fl = lambda: lj.least_squares_batched(model, recs, throw=False).theta.block_until_ready()
+        t0 = time.perf_counter()
+        th = np.asarray(fl())
+        first = time.perf_counter() - t0
+        secs = best_time(fl, args.repeats)
+        record("ls_stream", secs, N, compile_s=max(first - secs, 0.0))
+        nb = min(B, 64)
+        fv = jax.jit(
+            jax.vmap(lambda r: lj.least_squares(model, r, initial="discard", throw=False).theta)
+        )
+        sub = lj.Record(
+            jnp.asarray(x[:nb]),
+            jnp.asarray(F[:nb]),
+            jnp.full((nb,), dt, dtype),
+            jnp.zeros((nb,), dtype),
+        )
+        secs = best_time(lambda: fv(sub).block_until_ready(), args.repeats)
+        record("ls_vmap", secs, nb * T, batch=nb)
+        ref = np.asarray(fv(sub))
+        err = float(np.max(np.abs(th[:nb] - ref) / np.abs(ref)))
+        out["ls_stream"]["max_rel_diff_vs_least_squares"] = err
+        print(f"{'':>10}  streamed LS vs lionjax.least_squares: max relative difference {err:.2e}")
+
+    lj_msps = out["lionjax"]["msps"]
+    ratios = {
+        k: lj_msps / out[k]["msps"]
+        for k in ("numba", "numpy", "vmap_scan", "diffrax", "scipy")
+        if k in out
+    }
+    out["ratios"] = {f"lionjax/{k}": v for k, v in ratios.items()}
+    out["roofline_msps"] = ROOFLINE_MSPS
+    out["peak_rss_mb"] = rss_mb()
+    print("ratios: " + ", ".join(f"lionjax/{k} = {v:.2f}x" for k, v in ratios.items()))
+    print(
+        f"lionjax at {out['lionjax']['roofline_fraction']:.1%} of the ~{ROOFLINE_MSPS:.0f} "
+        "M/s roofline"
+    )
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=2)
+        print(f"wrote {args.json}")
+    return out
+
+
+if __name__ == "__main__":
+    main()
+    sys.exit(0)

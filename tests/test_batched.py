@@ -1,0 +1,161 @@
+"""The fast batched estimator against the reference lionjax.lion / least_squares (float64)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from _reference_sim import multisine, simulate
+
+import lionjax as lj
+from lionjax._batched import phi_sym2
+from lionjax._estimators import phi_2x2
+
+DT = 1e-3
+
+
+def _records(n=4, T=3000):
+    out = []
+    for i in range(n):
+        t = np.arange(T) * DT
+        F = multisine(t, [0.7, 2.3, 5.1], [0.2 + 0.05 * i, 0.15, 0.1])
+        x = simulate(F, DT, a=(22.0,), b=(1.916,), bounds=())
+        out.append(lj.Record(x, F, DT))
+    return out
+
+
+@pytest.fixture(scope="module")
+def recs():
+    return _records()
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-8, 1e-3, 0.5, 0.99, 1.01, 3.0, 40.0, 1e4])
+def test_phi_sym2_matches_phi_2x2(scale):
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(200, 2, 2))
+    Z = scale * A @ np.swapaxes(A, 1, 2) / 2
+    Z[:5] = scale * np.eye(2)  # degenerate eigenvalues
+    got = np.stack(phi_sym2(Z[:, 0, 0], Z[:, 0, 1], Z[:, 1, 1]))
+    want = np.stack(
+        phi_2x2(jnp.asarray(Z[:, 0, 0]), jnp.asarray(Z[:, 0, 1]), jnp.asarray(Z[:, 1, 1]))
+    )
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-13)
+
+
+def test_phi_sym2_gradient_finite_at_zero():
+    g = jax.grad(lambda z: sum(phi_sym2(z, 0.0 * z, z)))(0.0)
+    assert np.isfinite(g)
+
+
+@pytest.mark.parametrize("g", [1e2, 1e6, 1e9])
+def test_batched_equals_lion_fixed_gain(recs, g):
+    batch, _ = lj.stack_records(recs)
+    sol = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g))
+    for i, r in enumerate(recs):
+        ref = lj.lion(lj.MassDamper(), r, gain=lj.FixedGain(g))
+        np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-10)
+        np.testing.assert_allclose(sol.J[i], ref.J[-1], rtol=1e-8, atol=1e-20)
+
+
+def test_batched_autogain_ls_and_convergence(recs):
+    batch, _ = lj.stack_records(recs)
+    sol = lj.lion_batched(
+        lj.MassDamper(), batch, gain=lj.AutoGain(3.0), ls=True, convergence=True, save_every=100
+    )
+    for i, r in enumerate(recs):
+        ref = lj.lion(lj.MassDamper(), r, gain=lj.AutoGain(3.0))
+        np.testing.assert_allclose(sol.gain[i], ref.gain, rtol=1e-10)
+        np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-10)
+        ls = lj.least_squares(lj.MassDamper(), r, initial="discard")
+        np.testing.assert_allclose(sol.theta_ls[i], ls.theta, rtol=1e-9)
+        # convergence time from the stored trajectory of the reference
+        th = np.asarray(ref.theta)
+        out = np.any(np.abs(th - np.asarray(ls.theta)) > 0.02 * np.abs(np.asarray(ls.theta)), 1)
+        last = np.flatnonzero(out)[-1]
+        assert float(sol.t_converged[i]) == pytest.approx((last + 1) * DT, abs=1e-9)
+    assert sol.trajectory.shape == (29, len(recs), 2)
+    np.testing.assert_allclose(sol.trajectory[-1, 0], ref_traj_at(recs[0], 2900), rtol=1e-10)
+
+
+def ref_traj_at(rec, k):
+    return lj.lion(lj.MassDamper(), rec, gain=lj.AutoGain(3.0)).theta[k]
+
+
+def test_padding_contributes_nothing(recs):
+    short = [
+        lj.Record(r.x[: 2500 + 100 * i], r.F[: 2500 + 100 * i], DT) for i, r in enumerate(recs)
+    ]
+    batch, lengths = lj.stack_records(short)
+    sol = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(1e3), lengths=lengths, ls=True)
+    for i, r in enumerate(short):
+        ref = lj.lion(lj.MassDamper(), r, gain=lj.FixedGain(1e3))
+        np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-10)
+        ls = lj.least_squares(lj.MassDamper(), r, initial="discard")
+        np.testing.assert_allclose(sol.theta_ls[i], ls.theta, rtol=1e-9)
+
+
+def test_least_squares_batched(recs):
+    batch, _ = lj.stack_records(recs)
+    sol = lj.least_squares_batched(lj.MassDamper(), batch)
+    for i, r in enumerate(recs):
+        ls = lj.least_squares(lj.MassDamper(), r, initial="discard")
+        np.testing.assert_allclose(sol.theta[i], ls.theta, rtol=1e-9)
+        # RSS = θᵀAθ + 2θᵀb + yᵀy cancels: a few 1e-4 relative on noise-free data
+        np.testing.assert_allclose(sol.rms[i], ls.rms, rtol=1e-2)
+
+
+def test_piecewise_and_normalised(recs):
+    batch, _ = lj.stack_records(recs[:2])
+    model = lj.Piecewise((-0.001, 0.001))
+    G = lj.FixedGain(1e4)
+    sol = lj.lion_batched(model, batch, gain=G, normalisation=0.5)
+    for i, r in enumerate(recs[:2]):
+        ref = lj.lion(model, r, gain=G, normalisation=0.5)
+        np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-9, atol=1e-12)
+
+
+def test_jit_equals_nojit_and_vmap_equals_loop(recs):
+    batch, _ = lj.stack_records(recs)
+    G = lj.FixedGain(1e3)
+    a = lj.lion_batched(lj.MassDamper(), batch, gain=G, shard=False).theta
+    with jax.disable_jit():
+        b = lj.lion_batched(
+            lj.MassDamper(),
+            jax.tree.map(lambda v: v[:, :60] if v.ndim == 2 else v, batch),
+            gain=G,
+            shard=False,
+        ).theta
+    c = lj.lion_batched(
+        lj.MassDamper(),
+        jax.tree.map(lambda v: v[:, :60] if v.ndim == 2 else v, batch),
+        gain=G,
+        shard=False,
+    ).theta
+    np.testing.assert_allclose(b, c, rtol=1e-12)
+    loop = np.stack(
+        [lj.lion_batched(lj.MassDamper(), lj.stack_records([r])[0], gain=G).theta[0] for r in recs]
+    )
+    np.testing.assert_allclose(a, loop, rtol=1e-12)
+
+
+def test_parallel_in_time_equals_sequential(recs):
+    r = recs[0]
+    ref = lj.lion(lj.MassDamper(), r, gain=lj.FixedGain(1e4))
+    par = lj.lion_parallel(lj.MassDamper(), r, ref.gain)
+    np.testing.assert_allclose(par.theta, ref.theta, rtol=1e-8, atol=1e-10)
+
+
+def test_bad_input_errors(recs):
+    with pytest.raises(lj.InputError, match="records must be a batch"):
+        lj.lion_batched(lj.MassDamper(), recs[0])
+    with pytest.raises(lj.InputError, match="stepper"):
+        lj.lion_batched(lj.MassDamper(), lj.stack_records(recs)[0], stepper=lj.EulerStep())
+
+
+def test_unexcited_reported_per_element(recs):
+    flat = lj.Record(np.zeros(3000), np.zeros(3000), DT)
+    batch, _ = lj.stack_records([recs[0], flat])
+    sol = lj.lion_batched(lj.MassDamper(), batch, throw=False)
+    codes = np.asarray(sol.result._value)
+    assert codes[0] == 0 and codes[1] != 0
+    with pytest.raises(lj.IdentificationError, match=r"batch element \(1,\)"):
+        lj.raise_if_failed(sol)
