@@ -16,12 +16,11 @@ from ._excitation import (
     VerificationInput as VerificationInput,
     multisine as multisine,
 )
-from ._plant import (
+from ._plant._effects import (
     FALCON_CABLE_GAIN as FALCON_CABLE_GAIN,
     FALCON_COUNTS_PER_REV as FALCON_COUNTS_PER_REV,
     FALCON_DRUM_DIAMETER as FALCON_DRUM_DIAMETER,
     FALCON_ENCODER_RESOLUTION as FALCON_ENCODER_RESOLUTION,
-    FALCON_PAPER as FALCON_PAPER,
     AbstractCoefficientEffect as AbstractCoefficientEffect,
     AbstractForceEffect as AbstractForceEffect,
     AbstractFriction as AbstractFriction,
@@ -29,7 +28,6 @@ from ._plant import (
     AbstractMeasurement as AbstractMeasurement,
     AbstractPlantEffect as AbstractPlantEffect,
     AsymmetricFriction as AsymmetricFriction,
-    CentringPD as CentringPD,
     CoulombFriction as CoulombFriction,
     EncoderQuantisation as EncoderQuantisation,
     FlexibleMode as FlexibleMode,
@@ -39,10 +37,14 @@ from ._plant import (
     HardSaturation as HardSaturation,
     InputDelay as InputDelay,
     LinearSpring as LinearSpring,
-    Plant as Plant,
     PositionDependence as PositionDependence,
     PositionNoise as PositionNoise,
     SmoothCoulombFriction as SmoothCoulombFriction,
     SoftSaturation as SoftSaturation,
-    simulate as simulate,
 )
+from ._plant._plant import (
+    FALCON_PAPER as FALCON_PAPER,
+    CentringPD as CentringPD,
+    Plant as Plant,
+)
+from ._plant._simulate import simulate as simulate

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import lionjax._plant as lp
+import lionjax.twin as lp
 from lionjax._errors import InputError
 from lionjax._excitation import (
     PAPER_OPERATING_POINTS,

@@ -20,7 +20,7 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-import lionjax._plant as lp
+import lionjax.twin as lp
 from lionjax._errors import InputError
 from lionjax._excitation import PRBS, SineSum
 
