@@ -83,5 +83,10 @@ from ._models import (
     Regressors as Regressors,
 )
 from ._record import Record as Record, resample as resample
+from ._study import (
+    StudyResult as StudyResult,
+    study as study,
+    study_records as study_records,
+)
 
 __version__ = "0.1.0"

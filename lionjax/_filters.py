@@ -122,7 +122,8 @@ class FilterBank(eqx.Module):
 
     @property
     def order(self) -> int:
-        return self.coeffs.shape[0]
+        """n, the degree of Λ (the last axis of ``coeffs``, also for a batch of banks)."""
+        return self.coeffs.shape[-1]
 
     @property
     def poles(self) -> Array:

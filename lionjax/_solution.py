@@ -16,7 +16,7 @@ def default_transient(bank: FilterBank) -> Array:
 
     For the paper's (s + 4)³ this is 2.25 s. Differentiable and jit-safe (no root finding).
     """
-    return 3.0 * bank.coeffs[-2] / bank.coeffs[-1]
+    return 3.0 * bank.coeffs[..., -2] / bank.coeffs[..., -1]
 
 
 def transient_mask(record: Record, bank: FilterBank, transient=None) -> Array:

@@ -12,7 +12,7 @@ import importlib
 import re
 import sys
 
-SUBCOMMANDS = ("identify", "reproduce", "diagnose")
+SUBCOMMANDS = ("identify", "reproduce", "diagnose", "study")
 
 
 def _enable_x64() -> None:
