@@ -21,6 +21,17 @@ all local devices with ``jax.shard_map`` (one XLA CPU device runs a loop on one 
 Python with ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` — see
 :func:`lionjax.host_devices` — to use every core).
 
+The hot path (:func:`_fast_kernel`, default ``fast=True``): for the common case — one
+``dt`` and filter for the batch, one fixed gain, θ only — the kernel reads the records in
+their ``(B, T)`` layout, one ``(B, 64)`` slab per outer scan step transposed in place (the
+(B,T)→(T,B) transpose of the whole batch cost ≈ 45 % of the run; a per-sample strided column
+read instead slows down as T grows), carries one flat tuple of (B,) arrays through an inner
+``unroll=1`` scan, and evaluates φ by the series alone while carrying max tr(hS) ≥ ρ(hS); only
+if that exceeds 1 somewhere is the general kernel (both φ branches) run instead. Measured
+(shared 2-core machine, B = 4096, T = 8000, f32, 2 host devices, same run): 115–134 M
+sample-updates/s against 50–70 for the general kernel (T = 2000: 165 against 85). Python-
+unrolled chunks of 8 samples with optimisation barriers took ≈ 5 min to compile on XLA:CPU.
+
 The exact step. With S = W G Wᵀ (2×2 symmetric PSD), over one interval h with frozen W:
 
     θ ← θ − h·G Wᵀ E(hS) (Wθ + W₀),     E(Z) = (I − e^{−Z}) Z⁻¹,
@@ -514,6 +525,101 @@ def _kernel(plan: _Plan, U, shared, per):
     return out
 
 
+_FAST_PACK = True  # one φ per sample (see exact_step)
+_FAST_BLOCK = 64  # samples per slab of the hot path's blocked transpose
+
+
+def _fast_kernel(plan: _Plan, X, shared, per):
+    """The hot path: θ only (no LS, tracking, masks or trajectory), shared filter and gain.
+
+    X: tuple of S raw signals, each ``(Bs, T)`` in the caller's record-major layout: every step
+    reads column k+1 with a dynamic index inside the scan, so the (B, T) → (T, B) transpose of
+    the whole record is never materialised (it cost ≈ 45 % of the run). The carry is one flat
+    tuple of (Bs,) arrays, ``unroll=1`` (Python-unrolled chunks compiled for minutes and were
+    not faster), φ is the series only, and the running max of tr(hS) ≥ ρ(hS) tells the caller
+    whether the series was valid everywhere (else it re-runs the general kernel).
+    Returns (theta (p, Bs), J (Bs,), trmax (Bs,)).
+    """
+    S = len(X)
+    Bs, T = X[0].shape
+    dtype = X[0].dtype
+    n, p = plan.n, len(plan.columns)
+    coef = shared["coef"]
+    Phi, G0, G1, lam = coef["Phi"], coef["G0"], coef["G1"], coef["lam"]
+    cdc = lam[n - 1] if plan.unit_dc else None
+    h = shared["h"]
+    Gm = shared["G"]
+    Gl = [[Gm[i, j] for j in range(p)] for i in range(p)]
+    mu = shared.get("mu")
+    V = _outputs(plan, None, None, lam, cdc)
+    foh = [hold == "foh" for _, hold in plan.signals]
+    z0 = per["z0"]  # (S, n, Bs)
+
+    def filt(zs, uk, uk1, is_foh):
+        out = []
+        for i in range(n):
+            v = sum(Phi[i][j] * zs[j] for j in range(n)) + G0[i] * uk
+            if is_foh:
+                v = v + G1[i] * (uk1 - uk)
+            out.append(v)
+        return out
+
+    def pack(z, u, th, mx):
+        return tuple(v for zs in z for v in zs) + tuple(u) + tuple(th) + (mx,)
+
+    def unpack(c):
+        z = [list(c[s * n : (s + 1) * n]) for s in range(S)]
+        u = list(c[S * n : S * n + S])
+        th = list(c[S * n + S : S * n + S + p])
+        return z, u, th, c[-1]
+
+    def body(c, u1):
+        z, u, th, mx = unpack(c)
+        u1 = list(u1)
+        zn = [filt(z[s], u[s], u1[s], foh[s]) for s in range(S)]
+        if plan.midpoint:
+            zm = [[0.5 * (a + b) for a, b in zip(z[s], zn[s], strict=True)] for s in range(S)]
+            um = [0.5 * (a + b) for a, b in zip(u, u1, strict=True)]
+            W1, W2, y1, y2 = _regressors(plan, V, zm, um)
+        else:
+            W1, W2, y1, y2 = _regressors(plan, V, z, u)
+        cn = None
+        if mu is not None:
+            cn = 1.0 / (1.0 + mu * sum(w * w for w in W1 + W2))
+        trs = []
+
+        def phi(zp, zq, zr):
+            trs.append(zp + zr)
+            return _phi_series(zp, zq, zr)
+
+        thn = exact_step(th, W1, W2, y1, y2, Gl, h, cn, phi=phi, pack=_FAST_PACK)
+        return pack(zn, u1, thn, jnp.maximum(mx, trs[0])), None
+
+    th0 = [per["theta0"][i] for i in range(p)]
+    c0 = pack(
+        [[z0[s, i] for i in range(n)] for s in range(S)],
+        [Xs[:, 0] for Xs in X],
+        th0,
+        jnp.zeros((Bs,), dtype),
+    )
+    C = _FAST_BLOCK
+    nc, rem = divmod(T - 1, C)
+
+    def block(c, i):
+        # one (Bs, C) slab per signal, transposed here (C·4 contiguous bytes per row read)
+        slabs = tuple(jax.lax.dynamic_slice_in_dim(Xs, 1 + i * C, C, axis=1).T for Xs in X)
+        return jax.lax.scan(body, c, slabs)[0], None
+
+    c, _ = jax.lax.scan(block, c0, jnp.arange(nc))
+    if rem:
+        c, _ = jax.lax.scan(body, c, tuple(Xs[:, 1 + nc * C :].T for Xs in X))
+    z, u, th, mx = unpack(c)
+    W1, W2, y1, y2 = _regressors(plan, V, z, u)
+    e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
+    e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
+    return jnp.stack(th), 0.5 * (e1 * e1 + e2 * e2), mx
+
+
 def _solve_ls(stats: Array, p: int):
     """θ_LS and the condition number of the normalised ΦᵀΦ from the streamed statistics."""
     npp = p * (p + 1) // 2
@@ -607,6 +713,7 @@ def lion_batched(
     batched_gain: bool = False,
     shard: bool = True,
     throw: bool = True,
+    fast: bool = True,
 ) -> BatchedSolution:
     """Lion's estimator over a batch of records in one streaming, fused, sharded call.
 
@@ -643,6 +750,11 @@ def lion_batched(
         shard: shard the batch over ``jax.local_devices()`` (default True).
         throw: raise on failure (unexcited parameters under AutoGain, non-finite θ); with
             False the failures are in ``result`` per record.
+        fast: use the specialised hot path when it applies (shared ``dt`` and filter, one
+            fixed gain, no ``lengths``/``convergence``/``save_every``): reads the ``(B, T)``
+            records in place (no transpose), flat carry, series φ; the general kernel is
+            re-run only if some tr(h·WGWᵀ) > 1. Same results; ``False`` forces the general
+            kernel (for comparisons).
 
     Returns:
         a :class:`BatchedSolution`.
@@ -698,6 +810,7 @@ def lion_batched(
         batched_bank,
         batched_gain,
         shard,
+        fast=fast,
     )
     return finish(sol, throw, what="lion_batched")
 
@@ -725,6 +838,7 @@ def _lion_batched(
     shard,
     only_ls=False,
     max_condition=1e7,
+    fast=True,
 ):
     B, T = records.x.shape
     dtype = records.x.dtype
@@ -774,7 +888,8 @@ def _lion_batched(
         ]
     ).astype(dtype)  # (S, B, n)
     # time-major (T, S, B): one transpose, then every step reads contiguous (B,) rows
-    U = jnp.stack([sig_vals[k].T for k in order], axis=1).astype(dtype)
+    # (built lazily inside each general run, so the fast path never materialises it)
+    make_U = lambda: jnp.stack([sig_vals[k].T for k in order], axis=1).astype(dtype)
 
     def plan(**kw):
         base = dict(
@@ -794,7 +909,7 @@ def _lion_batched(
             per.pop("coef")
         # everything per-element: batch axis last
         perT = jax.tree.map(lambda a: jnp.moveaxis(a, 0, -1), per)
-        UT = U
+        UT = make_U()
         perT["z0"] = jnp.moveaxis(z0, 1, -1)  # (S, n, B)
         mesh = _mesh() if shard else None
         f = lambda u, pe, sh: _kernel(pl, u, sh, pe)
@@ -812,6 +927,27 @@ def _lion_batched(
             f = jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
         out = f(UT, perT, shared)
         return jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0) if a.ndim else a, out)
+
+    def run_fast(pl: _Plan, per: dict, shared: dict):
+        X = tuple(sig_vals[k].astype(dtype) for k in order)  # (B, T) each: no transpose
+        perT = {"theta0": jnp.moveaxis(per["theta0"], 0, -1), "z0": jnp.moveaxis(z0, 1, -1)}
+        mesh = _mesh() if shard else None
+        f = lambda xs, pe, sh: _fast_kernel(pl, xs, sh, pe)
+        if mesh is not None and B % mesh.size == 0:
+            spec_last = lambda a: PartitionSpec(*([None] * (a.ndim - 1) + ["batch"]))
+            in_specs = (
+                tuple(PartitionSpec("batch", None) for _ in X),
+                jax.tree.map(spec_last, perT),
+                jax.tree.map(lambda a: PartitionSpec(), shared),
+            )
+            out_specs = (
+                PartitionSpec(None, "batch"),
+                PartitionSpec("batch"),
+                PartitionSpec("batch"),
+            )
+            f = jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
+        th, J, trmax = f(X, perT, shared)
+        return {"theta": th.T, "J": J}, trmax
 
     base_per = {"length": length, "tr_k": tr_k, "tail_k": tail_k}
     shared: dict = {"tol": jnp.asarray(tolerance, dtype), "softness": jnp.asarray(softness, dtype)}
@@ -869,7 +1005,13 @@ def _lion_batched(
         )
         ref = jnp.where(jnp.isfinite(ref), ref, 0.0)
         per["ref"] = ref
-    o = run(plan(estimate=True, ls=False, track=track, save_chunks=save_chunks), per, shared)
+    pl = plan(estimate=True, ls=False, track=track, save_chunks=save_chunks)
+    if fast and "G" in shared and coeffs_shared and not (track or save_chunks or masked):
+        # hot path; the general kernel (exact φ) only if some tr(hS) > 1 (then ρ may be > 1)
+        o_fast, trmax = run_fast(pl, per, shared)
+        o = jax.lax.cond(jnp.any(trmax > 1.0), lambda: run(pl, per, shared), lambda: o_fast)
+    else:
+        o = run(pl, per, shared)
     theta = o["theta"]
     finite = jnp.all(jnp.isfinite(theta), axis=-1)
     result = jax.vmap(_result)(ok, finite)
