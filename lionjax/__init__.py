@@ -65,6 +65,10 @@ from ._figures import (
     paper_figures as paper_figures,
 )
 from ._filters import FilterBank as FilterBank
+from ._identify_many import (
+    BatchIdentification as BatchIdentification,
+    identify_batch as identify_batch,
+)
 from ._io import (
     load_record as load_record,
     load_records as load_records,

@@ -511,6 +511,32 @@ def load_record(
     return record
 
 
+def record_files(folder: PathLike) -> list[Path]:
+    """The record files of a folder: every ``*.csv``, ``*.npz``, ``*.mat`` in it (any case of
+    the extension), sorted by name; sub-folders are not searched.
+
+    Raises:
+        InputError: naming the folder when it does not exist, is not a folder, or holds no
+            record file (listing what it holds instead).
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        raise InputError(f"{root}: no such folder.")
+    paths = sorted(
+        (q for q in root.iterdir() if q.is_file() and q.suffix.lower() in SUFFIXES),
+        key=lambda q: q.name,
+    )
+    if not paths:
+        others = sorted(q.name for q in root.iterdir())
+        seen = ", ".join(others[:10]) + (" ..." if len(others) > 10 else "")
+        raise InputError(
+            f"{root}: the folder holds no record files ({', '.join(SUFFIXES)}); "
+            + (f"found only: {seen}." if others else "it is empty.")
+            + " Point to the folder with the data, or pass the files themselves."
+        )
+    return paths
+
+
 def load_records(
     paths_or_folder: PathLike | Iterable[PathLike], **kwargs: Any
 ) -> list[tuple[Path, Record]]:
@@ -531,21 +557,7 @@ def load_records(
         root = Path(paths_or_folder)
         if not root.exists():
             raise InputError(f"{root}: no such file or folder (paths_or_folder).")
-        if root.is_dir():
-            paths = sorted(
-                (q for q in root.iterdir() if q.is_file() and q.suffix.lower() in SUFFIXES),
-                key=lambda q: q.name,
-            )
-            if not paths:
-                others = sorted(q.name for q in root.iterdir())
-                seen = ", ".join(others[:10]) + (" ..." if len(others) > 10 else "")
-                raise InputError(
-                    f"{root}: the folder holds no record files ({', '.join(SUFFIXES)}); "
-                    + (f"found only: {seen}." if others else "it is empty.")
-                    + " Point to the folder with the data, or pass the files themselves."
-                )
-        else:
-            paths = [root]
+        paths = record_files(root) if root.is_dir() else [root]
     else:
         paths = [Path(q) for q in paths_or_folder]
         if not paths:

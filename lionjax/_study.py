@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,6 +27,7 @@ from ._estimators import AutoGain, FixedGain, default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel
 from ._record import Record
+from ._tables import jsonable as _jsonable
 
 
 class StudyResult(eqx.Module):
@@ -119,18 +119,6 @@ class StudyResult(eqx.Module):
                     }
                 )
         return path
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
 
 
 def _as_batch(records) -> tuple[Record, np.ndarray, bool]:

@@ -1,12 +1,25 @@
-"""Identify ẍ + aẋ = bF (one region, or several with --regions) from a record.
+"""Identify ẍ + aẋ = bF (one region, or several with --regions) from one record or many.
 
-Reads CSV (header t,x,F in s, m, N), NPZ or MAT; prints a table; --json writes
+One file: reads CSV (header t,x,F in s, m, N), NPZ or MAT; prints a table; --json writes
 {"params": {"a": …, "b": …}, …} (with regions: a_1, b_1, a_2, b_2, … — region 1 the lowest x).
+
+Several files, or a folder (every *.csv, *.npz, *.mat in it, sorted by name; sub-folders are not
+searched): every file is read and checked first (a bad file stops the run, naming it; nothing is
+skipped), then all records are identified in ONE batched call (different lengths padded and
+masked, each record with its own dt) and one row per file is printed; --json OUT.json writes
+{"method", "model", "names", …, "rows": [...]}, --csv OUT.csv the table. --method ls is then the
+streamed least squares over the samples after the filter transient (= lionjax.least_squares(…,
+initial="discard") per file; one file uses initial="estimate"); --method lion is Lion's law with
+the exact step (= lionjax.lion per file). A record that cannot be identified (shorter than the
+filter transient, not excited) is a row with status "failed"/"not run" and NaN estimates; the
+rows are all written, the failed files are named on stderr, and the exit status is 1.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -14,16 +27,29 @@ from .._errors import InputError
 from ._common import float_list, format_table, write_json
 
 NAME = "identify"
-HELP = "identify a, b (per region) from a record with least squares or Lion's estimator"
+HELP = (
+    "identify a, b (per region) from a record, or from many in one batched call, with least "
+    "squares or Lion's estimator"
+)
 
 UNITS = {"a": "1/s", "b": "1/kg"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("data", help="record file: .csv (t,x,F), .npz or .mat")
+    p.add_argument(
+        "data",
+        nargs="+",
+        metavar="DATA",
+        help="record file(s): .csv (t,x,F), .npz or .mat; or folder(s): every *.csv, *.npz, "
+        "*.mat in it, sorted by name, not sub-folders. Several files or a folder: one batched "
+        "call, one row per file (list all DATA together, before or after the options)",
+    )
     p.add_argument("--regions", help="region bounds in m, sorted, e.g. -0.01,0.01")
     p.add_argument("--method", choices=("ls", "lion"), default="ls", help="default: ls")
     p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
+    p.add_argument(
+        "--csv", metavar="OUT.csv", help="write the table as CSV (several files or a folder)"
+    )
     g = p.add_argument_group("filter Λ(s)")
     g.add_argument("--poles", help="filter poles in rad/s (default -4,-4,-4 = the paper's)")
     g.add_argument("--coeffs", help="filter coefficients λ₁,…,λₙ (instead of --poles)")
@@ -181,6 +207,14 @@ def print_result(out: dict) -> None:
 
 
 def run(args) -> int:
+    if len(args.data) > 1 or Path(args.data[0]).is_dir():
+        return run_many(args)
+    if args.csv:
+        raise InputError(
+            "--csv writes the table of several records (several files or a folder); for one "
+            "file use --json, or pass the folder that holds it."
+        )
+    args.data = args.data[0]  # one file: the single-record path below, unchanged
     record = load(args)
     out = identify(record, args)
     print_result(out)
@@ -188,3 +222,129 @@ def run(args) -> int:
         write_json(args.json, out)
         print(f"wrote {args.json}")
     return 0
+
+
+# --------------------------------------------------------------------------- many files
+
+
+def data_files(data: list[str]) -> list[Path]:
+    """The files named by DATA: files as given, folders expanded (sorted, not recursive)."""
+    from .._io import record_files
+
+    paths: list[Path] = []
+    for d in data:
+        p = Path(d)
+        paths.extend(record_files(p) if p.is_dir() else [p])
+    seen: dict[Path, Path] = {}
+    for p in paths:
+        key = p.resolve()
+        if key in seen:
+            raise InputError(
+                f"{p}: named twice in DATA (also as {seen[key]}); give each file once (a folder "
+                "already includes every record file in it)."
+            )
+        seen[key] = p
+    return paths
+
+
+def load_many(paths: list[Path], args) -> list:
+    """Read and check every file before anything is computed; one error lists every bad file."""
+    import lionjax as lj
+
+    columns = lj.parse_columns(args.columns) if args.columns else None
+    records, errors = [], []
+    for p in paths:
+        try:
+            records.append(
+                lj.load_record(
+                    p, columns=columns, force_scale=args.force_scale, resample=args.resample
+                )
+            )
+        except InputError as e:
+            errors.append(str(e))
+    if errors:
+        raise InputError(
+            f"{len(errors)} of {len(paths)} files cannot be used (nothing was identified):\n"
+            + "\n".join(f"  {e}" for e in errors)
+        )
+    return records
+
+
+def _check_out(path: str | None, option: str) -> None:
+    if path and not Path(path).parent.is_dir():
+        raise InputError(
+            f"{option}: folder {str(Path(path).parent)!r} does not exist; create it first."
+        )
+
+
+def run_many(args) -> int:
+    import lionjax as lj
+
+    _check_out(args.json, "--json")
+    _check_out(args.csv, "--csv")
+    model, bank, gain = settings(args)  # bad options fail before any file is read
+    paths = data_files(args.data)
+    records = load_many(paths, args)
+    theta0 = None
+    if args.method == "lion":
+        if args.theta0:
+            theta0 = np.asarray(float_list(args.theta0, "--theta0"), float)
+        elif args.paper:
+            theta0 = np.zeros(len(model.names))
+    res = lj.identify_batch(
+        model,
+        records,
+        method=args.method,
+        labels=[str(p) for p in paths],
+        bank=bank,
+        gain=gain,
+        normalisation=args.normalisation,
+        theta0=theta0,
+    )
+    print_many(res)
+    if args.json:
+        res.to_json(args.json)
+        print(f"wrote {args.json}")
+    if args.csv:
+        res.to_csv(args.csv)
+        print(f"wrote {args.csv}")
+    failed = res.failures()
+    if failed:
+        print(
+            f"lionjax identify: {len(failed)} of {len(records)} records not identified "
+            "(rows written with NaN estimates):\n"
+            + "\n".join(f"  {label}: {why}" for label, why in failed),
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+def print_many(res) -> None:
+    names = list(res.names)
+    headers = ["file", "samples", "dt [s]", *names]
+    if res.method == "lion":
+        headers += [f"{n}_LS" for n in names] + ["t_conv [s]"]
+    headers += ["condition"] + (["rms"] if res.rms is not None else []) + ["status"]
+    rows = []
+    for r in res.to_records():
+        row = [r["record"], r["n_samples"], r["dt"], *(r[n] for n in names)]
+        if res.method == "lion":
+            t = r["convergence_time"]  # inf: not within the band by the end of the record
+            row += [r[f"{n}_ls"] for n in names] + ["not settled" if t == np.inf else t]
+        row += [r["condition"]] + ([r["rms"]] if res.rms is not None else []) + [r["status"]]
+        rows.append(["inf" if v == np.inf else v for v in row])  # format_table prints nan
+    how = (
+        "least squares over the samples after the filter transient (= least_squares(initial="
+        "'discard') per file)"
+        if res.method == "ls"
+        else f"Lion's estimator (exact step; t_conv: within {100 * res.tolerance:g} % of LS)"
+    )
+    units = ", ".join(f"{n} [{UNITS.get(n.split('_')[0], '')}]" for n in names)
+    print(
+        format_table(
+            headers,
+            rows,
+            f"{len(rows)} records: {res.model} by {how}, in one batched call; {units}",
+        )
+    )
