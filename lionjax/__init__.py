@@ -88,9 +88,18 @@ from ._models import (
 )
 from ._record import Record as Record, resample as resample
 from ._study import (
+    StudyRecords as StudyRecords,
     StudyResult as StudyResult,
+    stack_banks as stack_banks,
     study as study,
     study_records as study_records,
+)
+from ._study_plot import study_figure as study_figure
+from ._tune import (
+    TuneObjective as TuneObjective,
+    TuneSolution as TuneSolution,
+    tune as tune,
+    tune_objective as tune_objective,
 )
 
 __version__ = "0.1.0"
