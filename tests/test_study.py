@@ -3,6 +3,7 @@
 import csv
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -146,3 +147,203 @@ def test_cli_study(records, tmp_path, capsys):
         lj.MassDamper(), records, gains=[3.0, 10.0], gain_type="auto", poles=POLES, progress=False
     )
     np.testing.assert_allclose([r["a"] for r in rows], api.theta_final[..., 0].ravel(), rtol=1e-9)
+
+
+def test_one_batched_call_over_pole_sets(records, result):
+    """The study runs every pole set in one lion_batched call (batched_bank=True, one filter per
+    batch element): with a batch size (12) different from the filter order (3), and the
+    default per-filter transient 3·λ₂/λ₃, it equals the per-pole-set run (chunks of 3) and
+    per-element lj.lion."""
+    poles = POLES + [(-5.0, -6.0, -7.0)]
+    res = lj.study(
+        lj.MassDamper(), records, gains=[3.0, 10.0], gain_type="auto", poles=poles, progress=False
+    )
+    assert res.shape == (2, 2, 3)
+    np.testing.assert_allclose(res.theta_final[:, :, :2], result.theta_final, rtol=1e-12)
+    np.testing.assert_allclose(res.theta_ls[:, :, :2], result.theta_ls, rtol=1e-12)
+    np.testing.assert_array_equal(res.convergence_time[:, :, :2], result.convergence_time)
+    bank = lj.FilterBank.from_poles(np.array(poles[2]), True)
+    for d, rec in enumerate(records):
+        sol = lj.lion(lj.MassDamper(), rec, bank=bank, gain=lj.AutoGain(10.0))
+        np.testing.assert_allclose(res.theta_final[d, 1, 2], np.asarray(sol.theta[-1]), rtol=1e-9)
+
+
+def test_map_pools_the_record_dims(result):
+    tc = result.map("convergence_time")
+    assert tc.shape == (2, 2)
+    np.testing.assert_array_equal(tc, np.median(result.convergence_time, axis=0))
+    np.testing.assert_array_equal(
+        result.map("noise_amplification", keep=("poles",), reduce="max"),
+        np.max(result.noise_amplification, axis=(0, 1)),
+    )
+    with pytest.raises(lj.InputError, match="keep"):
+        result.map("bias", keep=("theta0",))
+    with pytest.raises(lj.InputError, match="quantity"):
+        result.map("speed")
+
+
+@pytest.fixture(scope="module")
+def grid_records():
+    from lionjax import twin
+
+    return lj.study_records(
+        excitations={"in1": twin.PAPER_SINE_SETS[0], "in4": twin.PAPER_SINE_SETS[3]},
+        operating_points=[-0.02, 0.02],
+        noise_seeds=[3],
+        n_samples=2000,
+    )
+
+
+def test_study_records_grid(grid_records):
+    from lionjax import twin
+
+    assert grid_records.dims == ("excitation", "operating_point", "noise_seed")
+    assert grid_records.shape == (2, 2, 1) and len(grid_records) == 4
+    assert grid_records.coords["operating_point"] == [-0.02, 0.02]
+    assert grid_records.labels()[2] == {
+        "excitation": "in4",
+        "operating_point": -0.02,
+        "noise_seed": 3,
+    }
+    # independent reference: the same twin call by hand
+    plant = twin.FALCON_PAPER.with_effects(twin.ForceNoise(0.01))
+    ref = twin.simulate(
+        plant,
+        twin.PAPER_SINE_SETS[3],
+        n_samples=2000,
+        key=jax.random.PRNGKey(3),
+        closed_loop=twin.CentringPD(x_ref=-0.02),
+        x0=-0.02,
+    )
+    np.testing.assert_array_equal(np.asarray(grid_records[2].x), np.asarray(ref.x))
+    # each record stays in the region of its operating point (eq. 13 bounds ±10 mm)
+    for lab, rec in zip(grid_records.labels(), grid_records, strict=True):
+        x = np.asarray(rec.x)
+        assert np.all(np.sign(x) == np.sign(lab["operating_point"])) and np.all(np.abs(x) > 0.01)
+    with pytest.raises(lj.InputError, match="n=2"):
+        lj.study_records(2, noise_seeds=[1])
+    with pytest.raises(lj.InputError, match="operating_points"):
+        lj.study_records(operating_points="centre")
+
+
+def test_study_over_labelled_records_vs_lion(grid_records, tmp_path):
+    """Record dims become study dims; tail std (noise amplification), the smooth surrogate and
+    the decimated trajectory equal numpy references computed from lj.lion's full θ(t)."""
+    model = lj.MassDamper()
+    P = (-20.0, -20.0, -20.0)
+    res = lj.study(
+        model,
+        grid_records,
+        gains=[5.0],
+        gain_type="auto",
+        poles=[P],
+        softness=0.5,
+        transient=0.5,
+        save_every=100,
+        progress=False,
+    )
+    assert res.dims == ("excitation", "operating_point", "noise_seed", "gain", "poles")
+    assert res.shape == (2, 2, 1, 1, 1) and res.trajectory.shape == (2, 2, 1, 1, 1, 19, 2)
+    np.testing.assert_allclose(res.t_saved, 0.1 * np.arange(1, 20))
+    # region 1 (x_ref = −20 mm): a = 16.2, b = 2.02; region 3: a = 37.1, b = 1.289 (eq. 13)
+    truth = {-0.02: (16.2, 2.02), 0.02: (37.1, 1.289)}
+    bank = lj.FilterBank.from_poles(np.array(P), True)
+    tol, soft = 0.02, 0.5
+    for k, (lab, rec) in enumerate(zip(grid_records.labels(), grid_records, strict=True)):
+        idx = np.unravel_index(k, grid_records.shape) + (0, 0)
+        # (2-s records, one sine of input 1: within 10 %; the regions differ by a factor 2.3)
+        np.testing.assert_allclose(res.theta_ls[idx], truth[lab["operating_point"]], rtol=0.1)
+        sol = lj.lion(model, rec, bank=bank, gain=lj.AutoGain(5.0), transient=0.5)
+        ls = lj.least_squares(model, rec, bank=bank, initial="discard", transient=0.5)
+        th = np.asarray(sol.theta)  # (T, p), θ after each sample
+        ref = np.asarray(ls.theta)
+        T = th.shape[0]
+        np.testing.assert_allclose(res.theta_final[idx], th[-1], rtol=1e-9)
+        # tail: samples 3T/4 … T−1; population std
+        std = np.std(th[(3 * T) // 4 :], axis=0)
+        np.testing.assert_allclose(res.tail_std[idx], std, rtol=1e-6)
+        np.testing.assert_allclose(
+            res.noise_amplification[idx], np.max(std / np.abs(ref)), rtol=1e-6
+        )
+        # surrogate: Σ_k h·σ((log r_k − log tol)/s), r_k² = Σ r⁴ / Σ r² over θ after each step
+        r = (th[1:] - ref) / np.abs(ref)
+        rr = np.sum(r**4, axis=1) / np.sum(r**2, axis=1)
+        surr = 1e-3 * np.sum(1.0 / (1.0 + np.exp(-(0.5 * np.log(rr) - np.log(tol)) / soft)))
+        np.testing.assert_allclose(res.time_outside[idx], surr, rtol=1e-8)
+        np.testing.assert_allclose(res.trajectory[idx], th[100::100][:19], rtol=1e-9)
+    rows = res.to_records()
+    assert rows[0]["excitation"] == "in1" and "noise_amplification" in rows[0]
+    res.to_json(tmp_path / "g.json")
+    payload = json.loads((tmp_path / "g.json").read_text())
+    assert len(payload["trajectory"]["t"]) == 19 and payload["softness"] == 0.5
+    with pytest.raises(lj.InputError, match="dataset_names"):
+        lj.study(model, grid_records, dataset_names=["a", "b", "c", "d"], progress=False)
+
+
+def test_cli_study_tune_and_map(monkeypatch, tmp_path, capsys):
+    """--noise-seeds simulates labelled twin records; --tune calls lj.tune from the grid's
+    centre with the objective whose map is drawn (lj.tune itself: tests/test_tune.py)."""
+    calls = {}
+
+    def fake_tune(model, records, **kw):
+        calls.update(kw, n_records=len(records))
+        return lj.TuneSolution(
+            gain_type=kw["gain_type"],
+            gain=12.0,
+            pole=25.0,
+            filter_order=3,
+            unit_dc_gain=True,
+            init_gain=kw["init_gain"],
+            init_pole=kw["init_pole"],
+            objective=0.5,
+            gradient=np.zeros(2),
+            n_steps=7,
+            success=True,
+            message="",
+            labels=("noise_seed=1", "noise_seed=2"),
+            names=("a", "b"),
+            theta=np.ones((2, 2)),
+            theta_ls=np.ones((2, 2)),
+            convergence_time=np.array([0.4, np.inf]),
+            time_outside=np.array([0.4, 0.5]),
+            tail_std=np.zeros((2, 2)),
+            spec=kw["objective"],
+        )
+
+    monkeypatch.setattr(lj, "tune", fake_tune)
+    out = tmp_path / "t"
+    code = main(
+        [
+            "study",
+            "--noise-seeds",
+            "1,2",
+            "--samples",
+            "1500",
+            "--gains",
+            "4,16,64",
+            "--gain-type",
+            "auto",
+            "--poles",
+            "-10;-40",
+            "--tune",
+            "--kappa",
+            "2",
+            "--json",
+            f"{out}.json",
+            "--plot",
+            f"{out}.png",
+        ]
+    )
+    text = capsys.readouterr().out
+    assert code == 0 and "noise [%]" in text and "noise_seed" in text
+    assert "tuned" in text and "gain 12 [1/s]" in text and "grid minimum of J" in text
+    assert calls["init_gain"] == pytest.approx(16.0) and calls["init_pole"] == pytest.approx(20.0)
+    assert calls["objective"].kappa == 2.0 and calls["n_records"] == 2
+    payload = json.loads((tmp_path / "t.json").read_text())
+    assert payload["dims"] == ["noise_seed", "gain", "poles"] and payload["softness"] == 0.5
+    assert (
+        payload["tune"]["gain"] == 12.0
+        and payload["tune"]["records"][1]["convergence_time"] is None
+    )
+    assert len(payload["rows"]) == 12 and "noise_amplification" in payload["rows"][0]
+    assert (tmp_path / "t.png").stat().st_size > 1000

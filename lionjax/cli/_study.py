@@ -1,22 +1,36 @@
-"""Run Lion's estimator over a grid of gains × filter poles (× datasets) in batched calls.
+"""Run Lion's estimator over a grid of gains × filter poles (× records) in batched calls.
 
-With no DATA it simulates a small seeded set of twin records (the paper's region 2, closed loop,
-multisine, force noise). Prints one row per grid point: the final estimates, the convergence
-time to within 2 % of least squares, and the final bias vs least squares. --plot draws the
-designer's map: heat maps of convergence time and bias over (gain, pole).
+With no DATA it simulates a small seeded set of twin records (default: the paper's region 2,
+closed loop, multisine, force noise; with --operating-points / --noise-seeds a grid of records
+of the paper's device, labelled by operating point and noise seed). Prints one row per grid
+point: the final estimates, the convergence time to within 2 % of least squares ("inf": not
+converged by the end), the final bias vs least squares and the noise amplification (std of θ(t)
+over the last quarter of the record / |θ_LS|). --plot draws the designer's map: heat maps of the
+three over (gain, pole), records pooled by the median, never-converged cells marked "n.c.".
+
+--tune also tunes the gain and a triple filter pole by gradient descent (lj.tune: BFGS on
+J = mean over records of [T_out + κ·Σᵢ (σᵢ/(tol·|θ_LS,i|))²] seconds, T_out the smooth
+surrogate of the time outside the tolerance band), from the grid's centre or --tune-start,
+prints the tuned gain and pole and stars them on the map (with a fourth panel: J on the grid).
+With --tune the study runs with the objective's fixed transient and softness, so the map of J
+is the function the tuning minimises.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
+from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._tables import jsonable
 from ._common import float_list, format_table
 
 NAME = "study"
-HELP = "map convergence time and bias of Lion's estimator over gains × filter poles"
+HELP = "map convergence time, bias and noise of Lion's estimator over gains × filter poles"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -26,21 +40,48 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--gain-type",
         choices=("fixed", "auto"),
         default="fixed",
-        help="fixed: G = g·I (default); auto: AutoGain rates [1/s]",
+        help="fixed: G = g·I (default); auto: AutoGain rates [1/s], G = g·R⁻¹",
     )
     p.add_argument(
-        "--poles", default="-4,-4,-4;-8,-8,-8", help="pole sets [rad/s], ';' between sets"
+        "--poles",
+        default="-4,-4,-4;-8,-8,-8",
+        help="pole sets [rad/s], ';' between sets; one number per set is a triple pole "
+        "(e.g. '-4;-8;-16')",
     )
     p.add_argument("--samples", type=int, default=3000, help="samples per simulated record")
     p.add_argument("--n-records", type=int, default=2, help="simulated records (no DATA)")
+    p.add_argument(
+        "--operating-points",
+        help="simulate the paper's device at these x_ref [m] (comma separated, or 'paper')",
+    )
+    p.add_argument("--noise-seeds", help="simulate one record per noise seed (comma separated)")
+    p.add_argument("--transient", type=float, help="LS window start [s] (default per filter)")
     p.add_argument("--chunk-size", type=int, help="grid points per batched call")
-    p.add_argument("--json", metavar="OUT.json", help="write the grid as JSON")
+    p.add_argument("--json", metavar="OUT.json", help="write the grid (and the tuning) as JSON")
     p.add_argument("--csv", metavar="OUT.csv", help="write the grid as CSV")
     p.add_argument("--plot", metavar="OUT.png", help="heat maps over (gain, pole)")
+    p.add_argument(
+        "--tune",
+        action="store_true",
+        help="tune the gain and a triple filter pole by gradient descent (lj.tune)",
+    )
+    p.add_argument(
+        "--tune-start",
+        metavar="G,P",
+        help="start of the tuning: gain, pole magnitude p [rad/s] (default: the grid's centre)",
+    )
+    p.add_argument("--kappa", type=float, default=1.0, help="price of noise κ [s] (default 1)")
+    p.add_argument(
+        "--tune-transient",
+        type=float,
+        default=0.5,
+        help="fixed LS window start [s] of the tuning objective (default 0.5)",
+    )
 
 
 def _poles(text: str) -> list[list[float]]:
     sets = [float_list(s, "--poles") for s in text.split(";") if s.strip()]
+    sets = [s * 3 if len(s) == 1 else s for s in sets]
     if not sets or len({len(s) for s in sets}) != 1:
         raise InputError(
             f"--poles: expected pole sets of equal length separated by ';', got {text!r}."
@@ -48,49 +89,58 @@ def _poles(text: str) -> list[list[float]]:
     return sets
 
 
-def plot(res, path: str, gain_type: str = "fixed") -> None:
-    """Heat maps of median convergence time and bias over (gain, pole), datasets pooled."""
-    import matplotlib
+def plot(res, path: str, gain_type: str = "fixed", objective=None, tuned=None) -> None:
+    """Write the designer's map (:func:`lionjax.study_figure`) to ``path``."""
+    from .._study_plot import study_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    fig = study_figure(res, gain_type=gain_type, objective=objective, tuned=tuned)
+    fig.savefig(path, dpi=110)
 
-    axes = [res.dims.index(d) for d in ("gain", "poles")]
-    other = tuple(i for i in range(len(res.dims)) if i not in axes)
-    tc = np.moveaxis(res.convergence_time, axes, (-2, -1))
-    bias = np.moveaxis(res.bias, axes, (-2, -1))
-    tc = np.median(tc.reshape((-1,) + tc.shape[-2:]), axis=0) if other else tc
-    bias = np.median(bias.reshape((-1,) + bias.shape[-2:]), axis=0) if other else bias
-    gains = res.coords["gain"]
-    poles = [",".join(f"{q:g}" for q in P) for P in res.coords["poles"]]
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
-    gl = "AutoGain rate [1/s]" if gain_type == "auto" else "gain g [G = g·I]"
-    for a, z, title, unit in (
-        (ax[0], tc, f"convergence time to within {100 * res.tolerance:g} % of LS (median)", "s"),
-        (ax[1], 100 * bias, "final bias vs LS, max over params (median)", "%"),
-    ):
-        zz = np.where(np.isfinite(z), z, np.nan)
-        im = a.imshow(zz.T, origin="lower", aspect="auto", cmap="viridis")
-        a.set_xticks(range(len(gains)), [f"{g:g}" for g in gains])
-        a.set_yticks(range(len(poles)), poles)
-        a.set_xlabel(gl)
-        a.set_ylabel("filter poles [rad/s]")
-        a.set_title(title, fontsize=10)
-        for i in range(zz.shape[0]):
-            for j in range(zz.shape[1]):
-                v = z[i, j]
-                a.text(
-                    i,
-                    j,
-                    "n/s" if np.isinf(v) else f"{v:.3g}",
-                    ha="center",
-                    va="center",
-                    color="w",
-                    fontsize=8,
-                )
-        fig.colorbar(im, ax=a, label=unit)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+
+def _records(args):
+    import lionjax as lj
+
+    if args.data:
+        if args.operating_points or args.noise_seeds:
+            raise InputError(
+                "--operating-points/--noise-seeds simulate twin records; they cannot be combined "
+                "with DATA files. Drop one or the other."
+            )
+        paths = args.data[0] if len(args.data) == 1 else args.data
+        loaded = lj.load_records(paths)
+        return [r for _, r in loaded], [p.name for p, _ in loaded]
+    if args.operating_points or args.noise_seeds:
+        ops = None
+        if args.operating_points:
+            ops = (
+                "paper"
+                if args.operating_points.strip() == "paper"
+                else float_list(args.operating_points, "--operating-points")
+            )
+        seeds = None
+        if args.noise_seeds:
+            seeds = [int(v) for v in float_list(args.noise_seeds, "--noise-seeds")]
+        return (
+            lj.study_records(operating_points=ops, noise_seeds=seeds, n_samples=args.samples),
+            None,
+        )
+    records = lj.study_records(args.n_records, n_samples=args.samples)
+    return records, [f"twin{i}" for i in range(len(records))]
+
+
+def _start(args, gains: list[float], poles: list[list[float]]) -> tuple[float, float]:
+    if args.tune_start:
+        v = float_list(args.tune_start, "--tune-start")
+        if len(v) != 2 or not all(isinstance(x, float) and x > 0 for x in v):
+            raise InputError(
+                f"--tune-start: expected 'gain,pole' (two positive numbers, pole magnitude p in "
+                f"rad/s), got {args.tune_start!r}."
+            )
+        return v[0], v[1]
+    g = math.exp(0.5 * (math.log(min(gains)) + math.log(max(gains))))
+    mags = [float(np.mean(np.abs(P))) for P in poles]
+    p = math.exp(0.5 * (math.log(min(mags)) + math.log(max(mags))))
+    return g, p
 
 
 def run(args) -> int:
@@ -98,14 +148,19 @@ def run(args) -> int:
 
     gains = float_list(args.gains, "--gains")
     poles = _poles(args.poles)
-    if args.data:
-        paths = args.data[0] if len(args.data) == 1 else args.data
-        loaded = lj.load_records(paths)
-        records = [r for _, r in loaded]
-        names = [p.name for p, _ in loaded]
-    else:
-        records = lj.study_records(args.n_records, n_samples=args.samples)
-        names = [f"twin{i}" for i in range(len(records))]
+    records, names = _records(args)
+    kw = {}
+    spec = None
+    if args.tune:
+        spec = lj.TuneObjective(kappa=args.kappa, transient=args.tune_transient)
+        kw = dict(tolerance=spec.tolerance, softness=spec.softness, transient=spec.transient)
+        if args.transient is not None:
+            raise InputError(
+                "--transient: with --tune the study uses the objective's fixed window "
+                "(--tune-transient); drop --transient."
+            )
+    elif args.transient is not None:
+        kw["transient"] = args.transient
     res = lj.study(
         lj.MassDamper(),
         records,
@@ -115,10 +170,12 @@ def run(args) -> int:
         unit_dc_gain=True,
         dataset_names=names,
         chunk_size=args.chunk_size,
+        **kw,
     )
+    rec_dims = [d for d in res.dims if d not in ("gain", "poles")]
     rows = [
-        [
-            r["dataset"],
+        [", ".join(f"{r[d]:g}" if isinstance(r[d], float) else str(r[d]) for d in rec_dims)]
+        + [
             r["gain"],
             ",".join(f"{q:g}" for q in r["poles"]),
             r["a"],
@@ -127,24 +184,71 @@ def run(args) -> int:
             r["b_ls"],
             r["convergence_time"],
             100 * r["bias"],
+            100 * r["noise_amplification"],
         ]
         for r in res.to_records()
     ]
+    n_rec = int(np.prod([len(res.coords[d]) for d in rec_dims])) if rec_dims else 1
     print(
         format_table(
-            ["dataset", "gain", "poles", "a", "b", "a_LS", "b_LS", "t_conv [s]", "bias [%]"],
+            [
+                "/".join(rec_dims) or "record",
+                "gain",
+                "poles",
+                "a",
+                "b",
+                "a_LS",
+                "b_LS",
+                "t_conv [s]",
+                "bias [%]",
+                "noise [%]",
+            ],
             rows,
             f"Lion's estimator over {len(gains)} gains × {len(poles)} pole sets × "
-            f"{len(records)} records (t_conv inf: not within {100 * res.tolerance:g} % by the end)",
+            f"{n_rec} records (t_conv inf: not within {100 * res.tolerance:g} % by the end, "
+            "n.c. on the map; noise: std of θ over the last quarter / |θ_LS|)",
         )
     )
+    tuned = None
+    J_map = None
+    if args.tune:
+        g0, p0 = _start(args, gains, poles)
+        tuned = lj.tune(
+            lj.MassDamper(),
+            records,
+            objective=spec,
+            gain_type=args.gain_type,
+            init_gain=g0,
+            init_pole=p0,
+            throw=False,
+        )
+        J_map = spec.on_study(res)
+        J_map = J_map if J_map.ndim == 2 else None
+        status = "" if tuned.success else f" (solver: {tuned.message})"
+        unit = " [1/s]" if args.gain_type == "auto" else ""
+        print(
+            f"tuned (BFGS from gain {g0:.4g}, pole {p0:.4g} rad/s, {tuned.n_steps} steps){status}: "
+            f"gain {tuned.gain:.4g}{unit}, filter poles 3 × −{tuned.pole:.4g} rad/s, "
+            f"J = {tuned.objective:.4g} s (κ = {spec.kappa:g} s)"
+        )
+        if J_map is not None:
+            i, j = np.unravel_index(np.nanargmin(J_map), J_map.shape)
+            print(
+                f"grid minimum of J: gain {gains[i]:.4g}, poles {poles[j]} "
+                f"(J = {J_map[i, j]:.4g} s)"
+            )
     if args.json:
         res.to_json(args.json)
+        if tuned is not None:
+            path = Path(args.json)
+            payload = json.loads(path.read_text())
+            payload["tune"] = jsonable(tuned.to_dict())
+            path.write_text(json.dumps(payload, indent=2) + "\n")
         print(f"wrote {args.json}")
     if args.csv:
         res.to_csv(args.csv)
         print(f"wrote {args.csv}")
     if args.plot:
-        plot(res, args.plot, args.gain_type)
+        plot(res, args.plot, args.gain_type, objective=J_map, tuned=tuned)
         print(f"wrote {args.plot}")
     return 0
