@@ -49,7 +49,7 @@ for long records on accelerators; it stores the regressors).
 
 from __future__ import annotations
 
-import math
+import functools
 import os
 from collections.abc import Sequence
 from typing import Any
@@ -73,7 +73,9 @@ from ._solution import default_transient, finish
 
 
 def _series_terms(dtype) -> int:
-    return 9 if jnp.dtype(dtype) == jnp.float32 else 17
+    """Terms K of the series branch of :func:`phi_sym2` (ρ ≤ 1): the remainder ≤ 1/(K+1)! is
+    below the unit roundoff (2.5e-8 in float32 with K = 10, 8.2e-18 in float64 with K = 18)."""
+    return 10 if jnp.dtype(dtype) == jnp.float32 else 18
 
 
 def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array, Array]:
@@ -103,7 +105,7 @@ def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array,
     # --- series branch: M ← I + (−Z)M/k, M = aI + bZ; Z² = tr·Z − det·I.
     tr = jnp.where(small, zp + zr, 0.0)
     det = jnp.where(small, zp * zr - zq * zq, 0.0)
-    a, b = _series(tr, det, dtype)
+    a, b = _series(tr, det, _series_terms(dtype))
     s_p, s_q, s_r = a + b * zp, b * zq, a + b * zr
     # --- eigen branch (values where ρ > 1; guarded inputs elsewhere).
     mm = jnp.where(small, 2.0, m)
@@ -141,34 +143,53 @@ def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array,
     )
 
 
-def _phi_switch(zp, zq, zr):
-    """:func:`phi_sym2`, evaluating only the series when every element of the batch is in its
-    range (ρ ≤ 1, the usual case h·‖GWᵀW‖ ≪ 1); the same values, fewer operations."""
-    small = jnp.all(0.5 * (zp + zr) + jnp.sqrt(0.25 * (zp - zr) ** 2 + zq * zq) <= 1.0)
-    return jax.lax.cond(small, _phi_series, phi_sym2, zp, zq, zr)
-
-
-def _phi_series(zp, zq, zr):
-    a, b = _series(zp + zr, zp * zr - zq * zq, jnp.result_type(zp, zq, zr))
+def _phi_series(zp, zq, zr, terms: int):
+    """E(Z) by the series alone, ``terms`` terms (valid where ρ(Z) is small; see _SERIES_BOUND)."""
+    a, b = _series(zp + zr, zp * zr - zq * zq, terms)
     return a + b * zp, b * zq, a + b * zr
 
 
-def _series(tr, det, dtype):
-    """E(Z) = αI + βZ from the series Σ (−Z)ⁿ/(n+1)! in Horner form (Cayley–Hamilton)."""
+def _series(tr, det, terms: int):
+    """E(Z) = αI + βZ from Σ_{n<terms} (−Z)ⁿ/(n+1)! in Horner form (Cayley–Hamilton)."""
     a = jnp.ones_like(tr)
     b = jnp.zeros_like(tr)
-    for k in range(_series_terms(dtype), 1, -1):
+    for k in range(terms, 1, -1):
         # (−Z)(aI + bZ) = −aZ − b(tr Z − det I) = b·det I − (a + b·tr) Z
         a, b = 1.0 + (b * det) * (1.0 / k), (a + b * tr) * (-1.0 / k)
     return a, b
 
 
-def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, pack=False):
-    """One exact step of θ̇ = −c·G Wᵀ(Wθ + W₀) over h, elementwise over any batch shape.
+def materialise(values: list, divisor) -> list:
+    """The same ``values`` (arrays), computed once per element by XLA:CPU.
+
+    XLA:CPU has no multi-output loop fusion: a value used by several outputs of a loop step is
+    re-computed inside each consumer (``optimization_barrier`` does not stop that on CPU). It
+    never duplicates an expensive producer, though, so the values are packed in complex pairs
+    and divided by ``divisor`` — a runtime 1 (exact: (a + ib)/(1 + 0i) = a + ib) that XLA cannot
+    fold away. A divisor of 0 where some guard fails turns those elements non-finite on purpose
+    (see :func:`exact_step`). Measured: the exact step's work per sample ≈ halved for p = 2.
+    """
+    if divisor is None:
+        return values
+    vals = list(values) + ([jnp.zeros_like(values[-1])] if len(values) % 2 else [])
+    den = jax.lax.complex(divisor, jnp.zeros_like(divisor))
+    out = []
+    for a, b in zip(vals[::2], vals[1::2], strict=True):
+        c = jax.lax.complex(a, b) / den
+        out += [jnp.real(c), jnp.imag(c)]
+    return out[: len(values)]
+
+
+def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, divisor=None):
+    """One exact step of θ̇ = −c·G Wᵀ(Wθ + W₀) over h, elementwise over any batch shape:
+    θ ← θ − h·cGWᵀ E(hS) (Wθ + W₀), S = c·WGWᵀ, E(Z) = (I − e^{−Z})Z⁻¹.
 
     Arguments (lists of arrays, all broadcastable): ``theta`` (p entries), ``W1``/``W2`` the
     two rows of W (p entries each), ``y1``/``y2`` = W₀, ``G`` a p×p nested list (symmetric),
-    ``h`` the interval [s], ``c`` the normalisation 1/(1 + μ‖W‖²) or None. Returns the new θ.
+    ``h`` the interval [s], ``c`` the normalisation 1/(1 + μ‖W‖²) or None, ``phi`` E's
+    evaluation (default :func:`phi_sym2`), ``divisor`` see :func:`materialise` (the increments
+    are materialised once per sample), or a function of tr(hS) returning it. Returns the increments
+    Δθ (p entries): the new θ is θ − Δθ.
     """
     p = len(theta)
     GW1 = [sum(G[i][j] * W1[j] for j in range(p)) for i in range(p)]
@@ -184,12 +205,9 @@ def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, pack=False):
     ep, eq, er = (phi_sym2 if phi is None else phi)(h * S11, h * S12, h * S22)
     f1 = h * (ep * e1 + eq * e2)
     f2 = h * (eq * e1 + er * e2)
-    if pack:
-        # XLA:CPU has no multi-output loop fusion: each θᵢ would re-compute φ. Materialising
-        # (f1, f2) as ONE complex buffer makes φ run once per sample (measured ≈2× faster).
-        fc = jax.lax.optimization_barrier(jax.lax.complex(f1, f2))
-        f1, f2 = jnp.real(fc), jnp.imag(fc)
-    return [theta[i] - (GW1[i] * f1 + GW2[i] * f2) for i in range(p)]
+    if callable(divisor):
+        divisor = divisor(h * (S11 + S22))
+    return materialise([GW1[i] * f1 + GW2[i] * f2 for i in range(p)], divisor)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -266,9 +284,20 @@ class BatchedSolution(eqx.Module):
 # ----------------------------------------------------------------------------------------------
 # The kernel (one shard; batch axis last on every per-element array)
 
+# The hot path's φ: the series branch of :func:`phi_sym2` alone (no eigen branch, no selects),
+# valid while every tr(hS) ≤ 1 (tr ≥ ρ for the PSD hS); below the bound it computes exactly what
+# the closed form computes. Gains in practice stay far below it (AutoGain(1) on the twin:
+# tr(hS) ≈ 0.02; the benchmark's gain: ≤ 0.17). A sample beyond the bound turns its record
+# non-finite on purpose (exact_step's divisor) and the caller re-runs the batch with the closed
+# form: results never depend on the bound, only the run time does.
+_SERIES_BOUND = 1.0
+
+
+_BLOCK = 64  # samples per slab read from the (B, T) records (transposed in cache, per block)
+
 
 class _Plan(eqx.Module):
-    """Static description of one kernel: which signals, columns and outputs."""
+    """Static description of one kernel run: which signals, columns and outputs."""
 
     signals: tuple[tuple[str, str], ...] = eqx.field(static=True)  # (name, hold)
     columns: tuple[tuple[int, int, float], ...] = eqx.field(static=True)  # (sig, order, sign)
@@ -281,235 +310,243 @@ class _Plan(eqx.Module):
     ls: bool = eqx.field(static=True)
     track: bool = eqx.field(static=True)
     masked: bool = eqx.field(static=True)
-    chunk: int = eqx.field(static=True)
-    save_chunks: int = eqx.field(static=True)  # 0: no trajectory
+    block: int = eqx.field(static=True)  # samples per slab
+    save_blocks: int = eqx.field(static=True)  # 0: no trajectory; else slabs between saves
+    series_terms: int = eqx.field(static=True, default=0)  # 0: closed-form φ (phi_sym2)
 
 
-def _outputs(plan: _Plan, z, u, lam, cdc):
-    """(V₁…V₄) needed by the columns, per signal, from states z (n arrays) and input u."""
+def _maps(bank: FilterBank, dt: Array, foh: bool) -> dict[str, Array]:
+    """Linear maps from (z_k, u_k, u_{k+1}) — columns ``n + 2`` — to the filter's next state and
+    outputs, for one signal under its hold (exact discretisation, :meth:`FilterBank.discretise`).
 
-    def V(zs, us, j):  # j = 1…4
-        if j <= plan.n:
-            out = zs[j - 1]
-        else:  # n == 3, j == 4: s³/Λ u = u − Σ λ z
-            out = us - sum(lam[plan.n - 1 - i] * zs[i] for i in range(plan.n))
-        return out if cdc is None else cdc * out
+    - ``"next"`` (n, n+2): z_{k+1} = Φ z_k + Γ₀ u_k + Γ₁ (u_{k+1} − u_k) (Γ₁ only under foh);
+    - ``"start"``, ``"mid"``, ``"end"`` (n+1, n+2): the outputs V₁…V_{n+1} (Vⱼ = sʲ⁻¹/Λ u,
+      V_{n+1} = u − Σ λ z; times λₙ under unit DC gain) at sample k, at the midpoint (state and
+      input averaged over the interval: :class:`lionjax.ExactStep`'s regressors) and at k+1.
 
-    return V
+    Precomputing them keeps the per-sample work of the kernel to one dot product per output
+    (the θ step never recomputes the filter update).
+    """
+    Phi, G0, G1 = bank.discretise(dt)
+    n = bank.order
+    dtype = Phi.dtype
+    G1 = G1 if foh else jnp.zeros_like(G1)
+    z = jnp.zeros((n, 1), dtype)
+    start = jnp.concatenate([jnp.eye(n, dtype=dtype), z, z], -1)
+    nxt = jnp.concatenate([Phi, (G0 - G1)[:, None], G1[:, None]], -1)
+    lam_rev = bank.coeffs[::-1].astype(dtype)  # coefficient of zᵢ in V_{n+1} is λ_{n−i}
+
+    def outputs(state, u_row):
+        V = jnp.concatenate([state, (u_row - lam_rev @ state)[None]], 0)
+        return V * bank.coeffs[-1] if bank.unit_dc_gain else V
+
+    unit = lambda a, b: jnp.concatenate([jnp.zeros((n,), dtype), jnp.array([a, b], dtype)])
+    return {
+        "next": nxt,
+        "start": outputs(start, unit(1.0, 0.0)),
+        "mid": outputs(0.5 * (start + nxt), unit(0.5, 0.5)),
+        "end": outputs(nxt, unit(0.0, 1.0)),
+    }
 
 
-def _regressors(plan: _Plan, V, z, u):
-    """W rows (W1, W2) and W₀ (y1, y2) from filter states, elementwise."""
-    W1, W2 = [], []
-    for s, order, sign in plan.columns:
-        W1.append(sign * V(z[s], u[s], order + 1))
-        W2.append(sign * V(z[s], u[s], order + 2))
-    xi = plan.x_index
-    return W1, W2, V(z[xi], u[xi], 3), V(z[xi], u[xi], 4)
+def _structural(mode: str, foh: bool, n: int, row: int, col: int) -> bool:
+    """Whether entry (row, col) of a :func:`_maps` matrix can be non-zero (static sparsity)."""
+    if mode == "start":  # Vⱼ = z_{j−1}; V_{n+1} = u_k − Σ λ z
+        return col == row if row < n else col <= n
+    if col == n + 1 and not foh:  # a zoh state never sees u_{k+1}; V_{n+1} at mid/end does
+        return row == n and mode != "next"
+    return True
 
 
-def _kernel(plan: _Plan, U, shared, per):
-    """Run one shard. U: (T, S, Bs) raw signals (time-major). Returns a dict of outputs."""
-    T, S, Bs = U.shape
-    dtype = U.dtype
+def _kernel(plan: _Plan, X, shared, per):
+    """Run one shard of the batch. ``X``: tuple of S raw signals, each ``(Bs, T)`` (the records'
+    own layout: each slab of ``plan.block`` samples is read and transposed inside the loop, the
+    whole batch never is). Per-element inputs in ``per`` carry the batch last; ``shared`` holds
+    the values common to the batch (scalars in the kernel). Returns a dict of outputs."""
+    S = len(X)
+    Bs, T = X[0].shape
+    dtype = X[0].dtype
     n, p = plan.n, len(plan.columns)
-    coef = per["coef"] if "coef" in per else shared["coef"]  # dict of filter coefficients
-    Phi, G0, G1, lam = coef["Phi"], coef["G0"], coef["G1"], coef["lam"]
-    cdc = lam[n - 1] if plan.unit_dc else None
-    h = per["h"] if "h" in per else shared["h"]
-    Gm = per.get("G", shared.get("G"))
-    V = _outputs(plan, None, None, lam, cdc)
+    get = lambda key: per[key] if key in per else shared[key]
+    maps = [
+        {k: [[M[i, j] for j in range(M.shape[1])] for i in range(M.shape[0])] for k, M in m.items()}
+        for m in get("maps")
+    ]
+    h = get("h")
     foh = [hold == "foh" for _, hold in plan.signals]
+    zero = jnp.zeros((Bs,), dtype)
 
-    def filt(zs, uk, uk1, is_foh):
-        du = uk1 - uk
-        out = []
-        for i in range(n):
-            v = sum(Phi[i][j] * zs[j] for j in range(n)) + G0[i] * uk
-            if is_foh:
-                v = v + G1[i] * du
-            out.append(v)
-        return out
+    def lin(s, mode, row, z, uk, uk1):
+        M = maps[s][mode][row]
+        terms = [
+            M[c] * (z[c] if c < n else uk if c == n else uk1)
+            for c in range(n + 2)
+            if _structural(mode, foh[s], n, row, c)
+        ]
+        return sum(terms[1:], terms[0])
 
+    def regressors(mode, z, uk, uk1):
+        """W rows (W1, W2) and W₀ = (y1, y2) from the maps, elementwise."""
+        cache: dict = {}
+
+        def V(s, j):  # j = 1…4
+            if (s, j) not in cache:
+                cache[s, j] = lin(s, mode, j - 1, z[s], uk[s], uk1[s])
+            return cache[s, j]
+
+        W1 = [sign * V(s, order + 1) for s, order, sign in plan.columns]
+        W2 = [sign * V(s, order + 2) for s, order, sign in plan.columns]
+        return W1, W2, V(plan.x_index, 3), V(plan.x_index, 4)
+
+    if plan.estimate:
+        Gm = get("G")
+        Gl = [[Gm[i, j] for j in range(p)] for i in range(p)]
     if plan.track:
         ref = per["ref"]
         inv = [1.0 / jnp.where(jnp.abs(r) > 0, jnp.abs(r), 1.0) for r in ref]
         tol = shared["tol"]
         log_tol = jnp.log(tol)
     length = per["length"] if plan.masked else None
-    tr_k = per["tr_k"]  # first sample index counted by LS
-    tail_k = per["tail_k"]  # first sample index of the tail statistics
+    tiny = jnp.finfo(dtype).tiny
 
-    # carry: dict of lists of (Bs,) arrays
-    z0 = per["z0"]  # (S, n, Bs)
-    carry = {
-        "z": [[z0[s, i] for i in range(n)] for s in range(S)],
-        "u": [U[0, s] for s in range(S)],
-        "k": jnp.zeros((), jnp.int32),
-    }
-    zero = jnp.zeros((Bs,), dtype)
-    if plan.estimate:
-        carry["theta"] = [per["theta0"][i] for i in range(p)]
-    if plan.ls:
-        npp = p * (p + 1) // 2
-        carry["ls"] = [zero] * (npp + p + 2)
-    if plan.track:
-        carry["last_out"] = jnp.full((Bs,), -1, jnp.int32)
-        carry["surr"] = zero
-        carry["tail"] = [zero] * (2 * p + 1)
+    def phi(zp, zq, zr):
+        if plan.series_terms:
+            return _phi_series(zp, zq, zr, plan.series_terms)
+        return phi_sym2(zp, zq, zr)
 
-    def ls_terms(W1, W2, y1, y2):
-        out = []
-        for i in range(p):
-            for j in range(i, p):
-                out.append(W1[i] * W1[j] + W2[i] * W2[j])
-        for i in range(p):
-            out.append(W1[i] * y1 + W2[i] * y2)
-        out.append(y1 * y1 + y2 * y2)
-        return out
+    # θ is carried as complex pairs (θ₀ + iθ₁, …): the update of a pair is one fusion
 
-    def one(c, uk1, local):
-        """Sample k → k+1. ``local`` holds per-chunk partial sums (better rounding)."""
-        k = c["k"]
-        z, u = c["z"], c["u"]
-        zn = [filt(z[s], u[s], uk1[s], foh[s]) for s in range(S)]
+    def to_pairs(th):
+        th = list(th) + ([jnp.zeros_like(th[0])] if p % 2 else [])
+        return [jax.lax.complex(a, b) for a, b in zip(th[::2], th[1::2], strict=True)]
+
+    def from_pairs(tc):
+        return [f(v) for v in tc for f in (jnp.real, jnp.imag)][:p]
+
+    def step(c, k, uk, uk1, acc):
+        """Sample k → k+1 (``acc``: this slab's partial sums, added to the totals per slab)."""
+        z = c["z"]
+        zn = [[lin(s, "next", i, z[s], uk[s], uk1[s]) for i in range(n)] for s in range(S)]
+        new = dict(c)
+        acc = dict(acc)
+        act = None
         if plan.masked:
             act = (k + 1) < length
             zn = [
                 [jnp.where(act, a, b) for a, b in zip(zs, zo, strict=True)]
                 for zs, zo in zip(zn, z, strict=True)
             ]
-            uk1 = [jnp.where(act, a, b) for a, b in zip(uk1, u, strict=True)]
-        new = {"z": zn, "u": list(uk1), "k": k + 1}
-        if plan.ls:
-            # statistics of sample k+1 (sample 0 is inside every transient)
-            W1, W2, y1, y2 = _regressors(plan, V, zn, uk1)
-            w = (k + 1 >= tr_k).astype(dtype)
-            if plan.masked:
+        new["z"] = zn
+        if plan.ls:  # statistics of sample k+1 (sample 0 is inside every transient)
+            W1, W2, y1, y2 = regressors("end", z, uk, uk1)
+            W1, W2, y1, y2 = _split(materialise(W1 + W2 + [y1, y2], shared["one"]), p)
+            w = (k + 1 >= per["tr_k"]).astype(dtype)
+            if act is not None:
                 w = w * act.astype(dtype)
-            terms = ls_terms(W1, W2, y1, y2)
-            local["ls"] = [a + w * t for a, t in zip(local["ls"], terms, strict=True)]
-            local["n"] = local["n"] + w
+            terms = [W1[i] * W1[j] + W2[i] * W2[j] for i in range(p) for j in range(i, p)]
+            terms += [W1[i] * y1 + W2[i] * y2 for i in range(p)] + [y1 * y1 + y2 * y2, 1.0]
+            acc["ls"] = [a + w * t for a, t in zip(acc["ls"], terms, strict=True)]
         if plan.estimate:
-            theta = c["theta"]
-            if plan.midpoint:
-                zm = [[0.5 * (a + b) for a, b in zip(z[s], zn[s], strict=True)] for s in range(S)]
-                um = [0.5 * (a + b) for a, b in zip(u, uk1, strict=True)]
-                W1, W2, y1, y2 = _regressors(plan, V, zm, um)
-            else:
-                W1, W2, y1, y2 = _regressors(plan, V, z, u)
+            theta = from_pairs(c["theta"])
+            W1, W2, y1, y2 = regressors("mid" if plan.midpoint else "start", z, uk, uk1)
             cn = None
             if plan.normalised:
-                cn = 1.0 / (1.0 + shared["mu"] * sum(w * w for w in W1 + W2))
-            Gl = [[Gm[i, j] for j in range(p)] for i in range(p)]
-            big = []
-
-            def phi_opt(zp, zq, zr):
-                if mode == "full":
-                    return phi_sym2(zp, zq, zr)
-                big.append(0.5 * (zp + zr) + jnp.sqrt(0.25 * (zp - zr) ** 2 + zq * zq) > 1.0)
-                return _phi_series(zp, zq, zr)
-
-            th = exact_step(theta, W1, W2, y1, y2, Gl, h, cn, phi=phi_opt, pack=True)
-            if big:
-                new["big"] = c["big"] | big[0]
-            if plan.masked:
-                th = [jnp.where(act, a, b) for a, b in zip(th, theta, strict=True)]
-            new["theta"] = th
+                cn = 1.0 / (1.0 + shared["mu"] * sum(v * v for v in W1 + W2))
+            one = shared["one"]
+            if plan.series_terms:  # the series is valid while tr(hS) ≤ bound; else 1/0 → inf
+                divisor = lambda tr_hs: jnp.where(tr_hs <= _SERIES_BOUND, one, 0.0)
+            else:
+                divisor = one
+            d = exact_step(theta, W1, W2, y1, y2, Gl, h, cn, phi=phi, divisor=divisor)
+            tc = [t - v for t, v in zip(c["theta"], to_pairs(d), strict=True)]
+            if act is not None:
+                tc = [jnp.where(act, a, b) for a, b in zip(tc, c["theta"], strict=True)]
+            new["theta"] = tc
             if plan.track:
+                th = from_pairs(tc)
                 rel = [(a - r) * iv for a, r, iv in zip(th, ref, inv, strict=True)]
-                out = jnp.zeros((Bs,), bool)
-                for r in rel:
-                    out = out | (jnp.abs(r) > tol)
-                if plan.masked:
+                out = functools.reduce(jnp.logical_or, [jnp.abs(r) > tol for r in rel])
+                if act is not None:
                     out = out & act
                 new["last_out"] = jnp.where(out, k + 1, c["last_out"])
                 # smooth max over parameters: r² = Σ rᵢ⁴ / Σ rᵢ² ≤ max rᵢ²
                 r2 = sum(r * r for r in rel)
                 r4 = sum(r * r * r * r for r in rel)
-                rr = r4 / (r2 + jnp.finfo(dtype).tiny)
-                lr = 0.5 * jnp.log(rr + jnp.finfo(dtype).tiny)
+                lr = 0.5 * jnp.log(r4 / (r2 + tiny) + tiny)
                 sig = jax.nn.sigmoid((lr - log_tol) / shared["softness"])
-                wk = h if not plan.masked else h * act.astype(dtype)
-                local["surr"] = local["surr"] + wk * sig
-                wt = (k + 1 >= tail_k).astype(dtype)
-                if plan.masked:
+                wk = h if act is None else h * act.astype(dtype)
+                acc["surr"] = acc["surr"] + wk * sig
+                wt = (k + 1 >= per["tail_k"]).astype(dtype)
+                if act is not None:
                     wt = wt * act.astype(dtype)
                 tl = [wt * a for a in th] + [wt * a * a for a in th] + [wt]
-                local["tail"] = [a + b for a, b in zip(local["tail"], tl, strict=True)]
-        for key in ("last_out", "big"):
-            if key in c and key not in new:
-                new[key] = c[key]
-        return new
+                acc["tail"] = [a + b for a, b in zip(acc["tail"], tl, strict=True)]
+        return new, acc
 
-    def run_chunk(c, ublk):
-        """ublk: (L, S, Bs) inputs u[k+1] for the L steps of this chunk."""
-        L = ublk.shape[0]
-        local = {}
-        if plan.ls:
-            local["ls"] = [zero] * (len(c["ls"]) - 1)  # npp + p + 1 sums (then n)
-            local["n"] = zero
-        if plan.track:
-            local["surr"] = zero
-            local["tail"] = [zero] * (2 * p + 1)
-        cc = dict(c)
-        for j in range(L):
-            cc = one(cc, [ublk[j, s] for s in range(S)], local)
-            if L > 1:  # materialise the carry: XLA would otherwise re-fuse (and re-compute)
-                cc, local = jax.lax.optimization_barrier((cc, local))
-        if plan.ls:
-            cc["ls"] = [a + b for a, b in zip(c["ls"], local["ls"] + [local["n"]], strict=True)]
-        if plan.track:
-            cc["surr"] = c["surr"] + local["surr"]
-            cc["tail"] = [a + b for a, b in zip(c["tail"], local["tail"], strict=True)]
-        return cc
+    sums: dict[str, int] = {}
+    if plan.ls:
+        sums["ls"] = p * (p + 1) // 2 + p + 2  # ΦᵀΦ (upper), Φᵀy, yᵀy, count
+    if plan.track:
+        sums["surr"] = 0
+        sums["tail"] = 2 * p + 1
 
-    def scan_all(carry, mode_):
-        nonlocal mode
-        mode = mode_
-        C = plan.chunk
-        steps = T - 1
-        nc, rem = divmod(steps, C)
-        body_in = U[1 : 1 + nc * C].reshape(nc, C, S, Bs)
-        traj = None
-        if plan.save_chunks:
-            g = plan.save_chunks
-            ng, nrest = divmod(nc, g)
+    def zeros_acc():
+        return {k: [zero] * m if m else zero for k, m in sums.items()}
 
-            def group(c, blk):  # blk: (g, C, S, Bs)
-                c, _ = jax.lax.scan(lambda cc, b: (run_chunk(cc, b), None), c, blk)
-                return c, jnp.stack(c["theta"])
+    def run_slab(c, k0, slab):
+        """``slab``: S arrays (L + 1, Bs), the samples k0 … k0 + L: L steps from sample k0."""
+        L = slab[0].shape[0] - 1
 
-            grp = body_in[: ng * g].reshape(ng, g, C, S, Bs)
-            carry, traj = jax.lax.scan(group, carry, grp)
-            rest = body_in[ng * g :]
-        else:
-            rest = body_in
-        if rest.shape[0]:
-            carry, _ = jax.lax.scan(lambda cc, b: (run_chunk(cc, b), None), carry, rest)
-        if rem:
-            carry = run_chunk(carry, U[1 + nc * C :])
-        return carry, traj
+        def body(j, ca):
+            row = lambda i: [sl[i] for sl in slab]
+            return step(ca[0], jnp.asarray(k0 + j, jnp.int32), row(j), row(j + 1), ca[1])
 
-    mode = "full"
+        c, acc = jax.lax.fori_loop(0, L, body, (c, zeros_acc()))
+        c = dict(c)
+        for key, m in sums.items():
+            c[key] = (
+                [a + b for a, b in zip(c[key], acc[key], strict=True)] if m else c[key] + acc[key]
+            )
+        return c
+
+    C = plan.block
+    nb, rem = divmod(T - 1, C)
+    # the (C + 1)-sample slab of block i, transposed in cache (the batch never is as a whole)
+    read = lambda i: tuple(jax.lax.dynamic_slice_in_dim(Xs, i * C, C + 1, axis=1).T for Xs in X)
+
+    def blocks(c, idx):
+        if idx.shape[0] == 0:
+            return c
+        return jax.lax.scan(lambda cc, i: (run_slab(cc, i * C, read(i)), None), c, idx)[0]
+
+    c = {"z": [[per["z0"][s, i] for i in range(n)] for s in range(S)]}
+    c.update(zeros_acc())
     if plan.estimate:
-        # optimistic: the cheap series φ everywhere, and a full re-run (exact φ with both
-        # branches) only for a shard where some sample had ρ(hS) > 1 (large gains).
-        carry["big"] = jnp.zeros((Bs,), bool)
-        res_series = scan_all(carry, "series")
-        carry, traj = jax.lax.cond(
-            jnp.any(res_series[0]["big"]),
-            lambda: scan_all(carry, "full"),
-            lambda: res_series,
-        )
+        c["theta"] = to_pairs([per["theta0"][i] for i in range(p)])
+        if plan.track:
+            c["last_out"] = jnp.full((Bs,), -1, jnp.int32)
+    traj = None
+    if plan.save_blocks:
+        g = plan.save_blocks
+        ng = nb // g
+
+        def group(cc, j):
+            cc = blocks(cc, j * g + jnp.arange(g))
+            return cc, jnp.stack(from_pairs(cc["theta"]))
+
+        c, traj = jax.lax.scan(group, c, jnp.arange(ng))
+        c = blocks(c, jnp.arange(ng * g, nb))
     else:
-        carry, traj = scan_all(carry, "full")
+        c = blocks(c, jnp.arange(nb))
+    if rem:
+        c = run_slab(c, nb * C, tuple(Xs[:, nb * C :].T for Xs in X))
 
     out: dict[str, Any] = {}
-    z, u = carry["z"], carry["u"]
-    W1, W2, y1, y2 = _regressors(plan, V, z, u)
     if plan.estimate:
-        th = carry["theta"]
+        last = (length - 1) if plan.masked else jnp.full((Bs,), T - 1, jnp.int32)
+        u_end = [jnp.take_along_axis(Xs, last[:, None], axis=1)[:, 0] for Xs in X]
+        W1, W2, y1, y2 = regressors("start", c["z"], u_end, u_end)
+        th = from_pairs(c["theta"])
         e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
         e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
         out["theta"] = jnp.stack(th)
@@ -517,111 +554,17 @@ def _kernel(plan: _Plan, U, shared, per):
         if traj is not None:
             out["trajectory"] = traj
     if plan.ls:
-        out["ls"] = jnp.stack(carry["ls"])
+        out["ls"] = jnp.stack(c["ls"])
     if plan.track:
-        out["last_out"] = carry["last_out"]
-        out["surr"] = carry["surr"]
-        out["tail"] = jnp.stack(carry["tail"])
+        out["last_out"] = c["last_out"]
+        out["surr"] = c["surr"]
+        out["tail"] = jnp.stack(c["tail"])
     return out
 
 
-_FAST_PACK = True  # one φ per sample (see exact_step)
-_FAST_BLOCK = 64  # samples per slab of the hot path's blocked transpose
-
-
-def _fast_kernel(plan: _Plan, X, shared, per):
-    """The hot path: θ only (no LS, tracking, masks or trajectory), shared filter and gain.
-
-    X: tuple of S raw signals, each ``(Bs, T)`` in the caller's record-major layout: every step
-    reads column k+1 with a dynamic index inside the scan, so the (B, T) → (T, B) transpose of
-    the whole record is never materialised (it cost ≈ 45 % of the run). The carry is one flat
-    tuple of (Bs,) arrays, ``unroll=1`` (Python-unrolled chunks compiled for minutes and were
-    not faster), φ is the series only, and the running max of tr(hS) ≥ ρ(hS) tells the caller
-    whether the series was valid everywhere (else it re-runs the general kernel).
-    Returns (theta (p, Bs), J (Bs,), trmax (Bs,)).
-    """
-    S = len(X)
-    Bs, T = X[0].shape
-    dtype = X[0].dtype
-    n, p = plan.n, len(plan.columns)
-    coef = shared["coef"]
-    Phi, G0, G1, lam = coef["Phi"], coef["G0"], coef["G1"], coef["lam"]
-    cdc = lam[n - 1] if plan.unit_dc else None
-    h = shared["h"]
-    Gm = shared["G"]
-    Gl = [[Gm[i, j] for j in range(p)] for i in range(p)]
-    mu = shared.get("mu")
-    V = _outputs(plan, None, None, lam, cdc)
-    foh = [hold == "foh" for _, hold in plan.signals]
-    z0 = per["z0"]  # (S, n, Bs)
-
-    def filt(zs, uk, uk1, is_foh):
-        out = []
-        for i in range(n):
-            v = sum(Phi[i][j] * zs[j] for j in range(n)) + G0[i] * uk
-            if is_foh:
-                v = v + G1[i] * (uk1 - uk)
-            out.append(v)
-        return out
-
-    def pack(z, u, th, mx):
-        return tuple(v for zs in z for v in zs) + tuple(u) + tuple(th) + (mx,)
-
-    def unpack(c):
-        z = [list(c[s * n : (s + 1) * n]) for s in range(S)]
-        u = list(c[S * n : S * n + S])
-        th = list(c[S * n + S : S * n + S + p])
-        return z, u, th, c[-1]
-
-    def body(c, u1):
-        z, u, th, mx = unpack(c)
-        u1 = list(u1)
-        zn = [filt(z[s], u[s], u1[s], foh[s]) for s in range(S)]
-        if plan.midpoint:
-            zm = [[0.5 * (a + b) for a, b in zip(z[s], zn[s], strict=True)] for s in range(S)]
-            um = [0.5 * (a + b) for a, b in zip(u, u1, strict=True)]
-            W1, W2, y1, y2 = _regressors(plan, V, zm, um)
-        else:
-            W1, W2, y1, y2 = _regressors(plan, V, z, u)
-        cn = None
-        if mu is not None:
-            cn = 1.0 / (1.0 + mu * sum(w * w for w in W1 + W2))
-        trs = []
-
-        def phi(zp, zq, zr):
-            trs.append(zp + zr)
-            return _phi_series(zp, zq, zr)
-
-        thn = exact_step(th, W1, W2, y1, y2, Gl, h, cn, phi=phi, pack=_FAST_PACK)
-        return pack(zn, u1, thn, jnp.maximum(mx, trs[0])), None
-
-    th0 = [per["theta0"][i] for i in range(p)]
-    c0 = pack(
-        [[z0[s, i] for i in range(n)] for s in range(S)],
-        [Xs[:, 0] for Xs in X],
-        th0,
-        jnp.zeros((Bs,), dtype),
-    )
-    C = _FAST_BLOCK
-    nc, rem = divmod(T - 1, C)
-
-    def block(c, i):
-        # one (Bs, C) slab per signal, transposed here (C·4 contiguous bytes per row read)
-        slabs = tuple(jax.lax.dynamic_slice_in_dim(Xs, 1 + i * C, C, axis=1).T for Xs in X)
-        return jax.lax.scan(body, c, slabs)[0], None
-
-    c, _ = jax.lax.scan(block, c0, jnp.arange(nc))
-    if rem:
-        c, _ = jax.lax.scan(body, c, tuple(Xs[:, 1 + nc * C :].T for Xs in X))
-    z, u, th, mx = unpack(c)
-    W1, W2, y1, y2 = _regressors(plan, V, z, u)
-    e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
-    e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
-    return jnp.stack(th), 0.5 * (e1 * e1 + e2 * e2), mx
-
-
 def _solve_ls(stats: Array, p: int):
-    """θ_LS and the condition number of the normalised ΦᵀΦ from the streamed statistics."""
+    """θ_LS, the condition number of the column-normalised ΦᵀΦ, A = ΦᵀΦ and (ΦᵀΦ)⁻¹ from the
+    streamed statistics. A zero or indefinite normalised ΦᵀΦ (a flat record) has condition inf."""
     npp = p * (p + 1) // 2
     A = jnp.zeros(stats.shape[:-1] + (p, p), stats.dtype)
     idx = 0
@@ -630,12 +573,16 @@ def _solve_ls(stats: Array, p: int):
             A = A.at[..., i, j].set(stats[..., idx]).at[..., j, i].set(stats[..., idx])
             idx += 1
     b = stats[..., npp : npp + p]
-    d = jnp.sqrt(jnp.clip(jnp.diagonal(A, axis1=-2, axis2=-1), jnp.finfo(A.dtype).tiny, None))
+    tiny = jnp.finfo(A.dtype).tiny
+    d = jnp.sqrt(jnp.clip(jnp.diagonal(A, axis1=-2, axis2=-1), tiny, None))
     An = A / d[..., :, None] / d[..., None, :]
     ev = jnp.linalg.eigvalsh(An)
-    cond = jnp.sqrt(ev[..., -1] / jnp.clip(ev[..., 0], jnp.finfo(A.dtype).tiny, None))
-    theta = -jnp.linalg.solve(An, (b / d)[..., None])[..., 0] / d
-    return theta, cond, A, stats[..., -1]
+    cond = jnp.where(
+        ev[..., 0] > 0, jnp.sqrt(ev[..., -1] / jnp.clip(ev[..., 0], tiny, None)), jnp.inf
+    )
+    An_inv = jnp.linalg.inv(An)
+    theta = -jnp.einsum("...ij,...j->...i", An_inv, b / d) / d
+    return theta, cond, A, An_inv / d[..., :, None] / d[..., None, :]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -651,6 +598,11 @@ def _plan_for(model: AbstractModel, record0: Record, bank: FilterBank, **flags) 
     for _, order, _ in cols:
         if order + 2 > 4 or order < 0:
             raise InputError("lion_batched: column orders must be 0…2 (outputs V₁…V₄).")
+    if bank.order < 3:
+        raise InputError(
+            f"lion_batched: the filter must have order n ≥ 3 (V₄ = s³/Λ·x must be proper), "
+            f"got n = {bank.order}."
+        )
     return _Plan(
         signals=tuple((k, sigs[k][1]) for k in names),
         columns=cols,
@@ -659,25 +611,6 @@ def _plan_for(model: AbstractModel, record0: Record, bank: FilterBank, **flags) 
         unit_dc=bank.unit_dc_gain,
         **flags,
     )
-
-
-def _coefficients(bank: FilterBank, dt: Array) -> dict:
-    """Φ, Γ₀, Γ₁ and λ as nested lists of arrays (shape () or (B,) each)."""
-    Phi, G0, G1 = bank.discretise(dt)
-    n = bank.order
-    return {
-        "Phi": [[Phi[i, j] for j in range(n)] for i in range(n)],
-        "G0": [G0[i] for i in range(n)],
-        "G1": [G1[i] for i in range(n)],
-        "lam": [bank.coeffs[i] for i in range(n)],
-    }
-
-
-def _batched_coefficients(bank: FilterBank, dt: Array, batched: bool) -> dict:
-    if not batched:
-        return _coefficients(bank, dt)
-    out = jax.vmap(_coefficients)(bank, dt)
-    return out
 
 
 def _gain_from_R(gain: AbstractGain, R: Array, p: int, names) -> tuple[Array, Array]:
@@ -689,6 +622,14 @@ def _gain_from_R(gain: AbstractGain, R: Array, p: int, names) -> tuple[Array, Ar
     L = jnp.linalg.cholesky(R + 0.0)
     regs = Regressors(jnp.swapaxes(L, -1, -2)[None], jnp.zeros((1, p), R.dtype), names)
     return gain(regs, jnp.ones((1,), R.dtype))
+
+
+def _slab(save_every: int | None, chunk: int) -> tuple[int, int]:
+    """(samples per slab, slabs per saved θ): the slab divides ``save_every`` exactly."""
+    if save_every is None:
+        return chunk, 0
+    C = max(d for d in range(1, min(chunk, save_every) + 1) if save_every % d == 0)
+    return C, save_every // C
 
 
 def lion_batched(
@@ -708,7 +649,7 @@ def lion_batched(
     softness: float = 0.25,
     transient: float | ArrayLike | None = None,
     save_every: int | None = None,
-    chunk: int = 1,
+    chunk: int = _BLOCK,
     batched_bank: bool = False,
     batched_gain: bool = False,
     shard: bool = True,
@@ -744,17 +685,19 @@ def lion_batched(
         softness: width of the sigmoid in log-error of the surrogate ``time_outside``.
         transient: seconds excluded from the LS statistics and from the gain's R (default
             3·λₙ₋₁/λₙ, as everywhere in lionjax).
-        save_every: keep θ every ``save_every`` samples (rounded up to a multiple of ``chunk``).
-        chunk: samples per unrolled inner block (performance knob; 1, the default, was fastest
-            on a 2-core CPU: XLA re-materialises the carry per step either way).
-        shard: shard the batch over ``jax.local_devices()`` (default True).
+        save_every: keep θ every ``save_every`` samples (exactly; the slab length becomes the
+            largest divisor of ``save_every`` not above ``chunk``).
+        chunk: samples per slab read from the ``(B, T)`` records per inner loop (a performance
+            knob: each slab is transposed in cache, the whole batch never is).
+        shard: shard the batch over ``jax.local_devices()`` (default True; the batch size must
+            be a multiple of the device count, else it runs unsharded).
         throw: raise on failure (unexcited parameters under AutoGain, non-finite θ); with
             False the failures are in ``result`` per record.
-        fast: use the specialised hot path when it applies (shared ``dt`` and filter, one
-            fixed gain, no ``lengths``/``convergence``/``save_every``): reads the ``(B, T)``
-            records in place (no transpose), flat carry, series φ; the general kernel is
-            re-run only if some tr(h·WGWᵀ) > 1. Same results; ``False`` forces the general
-            kernel (for comparisons).
+        fast: evaluate E(hS) by the series branch of :func:`phi_sym2` alone while every
+            tr(hS) ≤ 1 (10 terms in float32, 18 in float64: truncation below the unit
+            roundoff) and re-run the whole batch with the closed form (both branches) only if
+            some sample exceeds the bound or θ is not finite. ``False`` always uses the closed
+            form (identical results where tr(hS) ≤ 1).
 
     Returns:
         a :class:`BatchedSolution`.
@@ -781,13 +724,8 @@ def lion_batched(
         )
     if not (isinstance(chunk, int) and chunk >= 1):
         raise InputError(f"lion_batched: chunk must be a positive int, got {chunk!r}.")
-    save_chunks = 0
-    if save_every is not None:
-        if not (isinstance(save_every, int) and save_every >= 1):
-            raise InputError(
-                f"lion_batched: save_every must be a positive int, got {save_every!r}."
-            )
-        save_chunks = max(1, math.ceil(save_every / chunk))
+    if save_every is not None and not (isinstance(save_every, int) and save_every >= 1):
+        raise InputError(f"lion_batched: save_every must be a positive int, got {save_every!r}.")
     if not (0 < tolerance < 1):
         raise InputError(f"lion_batched: tolerance must be in (0, 1), got {tolerance!r}.")
     sol = _lion_batched(
@@ -795,51 +733,58 @@ def lion_batched(
         records,
         bank,
         gain,
-        stepper.regressors == "midpoint",
-        normalisation,
-        theta0,
-        lengths,
-        ls,
-        convergence,
-        theta_ref,
-        tolerance,
-        softness,
-        transient,
-        save_chunks,
-        chunk,
-        batched_bank,
-        batched_gain,
-        shard,
-        fast=fast,
+        dict(
+            midpoint=stepper.regressors == "midpoint",
+            normalisation=normalisation,
+            theta0=theta0,
+            lengths=lengths,
+            ls=ls,
+            convergence=convergence,
+            theta_ref=theta_ref,
+            tolerance=tolerance,
+            softness=softness,
+            transient=transient,
+            save_every=save_every,
+            chunk=chunk,
+            batched_bank=batched_bank,
+            batched_gain=batched_gain,
+            shard=shard,
+            fast=fast,
+            one=jnp.ones((), records.x.dtype),
+        ),
     )
     return finish(sol, throw, what="lion_batched")
 
 
-@eqx.filter_jit
-def _lion_batched(
-    model,
-    records,
-    bank,
-    gain,
-    midpoint,
-    normalisation,
-    theta0,
-    lengths,
-    ls,
-    convergence,
-    theta_ref,
-    tolerance,
-    softness,
-    transient,
-    save_chunks,
-    chunk,
-    batched_bank,
-    batched_gain,
-    shard,
+_OPTIONS = dict(
+    midpoint=True,
+    normalisation=None,
+    theta0=None,
+    lengths=None,
+    ls=False,
+    convergence=False,
+    theta_ref=None,
+    tolerance=0.02,
+    softness=0.25,
+    transient=None,
+    save_every=None,
+    chunk=_BLOCK,
+    batched_bank=False,
+    batched_gain=False,
+    shard=True,
+    fast=True,
     only_ls=False,
     max_condition=1e7,
-    fast=True,
-):
+    one=None,  # a runtime 1 (an argument, not a constant): see materialise
+)
+
+
+@eqx.filter_jit
+def _lion_batched(model, records, bank, gain, options):
+    o_ = dict(_OPTIONS, **options)
+    unknown = set(options) - set(_OPTIONS)
+    if unknown:
+        raise TypeError(f"_lion_batched: unknown options {sorted(unknown)}")
     B, T = records.x.shape
     dtype = records.x.dtype
     rec0 = jax.tree.map(lambda a: a[0] if a.ndim >= 1 else a, records)
@@ -852,33 +797,34 @@ def _lion_batched(
         jnp.broadcast_to(records.t0, (B,)),
         records.extras,
     )
+    sigs0 = model.signals(rec0)
+    order = list(sigs0)  # the plan's signal order (a dict out of vmap is sorted)
     sig_vals = jax.vmap(lambda r: {k: v[0] for k, v in model.signals(r).items()})(full)
-    order = list(model.signals(rec0))  # the plan's signal order (a dict out of vmap is sorted)
+    X = tuple(sig_vals[k].astype(dtype) for k in order)  # (B, T) each, never transposed whole
+    lengths, batched_bank = o_["lengths"], o_["batched_bank"]
     masked = lengths is not None
     dt = jnp.broadcast_to(jnp.asarray(records.dt, dtype), (B,))
     length = jnp.full((B,), T, jnp.int32) if lengths is None else jnp.asarray(lengths, jnp.int32)
     # per-record transient (LS window) and tail window, as sample indices
-    if transient is None:
+    if o_["transient"] is None:
         tr = default_transient(bank).astype(dtype)
     else:
-        tr = jnp.asarray(transient, dtype)
+        tr = jnp.asarray(o_["transient"], dtype)
     tr = jnp.broadcast_to(tr, (B,)) if jnp.ndim(tr) <= 1 else tr
     # first k with k·dt ≥ tr, computed as lionjax.lion's transient mask does
     kk = jnp.ceil(tr / dt)
     kk = jnp.where(dt * (kk - 1) >= tr, kk - 1, kk)
     kk = jnp.where(dt * kk < tr, kk + 1, kk)
     tr_k = jnp.maximum(kk, 0).astype(jnp.int32)
-    tail_k = (3 * length) // 4
-    # filter coefficients
+    # filter maps: shared (one dt, one filter) or one per record
+    holds = [sigs0[k][1] == "foh" for k in order]
     coeffs_shared = not batched_bank and jnp.ndim(records.dt) == 0
     if coeffs_shared:
-        coef = _coefficients(bank, jnp.asarray(records.dt, dtype))
+        maps = [_maps(bank, jnp.asarray(records.dt, dtype), f) for f in holds]
     else:
-        if batched_bank:
-            coef = jax.vmap(_coefficients)(bank, dt)
-        else:
-            coef = jax.vmap(lambda d: _coefficients(bank, d))(dt)
-    coef = jax.tree.map(lambda a: jnp.asarray(a, dtype), coef)
+        bank_axis = 0 if batched_bank else None
+        maps = [jax.vmap(_maps, in_axes=(bank_axis, 0, None))(bank, dt, f) for f in holds]
+    maps = jax.tree.map(lambda a: jnp.asarray(a, dtype), maps)
     z0 = jnp.stack(
         [
             jax.vmap(lambda b, u0: b.steady_state(u0), in_axes=(0 if batched_bank else None, 0))(
@@ -887,52 +833,27 @@ def _lion_batched(
             for k in order
         ]
     ).astype(dtype)  # (S, B, n)
-    # time-major (T, S, B): one transpose, then every step reads contiguous (B,) rows
-    # (built lazily inside each general run, so the fast path never materialises it)
-    make_U = lambda: jnp.stack([sig_vals[k].T for k in order], axis=1).astype(dtype)
+    block, save_blocks = _slab(o_["save_every"], o_["chunk"])
 
     def plan(**kw):
-        base = dict(
-            midpoint=midpoint,
-            normalised=normalisation is not None,
+        flags = dict(
+            midpoint=o_["midpoint"],
+            normalised=o_["normalisation"] is not None,
             masked=masked,
-            chunk=chunk,
-            save_chunks=0,
+            block=block,
+            save_blocks=0,
+            estimate=False,
+            ls=False,
+            track=False,
         )
-        base.update(kw)
-        return _plan_for(model, rec0, bank, **base)
+        flags.update(kw)
+        return _plan_for(model, rec0, bank, **flags)
 
     def run(pl: _Plan, per: dict, shared: dict):
-        per = dict(per)
-        per.setdefault("coef", None)
-        if per["coef"] is None:
-            per.pop("coef")
-        # everything per-element: batch axis last
-        perT = jax.tree.map(lambda a: jnp.moveaxis(a, 0, -1), per)
-        UT = make_U()
+        perT = jax.tree.map(lambda a: jnp.moveaxis(a, 0, -1), per)  # batch axis last
         perT["z0"] = jnp.moveaxis(z0, 1, -1)  # (S, n, B)
-        mesh = _mesh() if shard else None
-        f = lambda u, pe, sh: _kernel(pl, u, sh, pe)
-        if mesh is not None and B % mesh.size == 0:
-            spec_last = lambda a: PartitionSpec(*([None] * (a.ndim - 1) + ["batch"]))
-            in_specs = (
-                PartitionSpec(None, None, "batch"),  # (T, S, B)
-                jax.tree.map(spec_last, perT),
-                jax.tree.map(lambda a: PartitionSpec(), shared),
-            )
-            out_shape = jax.eval_shape(f, UT, perT, shared)
-            out_specs = jax.tree.map(
-                lambda a: spec_last(a) if a.ndim else PartitionSpec(), out_shape
-            )
-            f = jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
-        out = f(UT, perT, shared)
-        return jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0) if a.ndim else a, out)
-
-    def run_fast(pl: _Plan, per: dict, shared: dict):
-        X = tuple(sig_vals[k].astype(dtype) for k in order)  # (B, T) each: no transpose
-        perT = {"theta0": jnp.moveaxis(per["theta0"], 0, -1), "z0": jnp.moveaxis(z0, 1, -1)}
-        mesh = _mesh() if shard else None
-        f = lambda xs, pe, sh: _fast_kernel(pl, xs, sh, pe)
+        mesh = _mesh() if o_["shard"] else None
+        f = lambda xs, pe, sh: _kernel(pl, xs, sh, pe)
         if mesh is not None and B % mesh.size == 0:
             spec_last = lambda a: PartitionSpec(*([None] * (a.ndim - 1) + ["batch"]))
             in_specs = (
@@ -940,58 +861,66 @@ def _lion_batched(
                 jax.tree.map(spec_last, perT),
                 jax.tree.map(lambda a: PartitionSpec(), shared),
             )
-            out_specs = (
-                PartitionSpec(None, "batch"),
-                PartitionSpec("batch"),
-                PartitionSpec("batch"),
+            out_shape = jax.eval_shape(f, X, perT, shared)
+            out_specs = jax.tree.map(
+                lambda a: spec_last(a) if a.ndim else PartitionSpec(), out_shape
             )
             f = jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
-        th, J, trmax = f(X, perT, shared)
-        return {"theta": th.T, "J": J}, trmax
+        out = f(X, perT, shared)
+        return jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0) if a.ndim else a, out)
 
-    base_per = {"length": length, "tr_k": tr_k, "tail_k": tail_k}
-    shared: dict = {"tol": jnp.asarray(tolerance, dtype), "softness": jnp.asarray(softness, dtype)}
+    base_per: dict = {"length": length, "tr_k": tr_k, "tail_k": (3 * length) // 4}
+    shared: dict = {
+        "tol": jnp.asarray(o_["tolerance"], dtype),
+        "softness": jnp.asarray(o_["softness"], dtype),
+    }
     if coeffs_shared:
-        shared["coef"] = coef
+        shared["maps"] = maps
         shared["h"] = jnp.asarray(records.dt, dtype)
     else:
-        base_per["coef"] = coef
+        base_per["maps"] = maps
         base_per["h"] = dt
-    if normalisation is not None:
-        shared["mu"] = jnp.asarray(normalisation, dtype)
+    shared["one"] = jnp.ones((), dtype) if o_["one"] is None else jnp.asarray(o_["one"], dtype)
+    if o_["normalisation"] is not None:
+        shared["mu"] = jnp.asarray(o_["normalisation"], dtype)
 
-    need_ls = only_ls or ls or (convergence and theta_ref is None) or not _fixed(gain)
+    only_ls, convergence, theta_ref = o_["only_ls"], o_["convergence"], o_["theta_ref"]
+    need_ls = only_ls or o_["ls"] or (convergence and theta_ref is None) or not _fixed(gain)
     theta_ls = cond = None
     ok = jnp.ones((B,), bool)
     if need_ls:
-        o = run(plan(estimate=False, ls=True, track=False), base_per, shared)
-        theta_ls, cond, A, _ = _solve_ls(o["ls"], p)
-        n_used = jnp.clip(o["ls"][:, -1], 1.0, None)
-        R = A / n_used[:, None, None]
+        stats = run(plan(ls=True), base_per, shared)["ls"]
+        theta_ls, cond, A, A_inv = _solve_ls(stats, p)
+        n_used = stats[:, -1]
+        R = A / jnp.clip(n_used, 1.0, None)[:, None, None]
     else:
         R = jnp.broadcast_to(jnp.eye(p, dtype=dtype), (B, p, p))
     if only_ls:
         th = theta_ls
-        rss = jnp.einsum("bp,bpq,bq->b", th, A, th) + 2 * jnp.sum(th * o["ls"][:, -p - 2 : -2], -1)
-        rss = jnp.clip(rss + o["ls"][:, -2], 0.0, None)
+        rss = jnp.einsum("bp,bpq,bq->b", th, A, th) + 2 * jnp.sum(th * stats[:, -p - 2 : -2], -1)
+        rss = jnp.clip(rss + stats[:, -2], 0.0, None)
+        sigma2 = rss / jnp.clip(2 * n_used - p, 1.0, None)
+        cov = sigma2[:, None, None] * A_inv
         return LSBatchedSolution(
             theta=th,
+            covariance=cov,
+            std=jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)),
             condition=cond,
-            rms=jnp.sqrt(rss / (2 * n_used)),
-            n_used=o["ls"][:, -1],
+            rms=jnp.sqrt(rss / jnp.clip(2 * n_used, 1.0, None)),
+            n_used=n_used,
             names=names,
-            result=jax.vmap(_result)(cond < max_condition, jnp.all(jnp.isfinite(th), -1)),
+            result=jax.vmap(_result)(cond < o_["max_condition"], jnp.all(jnp.isfinite(th), -1)),
         )
     gfun = lambda g, r: _gain_from_R(g, r, p, names)
-    G, gain_ok = jax.vmap(gfun, in_axes=(0 if batched_gain else None, 0))(gain, R)
+    G, gain_ok = jax.vmap(gfun, in_axes=(0 if o_["batched_gain"] else None, 0))(gain, R)
     G = G.astype(dtype)
     ok = ok & gain_ok
-    if theta0 is None:
+    if o_["theta0"] is None:
         th0 = jnp.zeros((B, p), dtype)
     else:
-        th0 = jnp.broadcast_to(jnp.asarray(theta0, dtype), (B, p))
+        th0 = jnp.broadcast_to(jnp.asarray(o_["theta0"], dtype), (B, p))
     per = dict(base_per, theta0=th0)
-    if _fixed(gain) and not batched_gain:
+    if _fixed(gain) and not o_["batched_gain"]:
         shared["G"] = G[0]  # one gain for every record: scalars in the kernel
     else:
         per["G"] = G
@@ -1005,13 +934,15 @@ def _lion_batched(
         )
         ref = jnp.where(jnp.isfinite(ref), ref, 0.0)
         per["ref"] = ref
-    pl = plan(estimate=True, ls=False, track=track, save_chunks=save_chunks)
-    if fast and "G" in shared and coeffs_shared and not (track or save_chunks or masked):
-        # hot path; the general kernel (exact φ) only if some tr(hS) > 1 (then ρ may be > 1)
-        o_fast, trmax = run_fast(pl, per, shared)
-        o = jax.lax.cond(jnp.any(trmax > 1.0), lambda: run(pl, per, shared), lambda: o_fast)
+    flags = dict(estimate=True, track=track, save_blocks=save_blocks)
+    if o_["fast"]:
+        # the short series while tr(hS) ≤ 1/8 everywhere, else the closed form for the batch
+        o = run(plan(series_terms=_series_terms(dtype), **flags), per, shared)
+        o = jax.lax.cond(
+            jnp.all(jnp.isfinite(o["theta"])), lambda: o, lambda: run(plan(**flags), per, shared)
+        )
     else:
-        o = run(pl, per, shared)
+        o = run(plan(**flags), per, shared)
     theta = o["theta"]
     finite = jnp.all(jnp.isfinite(theta), axis=-1)
     result = jax.vmap(_result)(ok, finite)
@@ -1024,13 +955,12 @@ def _lion_batched(
         wsum = jnp.clip(tail[:, -1:], 1.0, None)
         tmean = tail[:, :p] / wsum
         tstd = jnp.sqrt(jnp.clip(tail[:, p : 2 * p] / wsum - tmean**2, 0.0, None))
-    if save_chunks:
+    if save_blocks:
         traj = jnp.moveaxis(o["trajectory"], 0, 1)  # kernel (K, p, B) → (B, K, p) → (K, B, p)
         K = traj.shape[0]
-        step = save_chunks * chunk
-        t_saved = jnp.asarray(records.t0, dtype).reshape(-1)[0] + dt[0] * step * jnp.arange(
-            1, K + 1, dtype=dtype
-        )
+        t_saved = jnp.asarray(records.t0, dtype).reshape(-1)[0] + dt[0] * o_[
+            "save_every"
+        ] * jnp.arange(1, K + 1, dtype=dtype)
     return BatchedSolution(
         theta=theta,
         J=o["J"],
@@ -1053,12 +983,17 @@ class LSBatchedSolution(eqx.Module):
     """Batch least squares from streamed sufficient statistics (:func:`least_squares_batched`).
 
     Attributes:
-        theta: θ_LS = −(ΦᵀΦ)⁻¹Φᵀy, shape ``(B, p)``; condition: condition number of the
-        column-normalised Φ, ``(B,)``; rms: root-mean-square equation error, ``(B,)``;
-        n_used: samples used, ``(B,)``; names; result: :class:`RESULTS` per record.
+        theta: θ_LS = −(ΦᵀΦ)⁻¹Φᵀy, shape ``(B, p)``.
+        covariance: σ²(ΦᵀΦ)⁻¹ with σ² = RSS/(N − p), N = 2·n_used rows (as
+            :func:`lionjax.least_squares`), ``(B, p, p)``; std: its diagonal's square root.
+        condition: condition number of the column-normalised Φ (inf if ΦᵀΦ is singular), ``(B,)``.
+        rms: root-mean-square equation error, ``(B,)``; n_used: samples used, ``(B,)``;
+        names; result: :class:`RESULTS` per record.
     """
 
     theta: Float[Array, "B p"]
+    covariance: Float[Array, "B p p"]
+    std: Float[Array, "B p"]
     condition: Float[Array, " B"]
     rms: Float[Array, " B"]
     n_used: Float[Array, " B"]
@@ -1103,30 +1038,22 @@ def least_squares_batched(
         )
     from ._estimators import FixedGain
 
-    sol = _lion_batched(
-        model,
-        records,
-        bank,
-        FixedGain(1.0),
-        True,
-        None,
-        None,
-        lengths,
-        True,
-        False,
-        None,
-        0.02,
-        0.25,
-        transient,
-        0,
-        1,
-        batched_bank,
-        False,
-        shard,
-        True,
-        max_condition,
+    options = dict(
+        lengths=lengths,
+        transient=transient,
+        batched_bank=batched_bank,
+        shard=shard,
+        only_ls=True,
+        max_condition=max_condition,
+        one=jnp.ones((), records.x.dtype),
     )
+    sol = _lion_batched(model, records, bank, FixedGain(1.0), options)
     return finish(sol, throw, what="least_squares_batched")
+
+
+def _split(v: list, p: int):
+    """(W1, W2, y1, y2) from the flat list W1 + W2 + [y1, y2]."""
+    return v[:p], v[p : 2 * p], v[2 * p], v[2 * p + 1]
 
 
 def _result(ok, finite):
