@@ -90,7 +90,6 @@ NUMBA_SRC = """
 @njit(parallel=True, fastmath=False, cache=False)
 def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
     B, T = x.shape
-    NT = {nterms}
     for bi in prange(B):
         zx0 = x[bi, 0] / lam[2]; zx1 = R(0.0); zx2 = R(0.0)
         zf0 = F[bi, 0] / lam[2]; zf1 = R(0.0); zf2 = R(0.0)
@@ -121,11 +120,18 @@ def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
             e1 = w11 * th0 + w12 * th1 + y1
             e2 = w21 * th0 + w22 * th1 + y2
             m = R(0.5) * (zp + zr); hd = R(0.5) * (zp - zr)
-            d = np.sqrt(hd * hd + zq * zq)
-            if m + d <= R(1.0):
-                tr = zp + zr; det = zp * zr - zq * zq
+            tr = zp + zr; det = zp * zr - zq * zq; d = R(0.0)
+            # the same tiers as lionjax: short series while tr ≤ bound, the ρ ≤ 1 series, eigen
+            nt = 0
+            if tr <= R({bound}):
+                nt = {nfast}
+            else:
+                d = np.sqrt(hd * hd + zq * zq)
+                if m + d <= R(1.0):
+                    nt = {nslow}
+            if nt > 0:
                 a = R(1.0); b = R(0.0)
-                for kk in range(NT, 1, -1):
+                for kk in range(nt, 1, -1):
                     rk = R(1.0) / R(kk)
                     a, b = R(1.0) + (b * det) * rk, -(a + b * tr) * rk
                 ep = a + b * zp; eq = b * zq; er = a + b * zr
@@ -151,13 +157,29 @@ def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
 """
 
 
+def phi_tiers(dtype) -> dict:
+    """lionjax's evaluation of E(hS), so every reference runs the same algorithm: the short series
+    (``nfast`` terms) while tr(hS) ≤ ``bound``, the ρ ≤ 1 series (``nslow``), else the eigen-split
+    (near-degenerate threshold ``thr``)."""
+    import jax.numpy as jnp
+
+    from lionjax import _batched as lb
+
+    f32 = dtype == "float32"
+    return {
+        "bound": lb._SERIES_BOUND,
+        "nfast": lb._fast_series_terms(jnp.dtype(dtype)),
+        "nslow": lb._series_terms(jnp.dtype(dtype)),
+        "thr": 3e-2 if f32 else 1e-3,
+    }
+
+
 def build_numba(dtype):
     import numba  # noqa: F401
     from numba import njit, prange
 
     ns = {"njit": njit, "prange": prange, "np": np, "R": getattr(np, dtype)}
-    f32 = dtype == "float32"
-    src = NUMBA_SRC.format(nterms=9 if f32 else 17, thr=3e-2 if f32 else 1e-3)
+    src = NUMBA_SRC.format(**phi_tiers(dtype))
     exec(src, ns)  # noqa: S102 — the kernel is written once above, typed per dtype
     return ns["lion_numba"]
 
@@ -167,7 +189,7 @@ def build_numba(dtype):
 # some element needs the eigen branch)
 
 
-def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, nterms, thr):
+def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, tiers):
     R = x.dtype.type
     B, T = x.shape
     xt = np.ascontiguousarray(x.T)
@@ -209,9 +231,10 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, nterms, thr):
         small = m + d <= 1.0
         tr = zp + zr
         det = zp * zr - zq * zq
+        nt = tiers["nfast"] if (tr <= tiers["bound"]).all() else tiers["nslow"]
         a = np.ones_like(zp)
         b = np.zeros_like(zp)
-        for kk in range(nterms, 1, -1):
+        for kk in range(nt, 1, -1):
             rk = R(1.0 / kk)
             a, b = R(1.0) + (b * det) * rk, -(a + b * tr) * rk
         ep, eq, er = a + b * zp, b * zq, a + b * zr
@@ -226,7 +249,7 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, nterms, thr):
                 lp, lm = m + d, m - d
                 epp = -np.expm1(-lp) / lp
                 emm = np.where(lm < 1e-6, R(1.0) - half * lm, -np.expm1(-lm) / lm)
-                near = d < thr * m
+                near = d < tiers["thr"] * m
                 ebar = np.where(near, E0 + half * E2 * d * d, half * (epp + emm))
                 g = np.where(near, E1 + E3 * d * d / R(6.0), (epp - emm) / (R(2.0) * d))
             ep = np.where(small, ep, ebar + g * hd)
@@ -282,7 +305,6 @@ def main(argv=None) -> dict:
     cdc = dtype.type(lam[2])
     Gd = G.astype(dtype)
     h = dtype.type(dt)
-    nterms, thr = (9, 3e-2) if args.dtype == "float32" else (17, 1e-3)
     N = B * T
     out: dict = {
         "config": {
@@ -311,9 +333,13 @@ def main(argv=None) -> dict:
         out[name] = {"msps": msps, "seconds": seconds, **extra}
         print(f"{name:>10}: {msps:9.2f} M sample-updates/s  ({seconds * 1e3:.1f} ms)", flush=True)
 
-    # --- lionjax
-    recs = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dt, dtype))
+    # --- lionjax: the records placed once over the host devices (lj.shard_records, timed
+    # separately as placement_s), then lion_batched with its defaults
     gain = lj.FixedGain(jnp.asarray(Gd))
+    t0 = time.perf_counter()
+    recs = lj.shard_records(lj.Record(x, F, jnp.asarray(dt, dtype)))
+    jax.block_until_ready(recs)
+    placement = time.perf_counter() - t0
     run = lambda: lj.lion_batched(model, recs, gain=gain, throw=False).theta.block_until_ready()
     m0 = rss_mb()
     t0 = time.perf_counter()
@@ -326,10 +352,30 @@ def main(argv=None) -> dict:
         N,
         law="exact",
         compile_s=max(first - secs, 0.0),
+        placement_s=placement,
         peak_rss_growth_mb=rss_mb() - m0,
         roofline_fraction=N / secs / 1e6 / ROOFLINE_MSPS,
         devices=len(jax.local_devices()),
     )
+    # --- lionjax on one device, records as they come (no placement): the batch split into
+    # one loop per core inside one program
+    if "one_device" not in skip:
+        recs1 = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dt, dtype))
+        run1 = lambda: lj.lion_batched(
+            model, recs1, gain=gain, shard=False, throw=False
+        ).theta.block_until_ready()
+        t0 = time.perf_counter()
+        th1 = np.asarray(run1())
+        first = time.perf_counter() - t0
+        secs = best_time(run1, args.repeats)
+        record(
+            "lionjax_one_device",
+            secs,
+            N,
+            law="exact",
+            compile_s=max(first - secs, 0.0),
+            roofline_fraction=N / secs / 1e6 / ROOFLINE_MSPS,
+        )
 
     def check(name, theta, n=None):
         ref = theta_lj[: theta.shape[0]] if n is None else n
@@ -337,6 +383,9 @@ def main(argv=None) -> dict:
         out[name]["max_rel_diff_vs_lionjax"] = err
         out[name]["agrees"] = bool(err <= rtol)
         print(f"{'':>10}  max relative difference to lionjax {err:.2e} (tolerance {rtol:g})")
+
+    if "one_device" not in skip:
+        check("lionjax_one_device", th1)
 
     # --- numba
     if "numba" not in skip:
@@ -369,7 +418,7 @@ def main(argv=None) -> dict:
 
     # --- numpy
     if "numpy" not in skip:
-        fn = lambda: lion_numpy(x, F, Phi, Gam0, Gam1, lam, cdc, Gd, h, nterms, thr)
+        fn = lambda: lion_numpy(x, F, Phi, Gam0, Gam1, lam, cdc, Gd, h, phi_tiers(args.dtype))
         m0 = rss_mb()
         th = fn()
         secs = best_time(fn, max(1, min(args.repeats, 5)))
@@ -513,6 +562,13 @@ def main(argv=None) -> dict:
     out["roofline_msps"] = ROOFLINE_MSPS
     out["peak_rss_mb"] = rss_mb()
     print("ratios: " + ", ".join(f"lionjax/{k} = {v:.2f}x" for k, v in ratios.items()))
+    if "lionjax_one_device" in out:
+        one = out["lionjax_one_device"]["msps"]
+        r1 = {
+            f"lionjax_one_device/{k}": one / out[k]["msps"] for k in ("numba", "numpy") if k in out
+        }
+        out["ratios"].update(r1)
+        print("ratios without placement: " + ", ".join(f"{k} = {v:.2f}x" for k, v in r1.items()))
     print(
         f"lionjax at {out['lionjax']['roofline_fraction']:.1%} of the ~{ROOFLINE_MSPS:.0f} "
         "M/s roofline"

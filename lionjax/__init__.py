@@ -9,6 +9,7 @@ from ._batched import (
     least_squares_batched as least_squares_batched,
     lion_batched as lion_batched,
     lion_parallel as lion_parallel,
+    shard_records as shard_records,
     stack_records as stack_records,
 )
 from ._diagnose import (

@@ -229,6 +229,54 @@ def host_devices(n: int | None = None) -> int:
     return n
 
 
+def shard_records(records: Record) -> Record:
+    """Place a batch of records in the layout :func:`lion_batched` shards it into: the batch axis
+    of ``x``, ``F`` (and of ``(B,)`` ``dt``/``t0``) split over ``jax.local_devices()``.
+
+    Do it once for data that is estimated several times (a study, a benchmark): otherwise every
+    call copies the records onto the devices (measured 0.06–0.17 s per 131 MB signal on a
+    2-core CPU). With one device, or a batch that is not a multiple of the device count, the
+    records come back unchanged.
+    """
+    if not isinstance(records, Record) or records.x.ndim != 2:
+        raise InputError(
+            "shard_records: expected a batch Record with x of shape (B, T), got "
+            f"{type(records).__name__}"
+            + (f" with x of shape {records.x.shape}" if isinstance(records, Record) else "")
+            + ". Stack records with lionjax.stack_records."
+        )
+    mesh = _mesh()
+    if mesh is None or records.x.shape[0] % mesh.size:
+        return records
+    from jax.sharding import NamedSharding
+
+    B = records.x.shape[0]
+    place = lambda a, spec: jax.device_put(a, NamedSharding(mesh, spec))
+    row = PartitionSpec("batch", None)
+    return jax.tree.map(
+        lambda a: (
+            place(a, row)
+            if a.ndim == 2 and a.shape[0] == B
+            else place(a, PartitionSpec("batch"))
+            if a.ndim == 1 and a.shape[0] == B
+            else a
+        ),
+        records,
+    )
+
+
+def _shard_here(records: Record, shard: bool) -> bool:
+    """Whether to shard this call: on CPU only records already laid out over the devices
+    (:func:`shard_records`) are sharded — copying them there costs more than the split loops of
+    one device save; on accelerators always (one device would leave the others idle)."""
+    if not shard or _mesh() is None or jax.default_backend() != "cpu":
+        return shard
+    x = records.x
+    if isinstance(x, jax.core.Tracer) or not isinstance(x, jax.Array):
+        return True  # traced (inside an outer jit): the layout is the caller's
+    return len(x.sharding.device_set) > 1
+
+
 def _mesh() -> Mesh | None:
     devs = jax.local_devices()
     if len(devs) < 2:
@@ -284,13 +332,18 @@ class BatchedSolution(eqx.Module):
 # ----------------------------------------------------------------------------------------------
 # The kernel (one shard; batch axis last on every per-element array)
 
-# The hot path's φ: the series branch of :func:`phi_sym2` alone (no eigen branch, no selects),
-# valid while every tr(hS) ≤ 1 (tr ≥ ρ for the PSD hS); below the bound it computes exactly what
-# the closed form computes. Gains in practice stay far below it (AutoGain(1) on the twin:
-# tr(hS) ≈ 0.02; the benchmark's gain: ≤ 0.17). A sample beyond the bound turns its record
-# non-finite on purpose (exact_step's divisor) and the caller re-runs the batch with the closed
-# form: results never depend on the bound, only the run time does.
-_SERIES_BOUND = 1.0
+# The hot path's φ: the series alone, E ≈ Σ_{n<K} (−Z)ⁿ/(n+1)!, valid while every tr(hS) ≤ r
+# (tr ≥ ρ for the PSD hS): the remainder is ≤ rᴷ/(K+1)! — 1.1e-8 (float32, K = 8) and 4.7e-17
+# (float64, K = 14) for r = 1/2, below the unit roundoff. Gains in practice stay below it
+# (AutoGain(1) on the twin: tr(hS) ≈ 0.02; the benchmark's gain: ≤ 0.5 on all 4096 records).
+# A sample beyond the bound turns its record non-finite on purpose (exact_step's divisor) and
+# the caller re-runs those records with the closed form (:func:`phi_sym2`): results never
+# depend on the bound, only the run time does.
+_SERIES_BOUND = 0.5
+
+
+def _fast_series_terms(dtype) -> int:
+    return 8 if jnp.dtype(dtype) == jnp.float32 else 14
 
 
 _BLOCK = 64  # samples per slab read from the (B, T) records (transposed in cache, per block)
@@ -358,13 +411,33 @@ def _structural(mode: str, foh: bool, n: int, row: int, col: int) -> bool:
     return True
 
 
-def _kernel(plan: _Plan, X, shared, per):
-    """Run one shard of the batch. ``X``: tuple of S raw signals, each ``(Bs, T)`` (the records'
-    own layout: each slab of ``plan.block`` samples is read and transposed inside the loop, the
-    whole batch never is). Per-element inputs in ``per`` carry the batch last; ``shared`` holds
-    the values common to the batch (scalars in the kernel). Returns a dict of outputs."""
+def _split_kernel(plan: _Plan, X, shared, per, parts: int):
+    """:func:`_kernel` over ``parts`` row ranges of the batch as independent loops in one program.
+
+    XLA:CPU runs independent loops concurrently, one per core, so this is how one device uses
+    every core — without copying the records: each loop reads its rows of the same ``(B, T)``
+    buffers. (Sharding a single-device batch over host devices instead copies it every call:
+    measured 0.06–0.17 s per 131 MB signal, about half of the run at 4096 × 8000.)
+    """
+    Bs = X[0].shape[0]
+    cuts = [Bs * i // parts for i in range(parts + 1)]
+    outs = [
+        _kernel(plan, X, shared, jax.tree.map(lambda a, r0=r0, r1=r1: a[..., r0:r1], per), (r0, r1))
+        for r0, r1 in zip(cuts[:-1], cuts[1:], strict=True)
+        if r1 > r0
+    ]
+    return jax.tree.map(lambda *a: jnp.concatenate(a, axis=-1), *outs)
+
+
+def _kernel(plan: _Plan, X, shared, per, rows: tuple[int, int] | None = None):
+    """Run the records ``rows`` (default all) of the batch. ``X``: tuple of S raw signals, each
+    ``(B, T)`` (the records' own layout: each slab of ``plan.block`` samples is read and
+    transposed inside the loop, the whole batch never is). Per-element inputs in ``per`` carry
+    the batch last (already restricted to ``rows``); ``shared`` holds the values common to the
+    batch (scalars in the kernel). Returns a dict of outputs, batch last."""
     S = len(X)
-    Bs, T = X[0].shape
+    r0, r1 = (0, X[0].shape[0]) if rows is None else rows
+    Bs, T = r1 - r0, X[0].shape[1]
     dtype = X[0].dtype
     n, p = plan.n, len(plan.columns)
     get = lambda key: per[key] if key in per else shared[key]
@@ -512,7 +585,7 @@ def _kernel(plan: _Plan, X, shared, per):
     C = plan.block
     nb, rem = divmod(T - 1, C)
     # the (C + 1)-sample slab of block i, transposed in cache (the batch never is as a whole)
-    read = lambda i: tuple(jax.lax.dynamic_slice_in_dim(Xs, i * C, C + 1, axis=1).T for Xs in X)
+    read = lambda i: tuple(jax.lax.dynamic_slice(Xs, (r0, i * C), (Bs, C + 1)).T for Xs in X)
 
     def blocks(c, idx):
         if idx.shape[0] == 0:
@@ -539,12 +612,12 @@ def _kernel(plan: _Plan, X, shared, per):
     else:
         c = blocks(c, jnp.arange(nb))
     if rem:
-        c = run_slab(c, nb * C, tuple(Xs[:, nb * C :].T for Xs in X))
+        c = run_slab(c, nb * C, tuple(Xs[r0:r1, nb * C :].T for Xs in X))
 
     out: dict[str, Any] = {}
     if plan.estimate:
         last = (length - 1) if plan.masked else jnp.full((Bs,), T - 1, jnp.int32)
-        u_end = [jnp.take_along_axis(Xs, last[:, None], axis=1)[:, 0] for Xs in X]
+        u_end = [Xs[r0 + jnp.arange(Bs), last] for Xs in X]
         W1, W2, y1, y2 = regressors("start", c["z"], u_end, u_end)
         th = from_pairs(c["theta"])
         e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
@@ -624,6 +697,18 @@ def _gain_from_R(gain: AbstractGain, R: Array, p: int, names) -> tuple[Array, Ar
     return gain(regs, jnp.ones((1,), R.dtype))
 
 
+def _parts(split: int | None, rows: int, sharded: bool) -> int:
+    """Independent loops per device (:func:`_split_kernel`): ``split``, or by default on CPU the
+    cores per device (at least 64 records per loop), elsewhere 1."""
+    if split is not None:
+        return max(1, min(int(split), rows))
+    if jax.default_backend() != "cpu":
+        return 1
+    ndev = len(jax.local_devices()) if sharded else 1
+    cores = max(1, (os.cpu_count() or 1) // ndev)
+    return max(1, min(cores, rows // 64))
+
+
 def _slab(save_every: int | None, chunk: int) -> tuple[int, int]:
     """(samples per slab, slabs per saved θ): the slab divides ``save_every`` exactly."""
     if save_every is None:
@@ -653,6 +738,7 @@ def lion_batched(
     batched_bank: bool = False,
     batched_gain: bool = False,
     shard: bool = True,
+    split: int | None = None,
     throw: bool = True,
     fast: bool = True,
 ) -> BatchedSolution:
@@ -690,14 +776,19 @@ def lion_batched(
         chunk: samples per slab read from the ``(B, T)`` records per inner loop (a performance
             knob: each slab is transposed in cache, the whole batch never is).
         shard: shard the batch over ``jax.local_devices()`` (default True; the batch size must
-            be a multiple of the device count, else it runs unsharded).
+            be a multiple of the device count, else it runs unsharded). On CPU host devices only
+            records already placed by :func:`shard_records` are sharded (else they would be
+            copied on every call; one device's ``split`` loops use the cores instead).
+        split: independent loops per device, each over its own rows of the batch (XLA:CPU
+            runs them concurrently: this is how one CPU device uses every core without copying
+            the records). Default: on CPU the cores per device (≥ 64 records per loop), else 1.
         throw: raise on failure (unexcited parameters under AutoGain, non-finite θ); with
             False the failures are in ``result`` per record.
-        fast: evaluate E(hS) by the series branch of :func:`phi_sym2` alone while every
-            tr(hS) ≤ 1 (10 terms in float32, 18 in float64: truncation below the unit
-            roundoff) and re-run the whole batch with the closed form (both branches) only if
-            some sample exceeds the bound or θ is not finite. ``False`` always uses the closed
-            form (identical results where tr(hS) ≤ 1).
+        fast: evaluate E(hS) by its series alone while tr(hS) ≤ 1/2 (8 terms in float32, 14
+            in float64: truncation below the unit roundoff) and re-run only the records where
+            some sample exceeds the bound (or θ is not finite) with the closed form
+            (:func:`phi_sym2`), gathered into a batch of B/16 (the whole batch if more fail).
+            ``False`` always uses the closed form (same results to rounding).
 
     Returns:
         a :class:`BatchedSolution`.
@@ -748,7 +839,8 @@ def lion_batched(
             chunk=chunk,
             batched_bank=batched_bank,
             batched_gain=batched_gain,
-            shard=shard,
+            shard=_shard_here(records, shard),
+            split=split,
             fast=fast,
             one=jnp.ones((), records.x.dtype),
         ),
@@ -772,6 +864,7 @@ _OPTIONS = dict(
     batched_bank=False,
     batched_gain=False,
     shard=True,
+    split=None,
     fast=True,
     only_ls=False,
     max_condition=1e7,
@@ -849,24 +942,31 @@ def _lion_batched(model, records, bank, gain, options):
         flags.update(kw)
         return _plan_for(model, rec0, bank, **flags)
 
-    def run(pl: _Plan, per: dict, shared: dict):
+    def run(pl: _Plan, per: dict, shared: dict, idx: Array | None = None):
+        """The kernel over the batch (or over the records ``idx`` of it), batch-first outputs."""
+        xs, zz = X, z0
+        if idx is not None:
+            per = jax.tree.map(lambda a: a[idx], per)
+            xs, zz = tuple(a[idx] for a in X), z0[:, idx]
         perT = jax.tree.map(lambda a: jnp.moveaxis(a, 0, -1), per)  # batch axis last
-        perT["z0"] = jnp.moveaxis(z0, 1, -1)  # (S, n, B)
+        perT["z0"] = jnp.moveaxis(zz, 1, -1)  # (S, n, B)
         mesh = _mesh() if o_["shard"] else None
-        f = lambda xs, pe, sh: _kernel(pl, xs, sh, pe)
-        if mesh is not None and B % mesh.size == 0:
+        sharded = mesh is not None and xs[0].shape[0] % mesh.size == 0
+        parts = _parts(o_["split"], xs[0].shape[0] // (mesh.size if sharded else 1), sharded)
+        f = lambda xs, pe, sh: _split_kernel(pl, xs, sh, pe, parts)
+        if sharded:
             spec_last = lambda a: PartitionSpec(*([None] * (a.ndim - 1) + ["batch"]))
             in_specs = (
                 tuple(PartitionSpec("batch", None) for _ in X),
                 jax.tree.map(spec_last, perT),
                 jax.tree.map(lambda a: PartitionSpec(), shared),
             )
-            out_shape = jax.eval_shape(f, X, perT, shared)
+            out_shape = jax.eval_shape(f, xs, perT, shared)
             out_specs = jax.tree.map(
                 lambda a: spec_last(a) if a.ndim else PartitionSpec(), out_shape
             )
             f = jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
-        out = f(X, perT, shared)
+        out = f(xs, perT, shared)
         return jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0) if a.ndim else a, out)
 
     base_per: dict = {"length": length, "tr_k": tr_k, "tail_k": (3 * length) // 4}
@@ -936,11 +1036,23 @@ def _lion_batched(model, records, bank, gain, options):
         per["ref"] = ref
     flags = dict(estimate=True, track=track, save_blocks=save_blocks)
     if o_["fast"]:
-        # the short series while tr(hS) ≤ 1/8 everywhere, else the closed form for the batch
-        o = run(plan(series_terms=_series_terms(dtype), **flags), per, shared)
-        o = jax.lax.cond(
-            jnp.all(jnp.isfinite(o["theta"])), lambda: o, lambda: run(plan(**flags), per, shared)
-        )
+        # the short series where tr(hS) ≤ 1/2 (records beyond it come back non-finite), then the
+        # closed form for those records only: up to Bf of them gathered into one small batch,
+        # the whole batch if more (Bf: a 16th of the batch, a multiple of the device count)
+        o = run(plan(series_terms=_fast_series_terms(dtype), **flags), per, shared)
+        bad = ~jnp.all(jnp.isfinite(o["theta"]), axis=-1)
+        ndev = len(jax.local_devices()) if o_["shard"] else 1
+        Bf = min(B, ndev * -(-max(1, B // 16) // ndev))
+        idx = jnp.nonzero(bad, size=Bf, fill_value=-1)[0]
+        idx = jnp.where(idx < 0, idx[0], idx)  # pad with a failed record (same values)
+
+        def some():
+            sub = run(plan(**flags), per, shared, idx)
+            return jax.tree.map(lambda a, b: a.at[idx].set(b), o, sub)
+
+        n_bad = jnp.sum(bad)
+        branch = jnp.where(n_bad == 0, 0, jnp.where(n_bad <= Bf, 1, 2))
+        o = jax.lax.switch(branch, [lambda: o, some, lambda: run(plan(**flags), per, shared)])
     else:
         o = run(plan(**flags), per, shared)
     theta = o["theta"]
@@ -1042,7 +1154,7 @@ def least_squares_batched(
         lengths=lengths,
         transient=transient,
         batched_bank=batched_bank,
-        shard=shard,
+        shard=_shard_here(records, shard),
         only_ls=True,
         max_condition=max_condition,
         one=jnp.ones((), records.x.dtype),

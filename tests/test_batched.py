@@ -159,3 +159,40 @@ def test_unexcited_reported_per_element(recs):
     assert codes[0] == 0 and codes[1] != 0
     with pytest.raises(lj.IdentificationError, match=r"batch element \(1,\)"):
         lj.raise_if_failed(sol)
+
+
+def test_split_loops_equal_one_loop(recs):
+    """The batch split into independent loops over its rows (how one CPU device uses every
+    core) gives the same numbers as one loop, with LS, convergence and masks on."""
+    batch, lengths = lj.stack_records(
+        recs[:3] + [lj.Record(recs[3].x[:2500], recs[3].F[:2500], DT)]
+    )
+    kw = dict(gain=lj.AutoGain(2.0), ls=True, convergence=True, lengths=lengths, save_every=500)
+    one = lj.lion_batched(lj.MassDamper(), batch, split=1, **kw)
+    three = lj.lion_batched(lj.MassDamper(), batch, split=3, **kw)
+    for name in ("theta", "J", "theta_ls", "t_converged", "trajectory", "tail_mean"):
+        np.testing.assert_allclose(getattr(three, name), getattr(one, name), rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("n_small", [30, 2])
+def test_fast_path_falls_back_per_record_where_the_series_bound_fails(recs, n_small):
+    """Records whose tr(hS) exceeds the series bound are re-run with the closed form — gathered
+    into a small batch (2 of 32 records beyond the bound) or the whole batch (2 of 4): the
+    result equals fast=False and lj.lion for every record."""
+    from lionjax._batched import _SERIES_BOUND
+
+    # the system is linear: scaled records are records too, with 0.09× the regressors' W²
+    scales = [1.0, 1.0] + [0.3] * n_small
+    recs = [lj.Record(recs[i % 4].x * s, recs[i % 4].F * s, DT) for i, s in enumerate(scales)]
+    batch, _ = lj.stack_records(recs)
+    W = [np.asarray(lj.MassDamper().regressors(r, lj.default_bank()).W) for r in recs[:4]]
+    peak = [np.max(np.einsum("tip,tip->t", w, w)) for w in W]  # ≥ max tr(W Wᵀ) per record
+    g = 2.0 * _SERIES_BOUND / DT / max(peak[:2])  # beyond the bound for the first two only
+    assert min(DT * g * q for q in peak[:2]) > _SERIES_BOUND
+    assert max(DT * g * q for q in peak[2:]) < 0.5 * _SERIES_BOUND
+    fast = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g))
+    slow = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g), fast=False)
+    np.testing.assert_allclose(fast.theta, slow.theta, rtol=1e-10)
+    for i in (0, 1, 2, len(recs) - 1):
+        ref = lj.lion(lj.MassDamper(), recs[i], gain=lj.FixedGain(g))
+        np.testing.assert_allclose(fast.theta[i], ref.theta_final, rtol=1e-10)

@@ -20,7 +20,10 @@ SCRIPT = textwrap.dedent(
     x = np.cumsum(np.cumsum(F, 1), 1) * 1e-6
     rec = lj.Record(x, F, 1e-3)
     kw = dict(gain=lj.AutoGain(2.0), ls=True, convergence=True, throw=False)
-    a = lj.lion_batched(lj.MassDamper(), rec, shard=True, **kw)
+    placed = lj.shard_records(rec)
+    assert len(placed.x.sharding.device_set) == 2, placed.x.sharding
+    a = lj.lion_batched(lj.MassDamper(), placed, shard=True, **kw)
+    assert len(a.theta.sharding.device_set) == 2, a.theta.sharding  # it did run sharded
     b = lj.lion_batched(lj.MassDamper(), rec, shard=False, **kw)
     for name in ("theta", "J", "theta_ls", "t_converged"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-10, atol=0)
