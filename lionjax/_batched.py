@@ -14,33 +14,30 @@ to sample, so memory is O(B) whatever the record length T. In the same stream it
   quarter of the record (noise amplification);
 - a decimated trajectory θ(t) every ``save_every`` samples.
 
-Performance (GUIDE §9): the batch is the contiguous inner axis, the carry is a flat tuple of
-(B,) arrays, every update is elementwise (no tiny matmuls), the time loop is an outer
-``lax.scan`` over chunks of ``chunk`` samples unrolled in Python, and the batch is sharded over
-all local devices with ``jax.shard_map`` (one XLA CPU device runs a loop on one core; start
-Python with ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` — see
-:func:`lionjax.host_devices` — to use every core).
+Performance (GUIDE §9; measured on the 2-core CPU, B = 4096, T = 8000, float32). One kernel
+(:func:`_kernel`) serves every option, each adding work only when asked for:
 
-The hot path (:func:`_fast_kernel`, default ``fast=True``): for the common case — one
-``dt`` and filter for the batch, one fixed gain, θ only — the kernel reads the records in
-their ``(B, T)`` layout, one ``(B, 64)`` slab per outer scan step transposed in place (the
-(B,T)→(T,B) transpose of the whole batch cost ≈ 45 % of the run; a per-sample strided column
-read instead slows down as T grows), carries one flat tuple of (B,) arrays through an inner
-``unroll=1`` scan, and evaluates φ by the series alone while carrying max tr(hS) ≥ ρ(hS); only
-if that exceeds 1 somewhere is the general kernel (both φ branches) run instead. Measured
-(shared 2-core machine, B = 4096, T = 8000, f32, 2 host devices, same run): 115–134 M
-sample-updates/s against 50–70 for the general kernel (T = 2000: 165 against 85). Python-
-unrolled chunks of 8 samples with optimisation barriers took ≈ 5 min to compile on XLA:CPU.
+- the records are read in their own ``(B, T)`` layout, one ``(C + 1)``-sample slab per block
+  transposed in cache (C = ``chunk``, 64): the batch is never transposed as a whole;
+- the carry is flat (B,) arrays; the filter update and the regressors at the step's midpoint
+  come from linear maps of (z_k, u_k, u_{k+1}) precomputed per filter (:func:`_maps`), so the
+  θ step never recomputes the filter;
+- XLA:CPU has no multi-output fusion and re-computes a shared value inside every consumer; the
+  θ increments are therefore packed in complex pairs and divided by a runtime 1 (it never
+  duplicates an expensive producer, :func:`lionjax._phi.materialise`), and θ itself is carried
+  in complex pairs, so the whole step is one fusion updated in place;
+- E(hS) by its series alone while tr(hS) ≤ 1/2 (a free guard: beyond it the divisor is 0 and
+  the record comes back non-finite), the records that fail re-run with the closed form;
+- one CPU device runs independent loops concurrently, so the batch is split into one loop per
+  core over its own rows (:func:`_split_kernel`, no copy); records placed over several devices
+  with :func:`shard_records` are sharded with ``jax.shard_map``.
 
-The exact step. With S = W G Wᵀ (2×2 symmetric PSD), over one interval h with frozen W:
+Together: 107 M sample-updates/s on one device, 164 with the records placed over two host
+devices (the previous design: 64–79).
 
-    θ ← θ − h·G Wᵀ E(hS) (Wθ + W₀),     E(Z) = (I − e^{−Z}) Z⁻¹,
-
-and :func:`phi_sym2` evaluates E for a symmetric 2×2 Z elementwise in closed form: a Horner
-series reduced by Cayley–Hamilton for spectral radius ρ ≤ 1, the eigen-split
-E = ē I + g (Z − mI) with a guarded near-degenerate limit above. It is the same function as
-:func:`lionjax._estimators.phi_2x2` (tested to 1e-13 in float64), written to be cheap per
-element.
+The exact step (:mod:`lionjax._phi`). With S = W G Wᵀ (2×2 symmetric PSD), over one interval h
+with frozen W: θ ← θ − h·G Wᵀ E(hS) (Wθ + W₀), E(Z) = (I − e^{−Z}) Z⁻¹, the same function
+(:func:`lionjax._phi.phi_sym2`) as in :func:`lionjax.lion`.
 
 Parallel in time: θₖ₊₁ = Aₖθₖ + cₖ is linear, Aₖ = I − hGWₖᵀE Wₖ, cₖ = −hGWₖᵀE W₀ₖ, so
 :func:`lion_parallel` composes the affine maps with ``lax.associative_scan`` (O(log T) depth,
@@ -65,150 +62,9 @@ from ._errors import RESULTS, InputError
 from ._estimators import AbstractGain, AutoGain, ExactStep, default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
+from ._phi import _phi_series, exact_step, materialise, phi_sym2
 from ._record import Record
 from ._solution import default_transient, finish
-
-# ----------------------------------------------------------------------------------------------
-# The exact 2×2 step, elementwise.
-
-
-def _series_terms(dtype) -> int:
-    """Terms K of the series branch of :func:`phi_sym2` (ρ ≤ 1): the remainder ≤ 1/(K+1)! is
-    below the unit roundoff (2.5e-8 in float32 with K = 10, 8.2e-18 in float64 with K = 18)."""
-    return 10 if jnp.dtype(dtype) == jnp.float32 else 18
-
-
-def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array, Array]:
-    """E(Z) = (I − e^{−Z}) Z⁻¹ for Z = [[zp, zq], [zq, zr]] symmetric PSD, elementwise.
-
-    Returns the entries (p, q, r) of the symmetric E. Two branches, both cheap per element:
-
-    - ρ = m + d ≤ 1 (m = (zp + zr)/2, d² = ((zp − zr)/2)² + zq²): the series
-      E = Σₙ (−Z)ⁿ/(n+1)! in Horner form, each power reduced by Cayley–Hamilton
-      (Z² = tr Z·Z − det Z·I), so E = αI + βZ with scalar recurrences (9 terms in float32,
-      17 in float64: truncation below the unit roundoff);
-    - ρ > 1: the eigen-split E = ē I + g (Z − mI), ē = (E(m+d) + E(m−d))/2,
-      g = (E(m+d) − E(m−d))/(2d), E(λ) = −expm1(−λ)/λ; for d < 0.03·m (float32; 10⁻³·m in
-      float64) the Taylor limits ē ≈ E(m) + E''(m)d²/2, g ≈ E'(m) + E'''(m)d²/6.
-
-    Values and gradients are finite everywhere on PSD inputs (including Z = 0).
-    """
-    zp, zq, zr = jnp.asarray(zp), jnp.asarray(zq), jnp.asarray(zr)
-    dtype = jnp.result_type(zp, zq, zr)
-    f32 = jnp.dtype(dtype) == jnp.float32
-    m = 0.5 * (zp + zr)
-    hd = 0.5 * (zp - zr)
-    d2 = hd * hd + zq * zq
-    d = jnp.sqrt(d2 + jnp.finfo(dtype).tiny)  # tiny: finite gradient at d = 0
-    rho = m + d
-    small = rho <= 1.0
-    # --- series branch: M ← I + (−Z)M/k, M = aI + bZ; Z² = tr·Z − det·I.
-    tr = jnp.where(small, zp + zr, 0.0)
-    det = jnp.where(small, zp * zr - zq * zq, 0.0)
-    a, b = _series(tr, det, _series_terms(dtype))
-    s_p, s_q, s_r = a + b * zp, b * zq, a + b * zr
-    # --- eigen branch (values where ρ > 1; guarded inputs elsewhere).
-    mm = jnp.where(small, 2.0, m)
-    dd = jnp.where(small, 0.5, d)
-    lp = mm + dd
-    lm = mm - dd
-
-    def E(lam):
-        tiny = lam < 1e-6
-        ls = jnp.where(tiny, 1.0, lam)
-        return jnp.where(tiny, 1.0 - 0.5 * lam, -jnp.expm1(-ls) / ls)
-
-    thr = 3e-2 if f32 else 1e-3
-    near = dd < thr * mm
-    ddf = jnp.where(near, 1.0, dd)
-    ep, em = E(lp), E(lm)
-    ebar_far = 0.5 * (ep + em)
-    g_far = (ep - em) / (2.0 * ddf)
-    e = jnp.exp(-mm)
-    im = 1.0 / mm
-    E0 = (1.0 - e) * im  # m > 1/2 here: no cancellation
-    E1 = (e - E0) * im
-    E2 = (-e - 2.0 * E1) * im
-    E3 = (e - 3.0 * E2) * im
-    dn2 = jnp.where(near, dd * dd, 0.0)
-    ebar = jnp.where(near, E0 + 0.5 * E2 * dn2, ebar_far)
-    g = jnp.where(near, E1 + E3 * dn2 / 6.0, g_far)
-    hh = jnp.where(small, 0.0, hd)
-    qq = jnp.where(small, 0.0, zq)
-    e_p, e_q, e_r = ebar + g * hh, g * qq, ebar - g * hh
-    return (
-        jnp.where(small, s_p, e_p),
-        jnp.where(small, s_q, e_q),
-        jnp.where(small, s_r, e_r),
-    )
-
-
-def _phi_series(zp, zq, zr, terms: int):
-    """E(Z) by the series alone, ``terms`` terms (valid where ρ(Z) is small; see _SERIES_BOUND)."""
-    a, b = _series(zp + zr, zp * zr - zq * zq, terms)
-    return a + b * zp, b * zq, a + b * zr
-
-
-def _series(tr, det, terms: int):
-    """E(Z) = αI + βZ from Σ_{n<terms} (−Z)ⁿ/(n+1)! in Horner form (Cayley–Hamilton)."""
-    a = jnp.ones_like(tr)
-    b = jnp.zeros_like(tr)
-    for k in range(terms, 1, -1):
-        # (−Z)(aI + bZ) = −aZ − b(tr Z − det I) = b·det I − (a + b·tr) Z
-        a, b = 1.0 + (b * det) * (1.0 / k), (a + b * tr) * (-1.0 / k)
-    return a, b
-
-
-def materialise(values: list, divisor) -> list:
-    """The same ``values`` (arrays), computed once per element by XLA:CPU.
-
-    XLA:CPU has no multi-output loop fusion: a value used by several outputs of a loop step is
-    re-computed inside each consumer (``optimization_barrier`` does not stop that on CPU). It
-    never duplicates an expensive producer, though, so the values are packed in complex pairs
-    and divided by ``divisor`` — a runtime 1 (exact: (a + ib)/(1 + 0i) = a + ib) that XLA cannot
-    fold away. A divisor of 0 where some guard fails turns those elements non-finite on purpose
-    (see :func:`exact_step`). Measured: the exact step's work per sample ≈ halved for p = 2.
-    """
-    if divisor is None:
-        return values
-    vals = list(values) + ([jnp.zeros_like(values[-1])] if len(values) % 2 else [])
-    den = jax.lax.complex(divisor, jnp.zeros_like(divisor))
-    out = []
-    for a, b in zip(vals[::2], vals[1::2], strict=True):
-        c = jax.lax.complex(a, b) / den
-        out += [jnp.real(c), jnp.imag(c)]
-    return out[: len(values)]
-
-
-def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, divisor=None):
-    """One exact step of θ̇ = −c·G Wᵀ(Wθ + W₀) over h, elementwise over any batch shape:
-    θ ← θ − h·cGWᵀ E(hS) (Wθ + W₀), S = c·WGWᵀ, E(Z) = (I − e^{−Z})Z⁻¹.
-
-    Arguments (lists of arrays, all broadcastable): ``theta`` (p entries), ``W1``/``W2`` the
-    two rows of W (p entries each), ``y1``/``y2`` = W₀, ``G`` a p×p nested list (symmetric),
-    ``h`` the interval [s], ``c`` the normalisation 1/(1 + μ‖W‖²) or None, ``phi`` E's
-    evaluation (default :func:`phi_sym2`), ``divisor`` see :func:`materialise` (the increments
-    are materialised once per sample), or a function of tr(hS) returning it. Returns the increments
-    Δθ (p entries): the new θ is θ − Δθ.
-    """
-    p = len(theta)
-    GW1 = [sum(G[i][j] * W1[j] for j in range(p)) for i in range(p)]
-    GW2 = [sum(G[i][j] * W2[j] for j in range(p)) for i in range(p)]
-    if c is not None:
-        GW1 = [c * v for v in GW1]
-        GW2 = [c * v for v in GW2]
-    S11 = sum(W1[i] * GW1[i] for i in range(p))
-    S12 = sum(W1[i] * GW2[i] for i in range(p))
-    S22 = sum(W2[i] * GW2[i] for i in range(p))
-    e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
-    e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
-    ep, eq, er = (phi_sym2 if phi is None else phi)(h * S11, h * S12, h * S22)
-    f1 = h * (ep * e1 + eq * e2)
-    f2 = h * (eq * e1 + er * e2)
-    if callable(divisor):
-        divisor = divisor(h * (S11 + S22))
-    return materialise([GW1[i] * f1 + GW2[i] * f2 for i in range(p)], divisor)
-
 
 # ----------------------------------------------------------------------------------------------
 # Devices

@@ -35,57 +35,9 @@ from jaxtyping import Array, ArrayLike, Float
 from ._errors import RESULTS, InputError
 from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
+from ._phi import phi_sym2
 from ._record import Record
 from ._solution import check_duration, finish, transient_mask
-
-# ----------------------------------------------------------------------------------------------
-# φ(Z)/h = E(Z) = (I − e^{−Z}) Z⁻¹ for a symmetric 2×2 Z, elementwise over leading axes.
-
-
-def _e_derivs(z: Array) -> tuple[Array, Array, Array]:
-    """E(z) = (1 − e^{−z})/z and its first two derivatives, accurate for all real z ≥ −1."""
-    small = jnp.abs(z) < 0.5
-    zs = jnp.where(small, 0.5, z)
-    ez = jnp.exp(-zs)
-    e0 = -jnp.expm1(-zs) / zs
-    e1 = (ez - e0) / zs
-    e2 = (-ez - 2.0 * e1) / zs
-    # Taylor series E(z) = Σ (−z)ⁿ/(n+1)!, 14 terms: truncation < 1e-16 for |z| < 0.5.
-    zt = jnp.where(small, z, 0.0)
-    s0 = s1 = s2 = jnp.zeros_like(z)
-    fact = 1.0
-    for n in range(14):
-        fact *= n + 1  # (n+1)!
-        c = (-1.0) ** n / fact
-        s0 = s0 + c * zt**n
-        if n >= 1:
-            s1 = s1 + c * n * zt ** (n - 1)
-        if n >= 2:
-            s2 = s2 + c * n * (n - 1) * zt ** (n - 2)
-    return (jnp.where(small, s0, e0), jnp.where(small, s1, e1), jnp.where(small, s2, e2))
-
-
-def phi_2x2(zp: Array, zq: Array, zr: Array) -> tuple[Array, Array, Array]:
-    """E(Z) = (I − e^{−Z})Z⁻¹ for Z = [[zp, zq], [zq, zr]] symmetric PSD; returns its (p, q, r).
-
-    E(Z) = ē·I + g·(Z − m I), m = (zp + zr)/2, d² = ((zp − zr)/2)² + zq², with
-    ē = (E(m + d) + E(m − d))/2 and g = (E(m + d) − E(m − d))/(2d) the divided difference;
-    for d below a dtype-dependent threshold the Taylor limits ē ≈ E(m) + E''(m)d²/2,
-    g ≈ E'(m) are used (so values and gradients stay finite at d = 0, e.g. W = 0).
-    """
-    m = 0.5 * (zp + zr)
-    h = 0.5 * (zp - zr)
-    d2 = h * h + zq * zq
-    thr = 1e-2 if jnp.result_type(zp) == jnp.float32 else 1e-4
-    near = d2 < thr * thr
-    d = jnp.sqrt(jnp.where(near, thr * thr, d2))
-    ep, _, _ = _e_derivs(m + d)
-    em, _, _ = _e_derivs(m - d)
-    e0, e1, e2 = _e_derivs(m)
-    ebar = jnp.where(near, e0 + 0.5 * e2 * d2, 0.5 * (ep + em))
-    g = jnp.where(near, e1, (ep - em) / (2.0 * d))
-    return ebar + g * h, g * zq, ebar - g * h
-
 
 # ----------------------------------------------------------------------------------------------
 # Gains
@@ -224,7 +176,7 @@ def _exact_update(theta, W, W0, G, h, mu):
     c = 1.0 / (1.0 + mu * jnp.sum(W * W))
     GW = c * (G @ W.T)  # (p, 2)
     S = W @ GW  # (2, 2)
-    zp, zq, zr = phi_2x2(h * S[0, 0], h * 0.5 * (S[0, 1] + S[1, 0]), h * S[1, 1])
+    zp, zq, zr = phi_sym2(h * S[0, 0], h * 0.5 * (S[0, 1] + S[1, 0]), h * S[1, 1])
     eps = W @ theta + W0
     Ee = jnp.stack([zp * eps[0] + zq * eps[1], zq * eps[0] + zr * eps[1]])
     return theta - h * (GW @ Ee)

@@ -213,7 +213,7 @@ def test_euler_agrees_with_exact_for_small_gain():
 def test_phi_closed_form_against_series_and_scipy():
     from scipy.linalg import expm
 
-    from lionjax._estimators import phi_2x2
+    from lionjax._phi import phi_sym2
 
     rng = np.random.default_rng(1)
     for scale in [1e-10, 1e-4, 0.3, 1.0, 10.0, 1e6, 1e12]:
@@ -227,11 +227,11 @@ def test_phi_closed_form_against_series_and_scipy():
                 P = P @ Z
         else:
             ref = (np.eye(2) - expm(-Z)) @ np.linalg.inv(Z)
-        zp, zq, zr = phi_2x2(Z[0, 0], Z[0, 1], Z[1, 1])
+        zp, zq, zr = phi_sym2(Z[0, 0], Z[0, 1], Z[1, 1])
         got = np.array([[zp, zq], [zq, zr]])
         np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref)))
     # degenerate S (W = 0, equal eigenvalues): finite values and gradients
-    g = jax.grad(lambda a: sum(phi_2x2(a, 0.0 * a, a)))(0.0)
+    g = jax.grad(lambda a: sum(phi_sym2(a, 0.0 * a, a)))(0.0)
     assert np.isfinite(g) and abs(g + 1.0) < 1e-12  # d/da of 2·E(a) at 0 = 2·(−1/2)
 
 
