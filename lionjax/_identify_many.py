@@ -10,8 +10,8 @@ own filter discretisation) and identifies them all in one streamed, jitted call:
   is ``lionjax.least_squares(model, record, initial="discard")``: no initial-state nuisance
   columns. (The single-record default ``initial="estimate"`` fits them and uses every sample —
   a different estimator, within noise of this one once the record is much longer than the
-  transient.) The nominal standard deviations need (ΦᵀΦ)⁻¹, which the streamed solution does
-  not return, so ``std`` is ``None`` (not computed) rather than a guess.
+  transient.) With it the nominal standard deviations √diag(σ²(ΦᵀΦ)⁻¹), σ² = RSS/(N − p), as
+  that call reports them.
 - ``method="lion"``: :func:`lionjax.lion_batched`, per record Lion's law with the exact step
   (``lionjax.lion(model, record, stepper=ExactStep())``, θ at the end of the record), with the
   streamed LS answer, its condition number and the convergence time to within ``tolerance`` of
@@ -68,8 +68,8 @@ class BatchIdentification(eqx.Module):
         labels: one label per record (file names on the command line).
         settings: the filter, regions and gain used (plain data, written to JSON).
         theta: estimates, ``(B, p)`` [a in 1/s, b in 1/kg]; NaN for failed rows.
-        std: nominal standard deviations ``(B, p)``, or ``None`` where not computed (the
-            streamed LS does not return (ΦᵀΦ)⁻¹; see the module docstring).
+        std: nominal standard deviations of the LS answer ``(B, p)`` (``"ls"``; NaN for failed
+            rows), ``None`` for ``"lion"`` (Lion's law has no covariance of its own).
         theta_ls: the streamed LS answer ``(B, p)`` (for ``"ls"`` the same as ``theta``).
         condition: condition number of the column-normalised regressor matrix, ``(B,)``.
         rms: root-mean-square equation error of the LS fit ``(B,)`` (``"ls"``; else None).
@@ -298,6 +298,7 @@ def identify_batch(
     rms = np.full(B, np.nan) if method == "ls" else None
     final_J = np.full(B, np.nan) if method == "lion" else None
     t_conv = np.full(B, np.nan) if method == "lion" else None
+    std = np.full((B, p), np.nan) if method == "ls" else None
     result = np.full(B, NOT_RUN, int)
     messages = [""] * B
     # The same rule as check_duration for one record: the record must outlast the transient.
@@ -330,6 +331,7 @@ def identify_batch(
             )
             theta[run] = np.asarray(sol.theta)
             theta_ls[run] = theta[run]
+            std[run] = np.asarray(sol.std)
             condition[run] = np.asarray(sol.condition)
             rms[run] = np.asarray(sol.rms)
         else:
@@ -371,6 +373,8 @@ def identify_batch(
                 messages[i] += f" (condition number {condition[i]:.3g}, bound {max_condition:.3g})"
     failed = result != 0
     theta[failed] = np.nan
+    if std is not None:
+        std[failed] = np.nan
     if method == "lion":
         theta_ls[failed] = np.nan
         t_conv[failed] = np.nan
@@ -392,7 +396,7 @@ def identify_batch(
         labels=labels,
         settings=settings,
         theta=theta,
-        std=None,
+        std=std,
         theta_ls=theta_ls,
         condition=condition,
         rms=rms,

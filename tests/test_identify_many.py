@@ -122,11 +122,12 @@ def test_folder_ls_one_call_matches_per_file(folder, tmp_path, capsys, calls):
     assert [r["record"] for r in rows] == [str(p) for p in paths]  # sorted by name, none lost
     assert all(r["status"] == "ok" and r["result"] == 0 for r in rows)
     got = np.array([[r["a"], r["b"]] for r in rows])
-    ref = []
+    ref, ref_std = [], []
     for p, r in zip(paths, rows):
         rec = lj.load_record(p)
         sol = lj.least_squares(lj.MassDamper(), rec, initial="discard")
         ref.append(np.asarray(sol.theta))
+        ref_std.append(np.asarray(sol.std))
         assert r["n_samples"] == rec.n_samples and r["dt"] == pytest.approx(float(rec.dt))
         assert r["condition"] == pytest.approx(float(sol.condition), rel=1e-6)
     ref = np.array(ref)
@@ -136,10 +137,12 @@ def test_folder_ls_one_call_matches_per_file(folder, tmp_path, capsys, calls):
     # against the simulated truth, loosely (short records: 0.75–5.25 s after the transient)
     err_true = np.abs(got - truth) / truth
     assert np.median(err_true) < 0.01 and np.max(err_true) < 0.05
-    # the library entry point on the same records: same numbers, std not faked
+    # the library entry point on the same records: same numbers, and the nominal std of the
+    # per-file LS (σ²(ΦᵀΦ)⁻¹ from the streamed statistics vs the stored-regressor QR)
     res = lj.identify_batch(lj.MassDamper(), [lj.load_record(p) for p in paths])
     np.testing.assert_array_equal(res.theta, got)
-    assert res.std is None and res.failures() == [] and res.labels[0] == "0"
+    np.testing.assert_allclose(res.std, np.array(ref_std), rtol=1e-6)
+    assert res.failures() == [] and res.labels[0] == "0"
     with out_csv.open() as f:
         table = list(csv.DictReader(f))
     assert len(table) == N_FILES
