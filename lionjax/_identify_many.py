@@ -27,9 +27,7 @@ reason in ``messages``; the estimates of every failed row are NaN, never a silen
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -46,7 +44,7 @@ from ._filters import FilterBank
 from ._models import AbstractModel, Piecewise
 from ._record import Record
 from ._solution import default_transient
-from ._tables import jsonable
+from ._tables import write_csv, write_json
 
 #: ``result`` of a record that was not run (shorter than the filter transient).
 NOT_RUN = -1
@@ -162,19 +160,11 @@ class BatchIdentification(eqx.Module):
             "n_failed": int(np.sum(self.result != 0)),
             "rows": self.to_records(),
         }
-        path = Path(path)
-        path.write_text(json.dumps(jsonable(payload), indent=2) + "\n")
-        return path
+        return write_json(path, payload)
 
     def to_csv(self, path: str | Path) -> Path:
         """Write :meth:`to_records` as CSV, one row per record (NaN and inf written as such)."""
-        rows = self.to_records()
-        path = Path(path)
-        with path.open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-        return path
+        return write_csv(path, self.to_records())
 
 
 def _check(model, records, method, labels, bank, gain) -> tuple[list[Record], tuple[str, ...]]:

@@ -17,8 +17,6 @@ leading dims of the :class:`StudyResult`.
 
 from __future__ import annotations
 
-import csv
-import json
 import sys
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -36,7 +34,7 @@ from ._estimators import AutoGain, FixedGain, default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel
 from ._record import Record
-from ._tables import jsonable as _jsonable
+from ._tables import write_csv, write_json
 
 #: Names a record axis of a study may have (``dataset`` for plain lists of records).
 RECORD_DIMS = ("dataset", "excitation", "operating_point", "noise_seed")
@@ -273,25 +271,11 @@ class StudyResult(eqx.Module):
                 "t": np.asarray(self.t_saved).tolist(),
                 "theta": np.asarray(self.trajectory).tolist(),
             }
-        path = Path(path)
-        path.write_text(json.dumps(_jsonable(payload), indent=2) + "\n")
-        return path
+        return write_json(path, payload)
 
     def to_csv(self, path: str | Path) -> Path:
         """Write :meth:`to_records` as CSV (pole sets and θ₀ joined with ';')."""
-        rows = self.to_records()
-        path = Path(path)
-        with path.open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            for r in rows:
-                w.writerow(
-                    {
-                        k: ";".join(f"{x:g}" for x in v) if isinstance(v, list | tuple) else v
-                        for k, v in r.items()
-                    }
-                )
-        return path
+        return write_csv(path, self.to_records())
 
 
 def _as_batch(records) -> tuple[Record, np.ndarray, tuple[str, ...], dict[str, list] | None]:

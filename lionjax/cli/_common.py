@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
-import math
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._tables import write_json as _write_json
 
 
 def float_list(text: str, argument: str) -> list[float]:
@@ -26,26 +25,11 @@ def float_list(text: str, argument: str) -> list[float]:
     return out
 
 
-def to_jsonable(obj):
-    """numpy/jax scalars and arrays → plain JSON values; non-finite floats → null."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [to_jsonable(v) for v in obj]
-    if hasattr(obj, "shape") or isinstance(obj, np.generic):
-        a = np.asarray(obj)
-        return to_jsonable(a.tolist()) if a.ndim else to_jsonable(a.item())
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    return obj
-
-
 def write_json(path: str | Path, payload) -> Path:
     path = Path(path)
     if path.parent and not path.parent.exists():
         raise InputError(f"--json: folder {str(path.parent)!r} does not exist; create it first.")
-    path.write_text(json.dumps(to_jsonable(payload), indent=2) + "\n")
-    return path
+    return _write_json(path, payload)
 
 
 def format_table(headers: list[str], rows: list[list], title: str | None = None) -> str:

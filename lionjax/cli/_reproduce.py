@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._common import to_jsonable, write_json
+from .._tables import jsonable
+from ._common import write_json
 
 NAME = "reproduce"
 HELP = "reproduce the paper's experiments on the twin: table, figures, report, effect rows"
@@ -97,7 +98,7 @@ def write_outputs(result, out: Path, *, figures: bool = True, timings: dict | No
 def _summary(result, timings: dict) -> dict:
     cal = result.calibration
     cfg = result.config
-    return to_jsonable(
+    return jsonable(
         {
             "calibration": {
                 "gain": float(cal.gain),
