@@ -73,12 +73,13 @@ from ._solution import default_transient, finish
 def host_devices(n: int | None = None) -> int:
     """Ask XLA for ``n`` host (CPU) devices (default: the number of cores), before JAX starts.
 
-    One XLA CPU device runs a ``lax.scan`` on one core; :func:`lion_batched` shards the batch
-    over ``jax.local_devices()``, so on a CPU-only machine several host devices are how every
-    core works. This only edits ``XLA_FLAGS`` and has no effect once JAX's backend is
-    initialised (then it returns the device count already in force). Returns the count asked.
+    Not needed for speed on one machine: :func:`lion_batched` already uses every core of one
+    CPU device (``split``). Host devices are for sharding records placed once with
+    :func:`shard_records` (measured faster for data estimated many times) and for testing the
+    sharded path. This only edits ``XLA_FLAGS`` and has no effect once JAX's backend is
+    initialised. Returns the count asked.
     """
-    n = os.cpu_count() or 1 if n is None else int(n)
+    n = (os.cpu_count() or 1) if n is None else int(n)
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()

@@ -251,7 +251,7 @@ def identify_batch(
             gain's R (default 3·λₙ₋₁/λₙ); records shorter than it are not run.
         max_condition: rows whose condition number reaches this are failures (not excited).
         tolerance: relative band of Lion's ``convergence_time`` (default 2 %).
-        shard: shard the batch over ``jax.local_devices()`` (see :func:`lionjax.host_devices`).
+        shard: as :func:`lionjax.lion_batched` (one CPU device already uses every core).
 
     Returns:
         a :class:`BatchIdentification`: row i is ``records[i]``; failures are rows with
