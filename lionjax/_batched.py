@@ -213,7 +213,6 @@ class _Plan(eqx.Module):
     columns: tuple[tuple[int, int, float], ...] = eqx.field(static=True)  # (sig, order, sign)
     x_index: int = eqx.field(static=True)
     n: int = eqx.field(static=True)
-    unit_dc: bool = eqx.field(static=True)
     midpoint: bool = eqx.field(static=True)
     normalised: bool = eqx.field(static=True)
     estimate: bool = eqx.field(static=True)
@@ -538,7 +537,6 @@ def _plan_for(model: AbstractModel, record0: Record, bank: FilterBank, **flags) 
         columns=cols,
         x_index=names.index("x"),
         n=bank.order,
-        unit_dc=bank.unit_dc_gain,
         **flags,
     )
 
