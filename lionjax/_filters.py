@@ -153,14 +153,25 @@ class FilterBank(eqx.Module):
         """(Φ, Γ₀, Γ₁) of the exact sampled filter over one interval ``dt`` [s] (see module doc).
 
         For a zero-order-hold signal use Φ and Γ₀ only; for a first-order hold add Γ₁.
+
+        The companion matrix is badly scaled for fast poles (its last row holds λₙ ~ ω₀ⁿ), and
+        the exponential of the raw block matrix overflows to NaN once ω₀ is a few hundred rad/s
+        (a 2 kHz record with a 80 Hz filter). So the exponential is taken of the balanced
+        matrix Â = S⁻¹AS, S = diag(1, ω₀, …, ω₀ⁿ⁻¹), ω₀ = λₙ^(1/n) (every entry of Âh is
+        O(ω₀h)), with the input scaled by ω₀ⁿ⁻¹, and mapped back: Φ = SΦ̂S⁻¹, Γ = SΓ̂/ω₀ⁿ⁻¹.
         """
         A, B, _, _ = self.state_space()
         n = self.order
         h = jnp.asarray(dt, A.dtype)
+        w0 = jnp.abs(self.coeffs[-1]) ** (1.0 / n)
+        s = w0 ** jnp.arange(n, dtype=A.dtype)  # S = diag(s)
+        A_bal = A * s[None, :] / s[:, None]
+        B_bal = B / s * s[-1]  # S⁻¹B·ω₀ⁿ⁻¹ = e_n
         M = jnp.zeros((n + 2, n + 2), A.dtype)
-        M = M.at[:n, :n].set(A * h).at[:n, n].set(B * h).at[n, n + 1].set(1.0)
+        M = M.at[:n, :n].set(A_bal * h).at[:n, n].set(B_bal * h).at[n, n + 1].set(1.0)
         E = jax.scipy.linalg.expm(M)
-        return E[:n, :n], E[:n, n], E[:n, n + 1]
+        Phi = E[:n, :n] * s[:, None] / s[None, :]
+        return Phi, E[:n, n] * s / s[-1], E[:n, n + 1] * s / s[-1]
 
     def steady_state(self, u0: ArrayLike) -> Array:
         """Filter state of a signal held at ``u0`` forever before the record starts."""
