@@ -74,13 +74,25 @@ class Settings:
         return Context(2 * math.pi * self.velocity_hz, self.v_eps, self.x_center, self.x_scale)
 
 
+#: Upper bound of the default filter corner [Hz]: f_s/25 up to 1 kHz records, then fixed, so
+#: a record of the same device sampled faster is weighted the same way (and the filter's poles
+#: stay far from the noise band of a 10 kHz encoder).
+MAX_FILTER_HZ = 40.0
+#: Longest delay of the default profile grid [s] (at least 60 samples).
+MAX_DELAY_S = 0.03
+
+
 def settings(
     train: Record, *, filter_hz: float | None = None, window_s: float | None = None
 ) -> Settings:
-    """Settings adapted to the training record: sample rate, velocity and force ranges."""
+    """Settings adapted to the training record: sample rate, velocity and force ranges.
+
+    Every setting is checked finite and valid; a record that cannot support one (no motion,
+    no force) gets an :class:`~lionjax.InputError` naming it.
+    """
     dt = float(train.dt)
     fs = 1.0 / dt
-    fh = fs / 25.0 if filter_hz is None else float(filter_hz)
+    fh = min(fs / 25.0, MAX_FILTER_HZ) if filter_hz is None else float(filter_hz)
     if not (0 < fh < fs / 2):
         raise InputError(
             f"filter_hz: expected 0 < filter_hz < f_s/2 = {fs / 2:.6g} Hz, got {filter_hz!r}."
@@ -89,11 +101,25 @@ def settings(
     x = np.asarray(train.x, np.float64)
     v = np.asarray(zero_phase_velocity(train.x, dt, 2 * math.pi * vh))
     med = float(np.median(np.abs(v)))
-    v_eps = max(0.02 * med, 1e-12)
+    if not (np.all(np.isfinite(v)) and med > 0):
+        raise InputError(
+            "diagnose: the train record does not move enough to locate velocity reversals "
+            f"(median |v̂| = {med!r} m/s from a {vh:.4g} Hz zero-phase derivative filter); "
+            "record a motion that covers the range of interest."
+        )
+    v_eps = 0.02 * med
     Fa = np.abs(np.asarray(train.F, np.float64))
-    taus = dt * np.geomspace(0.25, 60.0, 28)
+    n = train.n_samples
+    tau_max = max(60 * dt, MAX_DELAY_S)
+    tau_max = min(tau_max, 0.1 * n * dt)
+    taus = np.geomspace(0.25 * dt, max(tau_max, dt), 32)
     fq = np.quantile(Fa, np.linspace(0.3, 0.995, 28))
     fq = np.unique(fq[fq > 0])
+    if fq.size < 3:
+        raise InputError(
+            "diagnose: the train record's force is zero almost everywhere (fewer than 3 distinct "
+            "levels of |F| above zero); the input must excite the axis."
+        )
     return Settings(
         dt=dt,
         filter_hz=fh,
@@ -308,6 +334,10 @@ class Diagnosis:
         effects: every candidate alone on the baseline, best first.
         stack: names of the significant effects in the order added.
         verdict: ``stack[0]``, ``"none"`` or ``"unexplained"``.
+        confidence: evidence for the verdict in [0, 1] (see :func:`diagnose`).
+        ambiguous: the names within a weight ratio of 1/20 of the verdict (near-ties,
+            best first, the verdict included), or ``[]``.
+        weights: BIC weights of ``"none"`` and of each plausible candidate alone.
         final: the stacked model's physical parameters and its ``gap``.
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
         series: validation signals for plotting (not in the JSON).
@@ -322,6 +352,9 @@ class Diagnosis:
     noise: dict[str, float]
     settings: dict[str, Any]
     steps: list[EffectScore]
+    confidence: float
+    ambiguous: list[str]
+    weights: dict[str, float]
     series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
@@ -345,6 +378,9 @@ class Diagnosis:
                 "effects": [e.to_json() for e in self.effects],
                 "stack": self.stack,
                 "verdict": self.verdict,
+                "confidence": self.confidence,
+                "ambiguous": self.ambiguous,
+                "weights": self.weights,
                 "final": self.final,
                 "steps": [e.to_json() for e in self.steps],
                 "noise": self.noise,
@@ -379,6 +415,19 @@ _EFFECT_PARAMS = {
 def _params_of(name: str, phys: dict[str, float]) -> dict[str, float]:
     keys = _EFFECT_PARAMS.get(name, ())
     return {k: phys[k] for k in keys if k in phys}
+
+
+#: Near-tie: a candidate whose BIC weight is at least 1/TIE_RATIO of the verdict's.
+TIE_RATIO = 20.0
+#: Share of the excess gap a stack must remove to earn full confidence.
+EXPLAINED_FULL = 0.9
+
+_IMPLAUSIBLE = ("friction would", "F_max is not", "no positive delay", "b ≤ 0")
+
+
+def _plausible_reason(score: EffectScore) -> str:
+    """The implausibility reason of a scored candidate, or "" when its parameters are physical."""
+    return score.reason if score.reason.startswith(_IMPLAUSIBLE) else ""
 
 
 def _plausible(name: str, fit: Fitted, st: Settings, Fabs_max: float) -> str:
@@ -455,7 +504,8 @@ def diagnose(
     if len(set(names)) != len(names):
         raise InputError(f"diagnose: candidate names repeat: {names}.")
     st = settings(train, filter_hz=filter_hz, window_s=window_s)
-    min_len = int(20 * 25 / (st.filter_hz * st.dt * 25)) if st.filter_hz else 0
+    # 20 time constants 1/λ of the filter (s + λ)³, λ = 2π·filter_hz
+    min_len = int(math.ceil(20 / (2 * math.pi * st.filter_hz * st.dt)))
     for nm, rec in (("train", train), ("valid", valid)):
         if rec.n_samples < max(min_len, 200):
             raise InputError(
@@ -562,6 +612,29 @@ def diagnose(
     else:
         verdict = "unexplained"
 
+    # evidence: BIC weights exp(score/2) of "no effect" (score 0) and each plausible candidate
+    # alone (score = validated 2·log-likelihood gain − p·ln N_eff = −ΔBIC)
+    plausible = {s.name: s.score for s in effects if not _plausible_reason(s)}
+    top = max([0.0, *plausible.values()])
+    raw = {"none": math.exp(-top / 2)} | {k: math.exp((v - top) / 2) for k, v in plausible.items()}
+    total = sum(raw.values())
+    weights = {k: v / total for k, v in raw.items()}
+    explained = 1.0 - (
+        excess(cur.ms_valid) / excess(base.ms_valid) if excess(base.ms_valid) > 0 else 0.0
+    )
+    ambiguous: list[str] = []
+    if verdict in weights:
+        near = [k for k in weights if weights[k] >= weights[verdict] / TIE_RATIO]
+        if len(near) > 1:
+            ambiguous = sorted(near, key=lambda k: -weights[k])
+    if verdict == "none":
+        confidence = weights["none"]
+    elif verdict == "unexplained":
+        best_share = max([s.share for s in effects if not _plausible_reason(s)], default=0.0)
+        confidence = float(np.clip(1.0 - best_share, 0.0, 1.0))
+    else:
+        confidence = weights.get(verdict, 0.0) * min(1.0, max(explained, 0.0) / EXPLAINED_FULL)
+
     final_params = {k: v for k, v in cur.physical.items()}
     if "spring" in [c.name for c in stack] and "offset" not in [c.name for c in stack]:
         final_params.pop("F0", None)
@@ -637,6 +710,9 @@ def diagnose(
             "floor_factor": floor_factor,
         },
         steps=steps,
+        confidence=float(confidence),
+        ambiguous=ambiguous,
+        weights=weights,
         series=series,
     )
 

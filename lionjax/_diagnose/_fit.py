@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._filters import FilterBank
+from .._least_squares import linear_lstsq
 from .._models import AbstractModel
 from .._record import Record
 
@@ -101,23 +102,6 @@ class Regressors:
         return np.stack(cols, axis=-1), filt["x"][0, :, 2]
 
 
-def lstsq(Phi: np.ndarray, y: np.ndarray):
-    """Column-normalised least squares by the normal equations (eigen-decomposition of the
-    p×p Gram matrix; float64, condition numbers ≲ 1e6 here): (coef, (ΦᵀΦ)⁻¹, condition number
-    of the normalised Φ)."""
-    norms = np.sqrt(np.sum(Phi * Phi, axis=0))
-    scale = np.where(norms > 0, norms, 1.0)
-    Pn = Phi / scale
-    G = Pn.T @ Pn
-    lam, V = np.linalg.eigh(G)
-    keep = lam > lam[-1] * 1e-24
-    inv = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
-    Ginv = (V * inv) @ V.T
-    coef = Ginv @ (Pn.T @ y)
-    cond = float(np.sqrt(lam[-1] / max(lam[0], np.finfo(lam.dtype).tiny)))
-    return coef / scale, Ginv / scale[:, None] / scale[None, :], cond
-
-
 def fit_batch(regs: Regressors, model: AbstractModel, inputs):
     """ε₁ least squares on the training record for each input map (τ, F_max) in ``inputs``.
 
@@ -128,14 +112,14 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
     th, rss, cov, cond = [], [], [], []
     for g in range(W.shape[0]):
         Phi = np.concatenate([W[g], regs.N], axis=1)
-        coef, c, k = lstsq(Phi, -W0)
-        r = Phi @ coef + W0
-        rs = float(r @ r)
-        s2 = rs / max(r.size - Phi.shape[1], 1)
+        fit = linear_lstsq(jnp.asarray(Phi), jnp.asarray(W0))
+        coef, c = np.asarray(fit.coef), np.asarray(fit.gram_inverse)
+        rs = float(fit.rss)
+        s2 = rs / max(Phi.shape[0] - Phi.shape[1], 1)
         th.append(coef[:p])
         rss.append(rs)
         cov.append(s2 * c[:p, :p])
-        cond.append(k)
+        cond.append(float(fit.condition))
     return np.array(th), np.array(rss), np.array(cov), np.array(cond)
 
 
@@ -144,7 +128,7 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     nuisance coefficients are refitted on this record."""
     W, W0 = regs.design(model, [inp])
     r0 = W[0] @ theta + W0
-    eta = lstsq(regs.N, -r0)[0]
+    eta = np.asarray(linear_lstsq(jnp.asarray(regs.N), jnp.asarray(r0)).coef)
     return r0 + regs.N @ eta
 
 

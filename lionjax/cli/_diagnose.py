@@ -2,7 +2,8 @@
 
 Fits the mass–damper on TRAIN, scores it and every candidate effect (coulomb_friction, offset,
 spring, delay, saturation, position_dependent) on VALID, stacks the significant ones, and prints
-the verdict. --json writes the GUIDE §7 payload (baseline, where, effects, stack, verdict, final);
+the verdict. --json writes the payload (baseline, where, effects, stack, verdict, confidence,
+ambiguous, final);
 --plot writes a one-page summary (PNG/PDF/SVG by extension).
 """
 
@@ -22,7 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write the diagnosis as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="write a one-page figure")
     g = p.add_argument_group("settings (defaults adapt to the record)")
-    g.add_argument("--filter-hz", type=float, help="filter corner λ/2π in Hz (default fs/25)")
+    g.add_argument(
+        "--filter-hz", type=float, help="filter corner λ/2π in Hz (default min(fs/25, 40 Hz))"
+    )
     g.add_argument("--window", type=float, help="restart interval H [s] of the simulation gap")
     g = p.add_argument_group("input files")
     g.add_argument("--columns", help="map column names, e.g. t=time,x=pos,F=force")
@@ -66,7 +69,8 @@ def run(args) -> int:
     ]
     print(format_table(["effect", "score", "shrink", "eq. shrink", "significant"], rows))
     print(f"stack: {', '.join(out['stack']) or '(empty)'}")
-    print(f"verdict: {out['verdict']}")
+    tie = f"; near-tie: {', '.join(out['ambiguous'])}" if out["ambiguous"] else ""
+    print(f"verdict: {out['verdict']} (confidence {out['confidence']:.2f}{tie})")
     fin = out["final"]
     print(
         "final: "
