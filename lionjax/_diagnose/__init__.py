@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnosis (GUIDE §7, layer 3): works on recorded data alone."""
+"""Sim-to-real gap diagnosis (layer 3 of docs/method.md): works on recorded data alone."""
 
 from ._candidates import (
     DEFAULT_CANDIDATES as DEFAULT_CANDIDATES,

@@ -1,4 +1,4 @@
-"""The candidate effects the diagnosis tries (GUIDE §6–7).
+"""The candidate effects the diagnosis tries (docs/method.md, "Effects" and "Diagnosis").
 
 Each candidate is an :class:`AbstractCandidate`: a name, a parameter count for the parsimony
 penalty, and what it adds to a structure — linear effect columns (:mod:`lionjax._effects`) and/or

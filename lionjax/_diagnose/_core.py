@@ -1,10 +1,11 @@
-"""``lionjax.diagnose``: where, which and how far is the sim-to-real gap (GUIDE §7).
+"""``lionjax.diagnose``: where, which and how far is the sim-to-real gap.
 
-Works on recorded data alone (no twin, GUIDE §12 layer 3). Outline:
+Works on recorded data alone (no twin: layer 3 of the package). Outline:
 
-1. **Settings from the record** (:func:`settings`): the filter Λ = (s + λ)³ with λ = 2π·f_s/25
-   rad/s (40 Hz at 1 kHz: fast enough that the filter does not bias real data — EMPS at 10 Hz is
-   biased 3–7 % — and well below Nyquist), a zero-phase velocity filter at 2.5λ for sgn ẋ, the
+1. **Settings from the record** (:func:`settings`): the filter Λ = (s + λ)³ with
+   λ = 2π·min(f_s/25, 40 Hz) rad/s (40 Hz from 1 kHz up: fast enough that the filter does not
+   bias real data — EMPS at 10 Hz is biased 3–7 % — well below Nyquist, and the same weighting
+   for the same device sampled faster), a zero-phase velocity filter at 2.5λ for sgn ẋ, the
    smoothed-sign scale v_ε = 2 % of the median |v̂|, the restart interval H and the profile grids.
 2. **Baseline**: ẍ + aẋ = bF by least squares on the filtered equation error ε₁ of the training
    record (:mod:`._fit`).
@@ -326,7 +327,7 @@ class EffectScore:
 
 @dataclasses.dataclass(frozen=True)
 class Diagnosis:
-    """The answer of :func:`lionjax.diagnose` (see GUIDE §7 for the JSON contract).
+    """The answer of :func:`lionjax.diagnose` (its JSON contract: :meth:`to_json`).
 
     Attributes:
         baseline: {"model", "params", "gap", …} of ẍ + aẋ = bF.
@@ -465,7 +466,7 @@ def diagnose(
         valid: validation record (default: ``train`` — then nothing is validated; pass one).
         candidates: the effect library (default: ``coulomb_friction``, ``offset``, ``spring``,
             ``delay``, ``saturation``, ``position_dependent``).
-        filter_hz: corner λ/2π [Hz] of the filter (s + λ)³ (default f_s/25).
+        filter_hz: corner λ/2π [Hz] of the filter (s + λ)³ (default min(f_s/25, 40 Hz)).
         window_s: restart interval H [s] of the windowed simulation error (default 1/a clipped
             to [20·dt, 2 s]).
         threshold: score (validated log-likelihood gain minus the BIC penalty) above which an
@@ -476,7 +477,18 @@ def diagnose(
         max_effects: largest stack.
 
     Returns:
-        a :class:`Diagnosis`; ``.to_json()`` gives the GUIDE §7 payload.
+        a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,
+        ``effects``, ``stack``, ``verdict``, ``confidence``, ``ambiguous``, ``weights``,
+        ``final``, ``steps``, ``noise``, ``settings``).
+
+    Confidence: each candidate alone has the score sᵢ = −ΔBIC against the baseline, so its BIC
+    weight among "no effect" (s = 0) and the plausible candidates is wᵢ ∝ exp(sᵢ/2). A named
+    verdict's confidence is its weight times min(1, explained/0.9), explained being the share
+    of the excess validation error (above the noise floor) that the final stack removes; ``none``
+    gets the weight of "no effect"; ``unexplained`` gets 1 − the best candidate's share.
+    ``ambiguous`` lists every name (``"none"`` included) within a weight ratio of 1/20 of the
+    verdict, so a near-tie (an offset vs a spring with equilibrium in closed loop) is reported
+    rather than decided by library order.
     """
     for nm, rec in (("train", train), ("valid", valid)):
         if rec is not None and not isinstance(rec, Record):

@@ -1,4 +1,4 @@
-"""Fitting and scoring one model structure on recorded data (no twin, GUIDE §12 layer 3).
+"""Fitting and scoring one model structure on recorded data (no twin: layer 3 of the package).
 
 A *structure* is the mass–damper ẍ + aẋ = b·u plus linear effect columns (:mod:`lionjax._effects`)
 plus an input map u = sat_Fmax(F(t − τ)) that is nonlinear in τ and F_max (profiled on a grid).

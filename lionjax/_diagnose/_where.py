@@ -1,4 +1,4 @@
-"""Where is the gap: shares of the validation residual by region, band and time (GUIDE §7).
+"""Where is the gap: shares of the validation residual by region, band and time.
 
 Each finding is a dict ``{"kind", "band", "share", "fraction", "ratio", …}``: ``share`` is the
 band's part of the residual's sum of squares (ε₁ of the baseline), ``fraction`` the part of the
@@ -46,7 +46,7 @@ def _xcorr_test(a: np.ndarray, b: np.ndarray, lags: int) -> dict[str, Any]:
 
 
 def where_findings(series: dict[str, np.ndarray], st, floor: float) -> list[dict[str, Any]]:
-    """The GUIDE §7 'where' findings from the validation series of a diagnosis."""
+    """The "where" findings from the validation series of a diagnosis."""
     r = np.asarray(series["residual_base"])
     x, F, v = (np.asarray(series[k]) for k in ("x", "F", "v"))
     r2 = r * r
