@@ -459,7 +459,7 @@ def diagnose(
     floor_factor: float = 1.5,
     max_effects: int = 3,
 ) -> Diagnosis:
-    """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record (GUIDE §7).
+    """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record.
 
     Arguments:
         train: training record (x [m], F [N], uniform dt).
