@@ -116,10 +116,10 @@ def settings(
     taus = np.geomspace(0.25 * dt, max(tau_max, dt), 32)
     fq = np.quantile(Fa, np.linspace(0.3, 0.995, 28))
     fq = np.unique(fq[fq > 0])
-    if fq.size < 3:
+    if fq.size == 0:
         raise InputError(
-            "diagnose: the train record's force is zero almost everywhere (fewer than 3 distinct "
-            "levels of |F| above zero); the input must excite the axis."
+            "diagnose: the train record's force F is zero everywhere; the input must excite the "
+            "axis."
         )
     return Settings(
         dt=dt,
