@@ -1,225 +1,1101 @@
-"""Blind evaluation of ``lionjax.diagnose`` on twin records with a withheld effect (GUIDE §7).
+"""Blind evaluation of ``lionjax.diagnose`` on records from two independent simulators.
 
-For each class (none, the six library effects, two two-effect classes, and a flexible mode that is
-outside the library) it draws records with a random plant (a ∈ [10, 40] 1/s, b ∈ [0.5, 3] 1/kg),
-random excitation (multisine, chirp or PRBS; random amplitude and band), random sensor noise
-(encoder quantisation 1–10 µm, position noise 0–3 µm), open or closed loop (centring PD), a random
-effect magnitude, and a train and a validation record with different excitation seeds. The
-effect's size is reported as the relative change of the velocity response, ‖v − v₀‖/‖v₀‖, with
-v₀ the same record simulated without the effect (the draws target roughly 2–80 %).
-``diagnose`` sees only (t, x, F). Reported: the confusion matrix, top-1 accuracy on single
-effects, two-effect detection, out-of-library → ``unexplained``, false alarms on clean records and
-the shrink error against an oracle (the true effect's structure fitted by the same machinery).
+Each case draws a random setup and one effect class, simulates a *train* and a *valid* record
+(different excitation draws, same plant) and passes ``lj.Record(x, F, dt)`` of each to
+``lj.diagnose``; nothing else of the simulation reaches the diagnosis.
 
-    python benchmarks/diagnosis_blind.py --per-class 20 --json blind.json
+Sources:
+    ``twin``  — lionjax's own twin (``lionjax.twin.simulate``), with the twin's effects plus three
+                out-of-library effects written here as twin effect classes (cogging, dead zone,
+                backlash);
+    ``scipy`` — ``benchmarks/_blind_sim.py``, a simulator written independently of lionjax (numpy,
+                scipy, numba; RK4 per hold interval, switched stick–slip), with effect shapes of
+                its own (Stribeck/LuGre/Dahl friction, three position-dependence shapes,
+                non-collocated flexible mode …).
+
+Setup (per case, drawn from ``numpy.random.default_rng(seed)``): sample rate f_s log-uniform in
+[--rate-min, --rate-max] (default 250 Hz – 5 kHz, dt = 1/f_s, non-round); duration uniform in
+[--duration-min, --duration-max] (default 4–12 s); a log-uniform in [5, 50] 1/s, b log-uniform in
+[0.3, 5] 1/kg; open or closed loop (½ each); excitation RMS log-uniform in [0.5, 4] N; each
+record's excitation kind (multisine, chirp, PRBS-like random steps with random levels, band-pass
+noise) and band (f_lo ∈ [0.2, 1] Hz, f_hi ∈ [4, 20] Hz ∧ f_s/10); encoder step q log-uniform in
+[1, 20] µm; position noise 0 (½) or log-uniform in [0.2, 5] µm. Closed loop: a PD on the measured
+position plus the excitation as feed-forward, rigid closed loop at f_c ∈ [2, 6] Hz, ζ_c ∈
+[0.5, 1]; the scipy loop filters the velocity (first order at f_v ∈ [50, 150] Hz ∧ f_s/5), the
+twin's ``CentringPD`` differences raw samples, so its K_d is capped at 0.5·F_rms·dt/q (the force
+jitter of one encoder count stays below half the excitation RMS).
+
+Effect size: each effect has a strength s (log-uniform prior per class, below); the response
+change c = ‖v − v₀‖/‖v₀‖ on the valid record (v the true velocity of the measured body, v₀ the
+same run — excitation, loop, noise — without the effect) must lie in [2 %, 80 %]. s is redrawn
+from its prior up to 4 times, then bisected/extended in log s within wider hard limits (8 more
+tries; a simulation that blows up counts as too strong). Cases whose size stays outside the band
+are kept and flagged (``size_in_band``). Two-effect classes size each effect alone.
+
+Classes → accepted answer:
+    none                     → verdict ``none``
+    coulomb_friction         → ``coulomb_friction``   twin: coulomb, stribeck; scipy: stribeck,
+                                                       lugre, dahl
+    asymmetric_friction      → ``coulomb_friction`` or ``asymmetric_friction`` (F⁺ ≠ F⁻ and
+                                c⁺ ≠ c⁻, ratios 1.7–5 each)
+    offset, spring, delay    → the class name (delay τ real-valued, never a multiple of dt)
+    saturation               → ``saturation``           hard, soft (both sources)
+    position_dependent       → ``position_dependent``   twin: tanh; scipy: tanh, bowl (even),
+                                                       algebraic; on a, b or both
+    flexible_mode            → ``flexible_mode``        twin: collocated; scipy: collocated,
+                                                       noncollocated
+    coulomb_friction+offset, spring+delay → both names among the first three of the ranking
+                                (``d.stack``, then the other names of ``d.effects`` in order)
+    cogging, dead_zone, backlash → ``unexplained``
+
+Crashes (any exception in ``diagnose``) count as wrong answers and are listed; a failing
+simulation is a benchmark bug, listed separately and not scored.
+
+Seeds: case i (< 1000) of class c and source s uses seed0 + 10000·c + 1000·s + i, with c, s the
+indices in ``CLASSES``, ``SOURCES``; a run covers [seed0, seed0 + 140000). Tune on ``--seed 0``,
+report on ``--seed 1000000``.
+
+    python benchmarks/diagnosis_blind.py --per-class 20 --jobs 2 --seed 1000000 --json out.json
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
+import os
 import platform
+import sys
 import time
+import traceback
+from collections.abc import Callable, Sequence
 
-import jax
 import numpy as np
 
-jax.config.update("jax_enable_x64", True)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _blind_sim as bs  # noqa: E402
 
-import lionjax as lj  # noqa: E402
-import lionjax.twin as tw  # noqa: E402
-from lionjax._diagnose import DEFAULT_CANDIDATES  # noqa: E402
-from lionjax._diagnose._core import _Fitter, settings  # noqa: E402
-
-SINGLE = ("coulomb_friction", "offset", "spring", "delay", "saturation", "position_dependent")
-CLASSES = ("none", *SINGLE, "coulomb_friction+offset", "spring+delay", "flexible_mode")
-DT = 1e-3
-
-
-def _excitation(rng, key, amp, duration, two_level_ok=True):
-    kinds = ["multisine", "chirp", "prbs"] if two_level_ok else ["multisine", "chirp"]
-    kind = rng.choice(kinds)
-    if kind == "multisine":
-        n = int(rng.integers(4, 10))
-        f = np.sort(rng.uniform(0.3, 12.0, n))
-        return tw.multisine(f, amp / math.sqrt(n / 2), key=key), kind
-    if kind == "chirp":
-        return tw.Chirp(amp, rng.uniform(0.2, 1.0), rng.uniform(6.0, 15.0), duration), kind
-    return tw.PRBS(amp * 0.7, float(rng.choice([0.02, 0.04, 0.08])), key, order=8), kind
-
-
-def _effects(cls, rng, a, b, amp, closed):
-    M = 1 / b
-    out = []
-    for name in cls.split("+"):
-        if name == "coulomb_friction":
-            out.append(tw.CoulombFriction(amp * rng.uniform(0.06, 0.4)))
-        elif name == "offset":
-            out.append(tw.ForceOffset(amp * rng.uniform(0.08, 0.5) * rng.choice([-1, 1])))
-        elif name == "spring":
-            k = M * (2 * math.pi * rng.uniform(1.0, 4.0)) ** 2
-            out.append(tw.LinearSpring(k, rng.uniform(-0.004, 0.004)))
-        elif name == "delay":
-            out.append(tw.InputDelay(rng.uniform(3e-3, 15e-3)))
-        elif name == "saturation":
-            out.append(tw.HardSaturation(amp * rng.uniform(0.45, 0.8)))
-        elif name == "position_dependent":
-            s = rng.choice([-1, 1], 2)
-            out.append(
-                tw.PositionDependence(
-                    alpha_a=s[0] * rng.uniform(0.2, 0.6),
-                    alpha_b=s[1] * rng.uniform(0.2, 0.6),
-                    length=0.004 if closed else 0.02,
-                )
-            )
-        elif name == "flexible_mode":
-            out.append(
-                tw.FlexibleMode(
-                    M * rng.uniform(0.2, 0.6), rng.uniform(6.0, 20.0), rng.uniform(0.03, 0.15)
-                )
-            )
-    return out
+SOURCES = ("twin", "scipy")
+LIBRARY = (
+    "coulomb_friction",
+    "asymmetric_friction",
+    "offset",
+    "spring",
+    "delay",
+    "saturation",
+    "position_dependent",
+    "flexible_mode",
+)
+TWO = ("coulomb_friction+offset", "spring+delay")
+OUT_OF_LIBRARY = ("cogging", "dead_zone", "backlash")
+CLASSES = ("none", *LIBRARY, *TWO, *OUT_OF_LIBRARY)
+#: sub-shapes per (class, source)
+SHAPES = {
+    "coulomb_friction": {"twin": ("coulomb", "stribeck"), "scipy": ("stribeck", "lugre", "dahl")},
+    "asymmetric_friction": {"twin": ("asymmetric",), "scipy": ("asymmetric",)},
+    "offset": {"twin": ("constant",), "scipy": ("constant",)},
+    "spring": {"twin": ("linear",), "scipy": ("linear",)},
+    "delay": {"twin": ("fractional",), "scipy": ("fractional",)},
+    "saturation": {"twin": ("hard", "soft"), "scipy": ("hard", "soft")},
+    "position_dependent": {"twin": ("tanh",), "scipy": ("tanh", "bowl", "algebraic")},
+    "flexible_mode": {"twin": ("collocated",), "scipy": ("collocated", "noncollocated")},
+    "cogging": {"twin": ("sine",), "scipy": ("sine",)},
+    "dead_zone": {"twin": ("symmetric",), "scipy": ("symmetric",)},
+    "backlash": {"twin": ("two_mass",), "scipy": ("two_mass",)},
+}
+BAND = (0.02, 0.80)
+RATE_BINS = ((250, 500), (500, 1000), (1000, 2000), (2000, 5000))
+CONF_BINS = ((0.0, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.0))
 
 
-def make_case(cls: str, seed: int, duration: float = 4.0):
-    """(train, valid, info) for one blind record of class ``cls``."""
-    rng = np.random.default_rng(seed)
-    a, b = rng.uniform(10, 40), rng.uniform(0.5, 3.0)
+def _logu(rng, lo, hi):
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+# ------------------------------------------------------------------------------------- setup
+
+
+@dataclasses.dataclass
+class Setup:
+    """One case's plant, loop, sensor and the two excitations (all SI)."""
+
+    source: str
+    fs: float
+    n: int
+    a: float
+    b: float
+    closed: bool
+    fc_loop: float
+    zeta_loop: float
+    fv_loop: float
+    rms: float
+    q: float
+    noise: float
+    exc: tuple[np.ndarray, np.ndarray]  # (train, valid) F_exc [N]
+    exc_info: tuple[dict, dict]
+    noise_seeds: tuple[int, int]
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.fs
+
+    @property
+    def M(self) -> float:
+        return 1.0 / self.b
+
+    def pd(self) -> tuple[float, float]:
+        w = 2 * math.pi * self.fc_loop
+        kp = self.M * w * w
+        kd = max(2 * self.zeta_loop * w - self.a, 0.0) / self.b
+        if self.source == "twin":  # raw differences: cap the force jitter of one count
+            kd = min(kd, 0.5 * self.rms * self.dt / self.q)
+        return kp, kd
+
+
+def draw_setup(rng, source, rate=(250.0, 5000.0), duration=(4.0, 12.0)) -> Setup:
+    fs = _logu(rng, *rate)
+    dur = float(rng.uniform(*duration)) if duration[1] > duration[0] else float(duration[0])
+    n = int(round(dur * fs)) + 1
+    a, b = _logu(rng, 5, 50), _logu(rng, 0.3, 5)
     closed = bool(rng.random() < 0.5)
-    amp = rng.uniform(1.0, 4.0)
-    effects = _effects(cls, rng, a, b, amp, closed)
-    sensors = [tw.EncoderQuantisation(rng.uniform(1e-6, 10e-6))]
-    if rng.random() < 0.5:
-        sensors.append(tw.PositionNoise(rng.uniform(0.2e-6, 3e-6)))
-    plant0 = tw.Plant(a, b, (), sensors)
-    plant = plant0.with_effects(*effects)
-    loop = tw.CentringPD(kp=rng.uniform(100, 300) / b / 2, kd=rng.uniform(0.5, 2.0) / b / 2)
-    n = int(round(duration / DT)) + 1
-    recs, kinds, change = [], [], []
+    fc, zeta, fv = (
+        float(rng.uniform(2, 6)),
+        float(rng.uniform(0.5, 1.0)),
+        float(rng.uniform(50, 150)),
+    )
+    rms = _logu(rng, 0.5, 4.0)
+    q = _logu(rng, 1e-6, 20e-6)
+    noise = 0.0 if rng.random() < 0.5 else _logu(rng, 0.2e-6, 5e-6)
+    excs, infos = [], []
+    for _ in range(2):
+        kind = str(rng.choice(bs.EXCITATIONS))
+        f_lo = _logu(rng, 0.2, 1.0)
+        f_hi = min(_logu(rng, 4.0, 20.0), fs / 10)
+        excs.append(bs.excitation(kind, rng, n, fs, rms, f_lo, f_hi))
+        infos.append({"kind": kind, "f_lo": f_lo, "f_hi": f_hi})
+    seeds = tuple(int(s) for s in rng.integers(0, 2**31 - 1, 2))
+    return Setup(
+        source,
+        fs,
+        n,
+        a,
+        b,
+        closed,
+        fc,
+        zeta,
+        min(fv, fs / 5),
+        rms,
+        q,
+        noise,
+        tuple(excs),
+        tuple(infos),
+        seeds,
+    )
+
+
+# ------------------------------------------------------------------------------------- effects
+
+
+@dataclasses.dataclass
+class Draw:
+    """One effect of a case: its class name, sub-shape, strength prior and map to parameters."""
+
+    name: str
+    shape: str
+    prior: tuple[float, float]  # log-uniform prior of the strength s
+    limits: tuple[float, float]  # hard limits of the adaptive search
+    params: Callable[[float], dict]  # s -> physical parameters
+    strength: float = math.nan
+    change: float = math.nan
+    tries: int = 0
+    redraws: int = 0
+
+
+def draw_effect(name: str, rng, st: Setup, stats: dict) -> Draw:
+    """The strength prior and the other (fixed) parameters of one effect, drawn once."""
+    shape = str(rng.choice(SHAPES[name][st.source]))
+    Frms, Fmax, vrms = stats["F_rms"], stats["F_max"], stats["v_rms"]
+    xs, xm, xr = max(stats["x_std"], 1e-6), stats["x_mean"], max(stats["x_ptp"], 1e-6)
+    C = st.a / st.b
+    w_loop = 2 * math.pi * st.fc_loop
+    if name == "coulomb_friction":
+        ratio, vs = 1 + rng.uniform(0.2, 1.0), rng.uniform(0.02, 0.3) * vrms
+        zp, zeta = _logu(rng, 2e-6, 30e-6), rng.uniform(0.1, 1.0)
+
+        def params(s):
+            fc = s * Frms
+            if shape == "coulomb":
+                return {"fc": fc}
+            if shape == "stribeck":
+                return {"fc": fc, "fs": fc * ratio, "vs": vs}
+            if shape == "lugre":
+                s0 = fc * ratio / zp
+                return {
+                    "fc": fc,
+                    "fs": fc * ratio,
+                    "vs": vs,
+                    "sigma0": s0,
+                    "sigma1": 2 * zeta * math.sqrt(s0 * st.M),
+                }
+            return {"fc": fc, "sigma": fc / zp}  # dahl
+
+        return Draw(name, shape, (0.02, 0.6), (0.002, 3.0), params)
+    if name == "asymmetric_friction":
+        r1, r2 = _logu(rng, 1 / 5, 1 / 1.7), _logu(rng, 1 / 5, 1 / 1.7)
+        sw1, sw2, kappa = rng.random() < 0.5, rng.random() < 0.5, rng.uniform(0.5, 2.0)
+
+        def params(s):
+            fp, fn = s * Frms, s * Frms * r1
+            cp, cn = s * kappa * C, s * kappa * C * r2
+            fp, fn = (fn, fp) if sw1 else (fp, fn)
+            cp, cn = (cn, cp) if sw2 else (cp, cn)
+            return {"fc_pos": fp, "fc_neg": fn, "c_pos": cp, "c_neg": cn}
+
+        return Draw(name, shape, (0.02, 0.6), (0.002, 3.0), params)
+    if name == "offset":
+        sign = float(rng.choice([-1.0, 1.0]))
+        return Draw(name, shape, (0.03, 1.0), (0.003, 10.0), lambda s: {"f0": sign * s * Frms})
+    if name == "spring":
+        x_eq = xm + rng.uniform(-1, 1) * xs
+        return Draw(
+            name,
+            shape,
+            (0.2, 5.0),
+            (0.02, 20.0),
+            lambda s: {"k": st.M * (2 * math.pi * s) ** 2, "x_eq": x_eq},
+        )
+    if name == "delay":
+        lo = max(0.3 * st.dt, 0.3e-3)
+        hi, hard = 25e-3, 60e-3
+        if st.closed:  # keep the loop stable: ≤ 20° (prior) / 40° (limit) of lag at f_c
+            hi, hard = min(hi, 0.35 / w_loop), min(hard, 0.7 / w_loop)
+        return Draw(
+            name,
+            shape,
+            (lo, max(hi, 1.5 * lo)),
+            (0.05 * st.dt, max(hard, 2 * lo)),
+            lambda s: {"tau": s},
+        )
+    if name == "saturation":
+        if shape == "hard":
+            return Draw(
+                name, shape, (0.05, 0.7), (0.005, 0.95), lambda s: {"f_max": (1 - s) * Fmax}
+            )
+        return Draw(name, shape, (0.2, 2.0), (0.02, 10.0), lambda s: {"f_max": Frms / s})
+    if name == "position_dependent":
+        which = str(rng.choice(["a", "b", "ab"])) if st.source == "scipy" else "ab"
+        sa, sb, rel = rng.choice([-1.0, 1.0]), rng.choice([-1.0, 1.0]), rng.uniform(0.5, 1.0)
+        L, xc = xs * _logu(rng, 0.3, 3.0), xm + rng.uniform(-0.5, 0.5) * xs
+
+        def params(s):
+            aa = sa * s if "a" in which else 0.0
+            ab = sb * s * (rel if which == "ab" else 1.0) if "b" in which else 0.0
+            return {"alpha_a": aa, "alpha_b": ab, "length": L, "center": xc, "on": which}
+
+        return Draw(name, shape, (0.05, 0.8), (0.005, 0.95), params)
+    if name == "flexible_mode":
+        f_lo = max(4.0, 3 * st.fc_loop) if st.closed else 4.0
+        f = _logu(rng, f_lo, max(min(60.0, st.fs / 8), 1.2 * f_lo))
+        zeta = _logu(rng, 0.02, 0.2)
+        return Draw(
+            name,
+            shape,
+            (0.05, 0.6),
+            (0.005, 0.9),
+            lambda s: {"mass_ratio": s, "frequency": f, "damping_ratio": zeta},
+        )
+    if name == "cogging":
+        period = max(xr * _logu(rng, 0.05, 0.5), 10 * st.q)
+        phase = rng.uniform(0, 2 * math.pi)
+        return Draw(
+            name,
+            shape,
+            (0.03, 1.0),
+            (0.003, 10.0),
+            lambda s: {"amplitude": s * Frms, "period": period, "phase": phase},
+        )
+    if name == "dead_zone":
+        return Draw(name, shape, (0.05, 1.0), (0.005, 3.0), lambda s: {"d": s * Frms})
+    if name == "backlash":
+        mu = rng.uniform(0.2, 0.6)
+        f = _logu(rng, 15.0, max(min(60.0, st.fs / 8), 18.0))
+        zeta = rng.uniform(0.1, 0.3)
+        return Draw(
+            name,
+            shape,
+            (0.01, 0.5),
+            (0.001, 3.0),
+            lambda s: {"half_gap": s * xs, "mass_ratio": mu, "frequency": f, "damping_ratio": zeta},
+        )
+    raise ValueError(f"unknown effect class {name!r}; expected one of {CLASSES}")
+
+
+# ------------------------------------------------------------------------------------- sources
+
+
+def _scipy_effects(d: Draw, p: dict):
+    if d.name == "coulomb_friction":
+        if d.shape == "lugre":
+            return bs.LuGreFriction(**p)
+        if d.shape == "dahl":
+            return bs.DahlFriction(**p)
+        return bs.StribeckFriction(p["fc"], p.get("fs", p["fc"]), p.get("vs", 1e-3))
+    return {
+        "asymmetric_friction": lambda: bs.AsymmetricFriction(**p),
+        "offset": lambda: bs.ForceOffset(p["f0"]),
+        "spring": lambda: bs.Spring(p["k"], p["x_eq"]),
+        "delay": lambda: bs.InputDelay(p["tau"]),
+        "saturation": lambda: (bs.HardSaturation if d.shape == "hard" else bs.SoftSaturation)(
+            p["f_max"]
+        ),
+        "position_dependent": lambda: bs.PositionDependence(
+            p["alpha_a"], p["alpha_b"], p["length"], p["center"], d.shape
+        ),
+        "flexible_mode": lambda: bs.FlexibleMode(**p, collocated=d.shape == "collocated"),
+        "cogging": lambda: bs.Cogging(**p),
+        "dead_zone": lambda: bs.DeadZone(p["d"]),
+        "backlash": lambda: bs.Backlash(**p),
+    }[d.name]()
+
+
+def _simulate_scipy(st: Setup, effects, j: int):
+    eff = tuple(_scipy_effects(d, d.params(d.strength)) for d in effects)
+    loop = None
+    if st.closed:
+        kp, kd = st.pd()
+        loop = bs.PDLoop(kp, kd, st.fv_loop)
+    r = bs.simulate(
+        bs.Axis(st.a, st.b, eff),
+        st.exc[j],
+        st.fs,
+        loop=loop,
+        q=st.q,
+        noise_std=st.noise,
+        seed=st.noise_seeds[j],
+    )
+    return r.x, r.F, r.x_true, r.v_true
+
+
+_TWIN = None
+
+
+def _twin_classes():
+    """Twin effect classes for the out-of-library shapes (built lazily: jax imported on use)."""
+    global _TWIN
+    if _TWIN is not None:
+        return _TWIN
+    import jax.numpy as jnp
+
+    import lionjax.twin as tw
+
+    class Cogging(tw.AbstractForceEffect):
+        """Cogging force A·sin(2π·x/p + φ) [N]."""
+
+        amplitude: object
+        period: object
+        phase: object
+
+        def __init__(self, amplitude, period, phase):
+            self.amplitude, self.period = jnp.asarray(amplitude), jnp.asarray(period)
+            self.phase = jnp.asarray(phase)
+
+        def force(self, x, v, z):
+            return self.amplitude * jnp.sin(2 * jnp.pi * x / self.period + self.phase)
+
+    class DeadZone(tw.AbstractInputEffect):
+        """u = sgn F·max(|F| − d, 0) [N]."""
+
+        d: object
+
+        def __init__(self, d):
+            self.d = jnp.asarray(d)
+
+        def apply(self, F):
+            return jnp.sign(F) * jnp.maximum(jnp.abs(F) - self.d, 0.0)
+
+    class Backlash(tw.AbstractForceEffect):
+        """A load (states x_l, ẋ_l) driven through a gap ±w; see ``_blind_sim.Backlash``."""
+
+        n_states = 2
+        w: object
+        m: object
+        k: object
+        c: object
+        cg: object
+
+        def __init__(self, w, m, k, c, cg):
+            self.w, self.m, self.k = jnp.asarray(w), jnp.asarray(m), jnp.asarray(k)
+            self.c, self.cg = jnp.asarray(c), jnp.asarray(cg)
+
+        def init_states(self, x0, v0):
+            return jnp.stack([x0, v0])
+
+        def _gap(self, x, v, z):
+            e, de = x - z[0], v - z[1]
+            pos = jnp.maximum(self.k * (e - self.w) + self.c * de, 0.0)
+            neg = jnp.minimum(self.k * (e + self.w) + self.c * de, 0.0)
+            return jnp.where(e > self.w, pos, jnp.where(e < -self.w, neg, 0.0))
+
+        def force(self, x, v, z):
+            return -self._gap(x, v, z)
+
+        def states_rhs(self, x, v, z):
+            return jnp.stack([z[1], (self._gap(x, v, z) - self.cg * z[1]) / self.m])
+
+    _TWIN = {"cogging": Cogging, "dead_zone": DeadZone, "backlash": Backlash}
+    return _TWIN
+
+
+def _twin_static(st: Setup, effects) -> tuple[int, float]:
+    """(n_substeps, max_delay) fixed for a case so the strength search does not recompile."""
+    n_sub, max_delay = 1, 0.0
+    for d in effects:
+        if d.name in ("flexible_mode", "backlash"):
+            mu = d.limits[1] if d.name == "flexible_mode" else d.params(1.0)["mass_ratio"]
+            w = 2 * math.pi * d.params(d.limits[1])["frequency"] * math.sqrt(1 / (1 - mu))
+            n_sub = max(n_sub, int(math.ceil(st.dt * w / 0.5)))
+        if d.name == "delay":
+            max_delay = d.limits[1]
+    return n_sub, max_delay
+
+
+def _simulate_twin(st: Setup, effects, j: int):
+    import jax
+
+    import lionjax.twin as tw
+
+    extra = _twin_classes()
+    a, b = st.a, st.b
+    eff = []
+    n_sub, max_delay = _twin_static(st, effects)
+    for d in effects:
+        p = d.params(d.strength)
+        if d.name == "coulomb_friction":
+            eff.append(tw.CoulombFriction(p["fc"], p.get("fs"), p.get("vs", 1e-3)))
+        elif d.name == "asymmetric_friction":
+            eff.append(tw.AsymmetricFriction(**p))
+        elif d.name == "offset":
+            eff.append(tw.ForceOffset(p["f0"]))
+        elif d.name == "spring":
+            eff.append(tw.LinearSpring(p["k"], p["x_eq"]))
+        elif d.name == "delay":
+            eff.append(tw.InputDelay(p["tau"], max_delay=max_delay))
+        elif d.name == "saturation":
+            eff.append((tw.HardSaturation if d.shape == "hard" else tw.SoftSaturation)(p["f_max"]))
+        elif d.name == "position_dependent":
+            eff.append(tw.PositionDependence(p["alpha_a"], p["alpha_b"], p["length"], p["center"]))
+        elif d.name == "flexible_mode":  # split convention: rigid limit = (a, b)
+            mu = p["mass_ratio"]
+            a, b = st.a / (1 - mu), st.b / (1 - mu)
+            eff.append(tw.FlexibleMode(mu / st.b, p["frequency"], p["damping_ratio"]))
+        elif d.name == "cogging":
+            eff.append(extra["cogging"](p["amplitude"], p["period"], p["phase"]))
+        elif d.name == "dead_zone":
+            eff.append(extra["dead_zone"](p["d"]))
+        elif d.name == "backlash":
+            mu, M = p["mass_ratio"], 1 / st.b
+            m1, ml = (1 - mu) * M, mu * M
+            mr, w = m1 * ml / M, 2 * math.pi * p["frequency"]
+            b = 1 / m1
+            eff.append(
+                extra["backlash"](
+                    p["half_gap"], ml, mr * w * w, 2 * p["damping_ratio"] * mr * w, mu * st.a * M
+                )
+            )
+    sensors = [tw.EncoderQuantisation(st.q)]
+    if st.noise > 0:
+        sensors.append(tw.PositionNoise(st.noise))
+    # input effects act in order: dead zone before saturation (none combined here)
+    plant = tw.Plant(a, b, (), [*eff, *sensors])
+    loop = tw.CentringPD(*st.pd()) if st.closed else None
+    rec = tw.simulate(
+        plant,
+        st.exc[j],
+        dt=st.dt,
+        key=jax.random.key(st.noise_seeds[j]),
+        closed_loop=loop,
+        n_substeps=n_sub,
+    )
+    return (
+        np.asarray(rec.x),
+        np.asarray(rec.F),
+        np.asarray(rec.extras["x_true"]),
+        np.asarray(rec.extras["v_true"]),
+    )
+
+
+def simulate(st: Setup, effects: Sequence[Draw], j: int):
+    """(x, F, x_true, v_true) of record j (0 train, 1 valid) with ``effects`` at their strength."""
+    return (_simulate_twin if st.source == "twin" else _simulate_scipy)(st, effects, j)
+
+
+def _change(v, v0) -> float:
+    if not np.all(np.isfinite(v)) or np.max(np.abs(v)) > 1e3:
+        return math.inf
+    return float(np.linalg.norm(v - v0) / max(np.linalg.norm(v0), 1e-300))
+
+
+def size_effect(st: Setup, d: Draw, rng, v0: np.ndarray) -> bool:
+    """Set ``d.strength`` so that the valid record's response change lies in ``BAND``."""
+    lo, hi = BAND
+    tried = []
+
+    def attempt(s):
+        d.strength = s
+        c = _change(simulate(st, [d], 1)[3], v0)
+        tried.append((s, c))
+        d.tries += 1
+        return lo <= c <= hi
+
+    for _ in range(4):
+        if attempt(_logu(rng, *d.prior)):
+            d.change = tried[-1][1]
+            return True
+    for _ in range(8):
+        below = [s for s, c in tried if c < lo]
+        above = [s for s, c in tried if c > hi]
+        if below and above:
+            s = math.sqrt(max(below) * min(above))
+        elif below:
+            s = min(max(below) * 3.0, d.limits[1])
+        else:
+            s = max(min(above) / 3.0, d.limits[0])
+        if any(abs(s - t) <= 1e-12 * s for t, _ in tried):
+            break  # at a limit
+        if attempt(s):
+            d.change = tried[-1][1]
+            return True
+
+    def dist(c):
+        return abs(math.log(max(min(c, 1e6), 1e-12) / math.sqrt(lo * hi)))
+
+    s, c = min(tried, key=lambda t: dist(t[1]))
+    d.strength, d.change = s, c
+    return False
+
+
+# ------------------------------------------------------------------------------------- cases
+
+
+def _stats(x, F, v) -> dict:
+    return {
+        "x_std": float(np.std(x)),
+        "x_mean": float(np.mean(x)),
+        "x_ptp": float(np.ptp(x)),
+        "v_rms": float(np.sqrt(np.mean(v**2))),
+        "F_rms": float(np.sqrt(np.mean(F**2))),
+        "F_max": float(np.max(np.abs(F))),
+    }
+
+
+def make_case(
+    cls: str,
+    seed: int,
+    duration: float | None = None,
+    *,
+    source: str = "twin",
+    rate=(250.0, 5000.0),
+    durations=(4.0, 12.0),
+):
+    """(train, valid, info) for one blind case of class ``cls`` from ``source``.
+
+    ``train``/``valid`` are ``lj.Record(x, F, dt)``; ``info`` holds the setup, the effects'
+    parameters, sub-shapes and response changes. ``duration`` [s] fixes the record length
+    (default: uniform in ``durations``).
+    """
+    import lionjax as lj
+
+    rng = np.random.default_rng(seed)
+    st = draw_setup(rng, source, rate, (duration, duration) if duration else durations)
+    x0, F0, _, v0 = simulate(st, [], 1)
+    stats = _stats(x0, F0, v0)
+    names = [] if cls == "none" else cls.split("+")
+    draws, in_band = [], []
+    for nm in names:
+        for redraw in range(3):  # a draw no strength can size (e.g. a mode far above the
+            d = draw_effect(nm, rng, st, stats)  # excited band) is redrawn whole
+            d.redraws = redraw
+            if size_effect(st, d, rng, v0):
+                break
+        draws.append(d)
+        in_band.append(BAND[0] <= d.change <= BAND[1])
+    recs, changes = [], []
     for j in range(2):
-        key = jax.random.key(seed * 7 + j)
-        # a two-level open-loop input makes a saturation a mere gain change (unidentifiable)
-        exc, kind = _excitation(rng, key, amp, duration, closed or "saturation" not in cls)
-        kw = dict(n_samples=n, key=key, closed_loop=loop if closed else None)
-        rec = tw.simulate(plant, exc, dt=DT, **kw)
-        ref = tw.simulate(plant0, exc, dt=DT, **kw)
-        v, v0 = np.asarray(rec.extras["v_true"]), np.asarray(ref.extras["v_true"])
-        change.append(float(np.linalg.norm(v - v0) / max(np.linalg.norm(v0), 1e-12)))
-        recs.append(lj.Record(rec.x, rec.F, rec.dt))
-        kinds.append(kind)
+        x, F, _, v = simulate(st, draws, j)
+        ref = v0 if j == 1 else simulate(st, [], 0)[3]
+        changes.append(_change(v, ref))
+        recs.append(lj.Record(x, F, st.dt))
     info = {
         "class": cls,
+        "source": source,
         "seed": seed,
-        "closed_loop": closed,
-        "excitation": kinds,
-        "a": a,
-        "b": b,
-        "response_change": change[1],
+        "fs": st.fs,
+        "dt": st.dt,
+        "n_samples": st.n,
+        "duration": (st.n - 1) / st.fs,
+        "a": st.a,
+        "b": st.b,
+        "closed_loop": st.closed,
+        "loop": {
+            "fc": st.fc_loop,
+            "zeta": st.zeta_loop,
+            "kp": st.pd()[0],
+            "kd": st.pd()[1],
+            "fv": st.fv_loop if source == "scipy" else None,
+        }
+        if st.closed
+        else None,
+        "excitation_rms": st.rms,
+        "excitation": list(st.exc_info),
+        "q": st.q,
+        "noise_std": st.noise,
+        "shape": "+".join(d.shape for d in draws) or "clean",
+        "effects": [
+            {
+                "name": d.name,
+                "shape": d.shape,
+                "strength": d.strength,
+                "change_alone": d.change,
+                "tries": d.tries,
+                "redraws": d.redraws,
+                "params": d.params(d.strength),
+            }
+            for d in draws
+        ],
+        "size_in_band": bool(all(in_band)),
+        "response_change": changes[1],
+        "response_change_train": changes[0],
     }
+    if not all(np.all(np.isfinite(r.x)) and np.all(np.isfinite(r.F)) for r in recs):
+        raise FloatingPointError("simulation blew up (non-finite record)")
     return recs[0], recs[1], info
 
 
-def _oracle_shrink(train, valid, cls):
-    """Shrink of the windowed simulation gap when the true effect's structure is fitted."""
-    names = [n for n in cls.split("+") if n in SINGLE]
-    if not names:
+def _conf_of(d):
+    # TODO(lead): drop fallback once diagnose has confidence
+    c = getattr(d, "confidence", math.nan)
+    amb = getattr(d, "ambiguous", None)
+    return (math.nan if c is None else float(c)), list(amb or [])
+
+
+def ranking(d) -> list[str]:
+    """``d.stack``, then the remaining names of ``d.effects`` in order."""
+    stack = list(d.stack)
+    return stack + [e.name for e in d.effects if e.name not in stack]
+
+
+def is_correct(cls: str, verdict: str | None, rank: Sequence[str]) -> bool:
+    if verdict is None:  # crash
+        return False
+    if cls == "none":
+        return verdict == "none"
+    if cls == "asymmetric_friction":
+        return verdict in ("coulomb_friction", "asymmetric_friction")
+    if cls in TWO:
+        return set(cls.split("+")) <= set(rank[:3])
+    if cls in OUT_OF_LIBRARY:
+        return verdict == "unexplained"
+    return verdict == cls
+
+
+def _oracle(cls, d) -> float | None:
+    """Shrink of the true effect fitted alone (its entry in ``d.effects``)."""
+    if cls not in LIBRARY:
         return None
-    st = settings(train)
-    f = _Fitter(train, valid, st)
-    by = {c.name: c for c in DEFAULT_CANDIDATES}
-    base = f.fit([])
-    fit = f.fit([by[n] for n in names])
-    return 1 - fit.gap / base.gap
+    by = {e.name: e for e in d.effects}
+    for nm in (cls, "coulomb_friction") if cls == "asymmetric_friction" else (cls,):
+        if nm in by:
+            return float(by[nm].shrink)
+    return None
 
 
-def run(per_class: int = 20, seed0: int = 0, classes=CLASSES, duration: float = 4.0) -> dict:
+def run_case(spec: tuple) -> dict:
+    """One case: simulate, diagnose, score. Never raises (errors are recorded)."""
+    cls, source, seed, kw, diagnose = spec
+    row = {"class": cls, "source": source, "seed": seed}
+    t0 = time.perf_counter()
+    try:
+        train, valid, info = make_case(cls, seed, source=source, **kw)
+    except Exception as e:  # a benchmark bug: listed, not scored
+        row.update(sim_error=f"{type(e).__name__}: {e}", traceback=traceback.format_exc(limit=4))
+        return row
+    row.update(info)
+    row["seconds_simulate"] = time.perf_counter() - t0
+    if diagnose is None:
+        import lionjax as lj
+
+        diagnose = lj.diagnose
+    t1 = time.perf_counter()
+    try:
+        d = diagnose(train, valid)
+    except Exception as e:
+        row["seconds"] = time.perf_counter() - t1
+        row.update(
+            verdict=None,
+            crash=f"{type(e).__name__}: {str(e)[:400]}",
+            correct=False,
+            confidence=math.nan,
+            ambiguous=[],
+            stack=[],
+            ranking=[],
+        )
+        row["traceback"] = traceback.format_exc(limit=6)
+        return row
+    row["seconds"] = time.perf_counter() - t1
+    conf, amb = _conf_of(d)
+    rank = ranking(d)
+    row.update(
+        verdict=str(d.verdict),
+        confidence=conf,
+        ambiguous=amb,
+        stack=list(d.stack),
+        ranking=rank,
+        correct=is_correct(cls, str(d.verdict), rank),
+        shrink=float(d.final["shrink"]),
+        oracle_shrink=_oracle(cls, d),
+        crash=None,
+    )
+    return row
+
+
+def case_specs(per_class, seed0, classes, sources, diagnose=None, **kw) -> list[tuple]:
+    if per_class > 1000:
+        raise ValueError("per_class must be ≤ 1000 (seed layout)")
+    specs = []
+    for cls in classes:
+        ci = CLASSES.index(cls)
+        for src in sources:
+            si = SOURCES.index(src)
+            for i in range(per_class):
+                specs.append((cls, src, seed0 + 10000 * ci + 1000 * si + i, kw, diagnose))
+    return specs
+
+
+def _worker_init():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def _progress(k, n, r, fh=sys.stderr):
+    head = f"[{k}/{n}] {r['source']:5s} {r['class']:24s} seed={r['seed']}"
+    if "sim_error" in r:
+        print(f"{head} SIMULATION FAILED: {r['sim_error']}", file=fh, flush=True)
+        return
+    ok = "ok " if r["correct"] else "BAD"
+    v = r["verdict"] if r["verdict"] is not None else f"CRASH {r['crash'][:80]}"
+    loop = "closed" if r["closed_loop"] else "open  "
+    print(
+        f"{head} {r['shape']:22s} fs={r['fs']:7.1f} T={r['duration']:4.1f}s {loop} "
+        f"Δv={100 * r['response_change']:5.1f}% → {ok} {v} conf={r['confidence']:.2f} "
+        f"({r['seconds']:.1f}s)",
+        file=fh,
+        flush=True,
+    )
+
+
+def run(
+    per_class: int = 3,
+    seed0: int = 0,
+    classes: Sequence[str] = CLASSES,
+    duration: float | None = None,
+    *,
+    sources: Sequence[str] = SOURCES,
+    jobs: int = 1,
+    rate=(250.0, 5000.0),
+    durations=(4.0, 12.0),
+    progress: bool = True,
+    diagnose: Callable | None = None,
+) -> dict:
+    """Run the blind benchmark; returns :func:`summarise` of the per-case rows.
+
+    ``diagnose`` replaces ``lj.diagnose`` (a module-level callable with its signature; the
+    smoke test passes a stub to check the plumbing without compiling the diagnosis).
+    """
+    for c in classes:
+        if c not in CLASSES:
+            raise ValueError(f"unknown class {c!r}; expected some of {CLASSES}")
+    for s in sources:
+        if s not in SOURCES:
+            raise ValueError(f"unknown source {s!r}; expected some of {SOURCES}")
+    kw = {"duration": duration, "rate": tuple(rate), "durations": tuple(durations)}
+    specs = case_specs(per_class, seed0, classes, sources, diagnose, **kw)
     rows = []
-    for ci, cls in enumerate(classes):
-        for i in range(per_class):
-            seed = seed0 + 1000 * ci + i
-            train, valid, info = make_case(cls, seed, duration)
-            t0 = time.perf_counter()
-            d = lj.diagnose(train, valid)
-            info["seconds"] = time.perf_counter() - t0
-            info.update(verdict=d.verdict, stack=d.stack, shrink=d.final["shrink"])
-            info["oracle_shrink"] = _oracle_shrink(train, valid, cls)
-            rows.append(info)
-    return summarise(rows, classes)
+    t0 = time.perf_counter()
+    if jobs <= 1:
+        _worker_init()
+        for k, sp in enumerate(specs, 1):
+            rows.append(run_case(sp))
+            if progress:
+                _progress(k, len(specs), rows[-1])
+    else:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(jobs, initializer=_worker_init) as pool:
+            for k, r in enumerate(pool.imap_unordered(run_case, specs), 1):
+                rows.append(r)
+                if progress:
+                    _progress(k, len(specs), r)
+        order = {sp[2]: i for i, sp in enumerate(specs)}
+        rows.sort(key=lambda r: order[r["seed"]])
+    out = summarise(rows, classes)
+    out["config"] = {
+        "per_class": per_class,
+        "seed0": seed0,
+        "seed_range": [seed0, seed0 + 10000 * len(CLASSES)],
+        "classes": list(classes),
+        "sources": list(sources),
+        "rate_hz": list(rate),
+        "duration_s": [duration, duration] if duration else list(durations),
+        "jobs": jobs,
+        "wall_s": time.perf_counter() - t0,
+    }
+    return out
 
 
-def summarise(rows, classes=CLASSES) -> dict:
-    labels = ["none", *SINGLE, "unexplained"]
-    conf = {c: {lab: 0 for lab in labels} for c in classes}
-    for r in rows:
-        conf[r["class"]][r["verdict"] if r["verdict"] in labels else "unexplained"] += 1
-    single = [r for r in rows if r["class"] in SINGLE]
-    top1 = np.mean([r["verdict"] == r["class"] for r in single]) if single else math.nan
-    two = [r for r in rows if "+" in r["class"]]
-    both = np.mean([set(r["class"].split("+")) <= set(r["stack"]) for r in two]) if two else None
-    ool = [r for r in rows if r["class"] == "flexible_mode"]
-    ool_ok = np.mean([r["verdict"] == "unexplained" for r in ool]) if ool else None
-    clean = [r for r in rows if r["class"] == "none"]
-    fa = np.mean([r["verdict"] != "none" for r in clean]) if clean else None
-    err = [abs(r["shrink"] - r["oracle_shrink"]) for r in rows if r["oracle_shrink"] is not None]
+# ------------------------------------------------------------------------------------- summary
+
+
+def _acc(rows):
     return {
-        "confusion": conf,
-        "top1_single": float(top1),
-        "two_effect_both_named": None if both is None else float(both),
-        "out_of_library_unexplained": None if ool_ok is None else float(ool_ok),
-        "false_alarm_clean": None if fa is None else float(fa),
-        "shrink_error_vs_oracle": {
-            "median": float(np.median(err)) if err else None,
-            "max": float(np.max(err)) if err else None,
-        },
-        "response_change": {
-            c: [
-                float(np.min([r["response_change"] for r in rows if r["class"] == c])),
-                float(np.max([r["response_change"] for r in rows if r["class"] == c])),
-            ]
-            for c in classes
-            if c != "none" and any(r["class"] == c for r in rows)
-        },
-        "seconds_per_record": float(np.mean([r["seconds"] for r in rows])),
-        "records": rows,
-        "versions": {
-            "jax": jax.__version__,
-            "python": platform.python_version(),
-            "machine": platform.machine(),
-        },
+        "n": len(rows),
+        "correct": int(sum(r["correct"] for r in rows)),
+        "accuracy": float(np.mean([r["correct"] for r in rows])) if rows else None,
     }
 
 
-def print_summary(out: dict) -> None:
+def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
+    scored = [r for r in rows if "sim_error" not in r]
+    sim_fail = [
+        {k: r[k] for k in ("class", "source", "seed", "sim_error")}
+        for r in rows
+        if "sim_error" in r
+    ]
+    labels = ["none", *[c for c in LIBRARY], "unexplained"]
+    for r in scored:
+        v = r["verdict"]
+        if v is not None and v not in labels:
+            labels.insert(-1, v)
+    labels.append("CRASH")
+    conf = {c: {lab: 0 for lab in labels} for c in classes}
+    for r in scored:
+        conf[r["class"]][r["verdict"] if r["verdict"] is not None else "CRASH"] += 1
+    single = [r for r in scored if r["class"] in LIBRARY]
+    two = [r for r in scored if r["class"] in TWO]
+    ool = [r for r in scored if r["class"] in OUT_OF_LIBRARY]
+    clean = [r for r in scored if r["class"] == "none"]
+    asym = [r for r in scored if r["class"] == "asymmetric_friction"]
+    err = [
+        r["shrink"] - r["oracle_shrink"]
+        for r in scored
+        if r.get("oracle_shrink") is not None and r.get("shrink") is not None
+    ]
+    by_rate = {}
+    for lo, hi in RATE_BINS:
+        sel = [
+            r for r in scored if lo <= r["fs"] < hi or (hi == RATE_BINS[-1][1] and r["fs"] == hi)
+        ]
+        by_rate[f"{lo}-{hi} Hz"] = _acc(sel)
+    calib = {}
+    for lo, hi in CONF_BINS:
+        sel = [
+            r
+            for r in scored
+            if np.isfinite(r["confidence"])
+            and lo <= r["confidence"] < hi + (1e-12 if hi == 1.0 else 0)
+        ]
+        calib[f"{lo:.1f}-{hi:.1f}"] = _acc(sel)
+    calib["n/a"] = _acc([r for r in scored if not np.isfinite(r["confidence"])])
+    shapes = {}
+    for r in scored:
+        shapes.setdefault(f"{r['class']} / {r['source']} / {r['shape']}", []).append(r)
+    secs = [r["seconds"] for r in scored]
+    return {
+        "confusion": conf,
+        "per_class": {c: _acc([r for r in scored if r["class"] == c]) for c in classes},
+        "per_class_source": {
+            c: {
+                s: _acc([r for r in scored if r["class"] == c and r["source"] == s])
+                for s in SOURCES
+                if any(r["source"] == s for r in scored)
+            }
+            for c in classes
+        },
+        "per_source": {s: _acc([r for r in scored if r["source"] == s]) for s in SOURCES},
+        "per_rate": by_rate,
+        "per_loop": {
+            k: _acc([r for r in scored if r["closed_loop"] == (k == "closed")])
+            for k in ("open", "closed")
+        },
+        "per_shape": {k: _acc(v) for k, v in sorted(shapes.items())},
+        "top1_single": _acc(single)["accuracy"],
+        "two_effect_both_in_top3": _acc(two)["accuracy"],
+        "out_of_library_unexplained": _acc(ool)["accuracy"],
+        "false_alarm_clean": float(np.mean([not r["correct"] for r in clean])) if clean else None,
+        "asymmetric_in_stack": (
+            float(np.mean(["asymmetric_friction" in r["stack"] for r in asym])) if asym else None
+        ),
+        "overall": _acc(scored),
+        "crashes": [
+            {k: r[k] for k in ("class", "source", "seed", "fs", "crash")}
+            for r in scored
+            if r["verdict"] is None
+        ],
+        "simulation_failures": sim_fail,
+        "size_out_of_band": [
+            {k: r[k] for k in ("class", "source", "seed", "fs", "response_change")}
+            for r in scored
+            if not r["size_in_band"]
+        ],
+        "shrink_error_vs_oracle": {
+            "n": len(err),
+            "median_abs": float(np.median(np.abs(err))) if err else None,
+            "max_abs": float(np.max(np.abs(err))) if err else None,
+            "mean_signed": float(np.mean(err)) if err else None,
+        },
+        "response_change": {
+            c: [float(np.min(v)), float(np.median(v)), float(np.max(v))]
+            for c in classes
+            if c != "none"
+            for v in [[r["response_change"] for r in scored if r["class"] == c]]
+            if v
+        },
+        "calibration": calib,
+        "seconds_per_record": {
+            "mean": float(np.mean(secs)) if secs else None,
+            "median": float(np.median(secs)) if secs else None,
+            "max": float(np.max(secs)) if secs else None,
+            "simulate_mean": float(np.mean([r["seconds_simulate"] for r in scored]))
+            if secs
+            else None,
+        },
+        "records": rows,
+        "versions": _versions(),
+    }
+
+
+def _versions():
+    import jax
+    import scipy
+
+    return {
+        "jax": jax.__version__,
+        "scipy": scipy.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+    }
+
+
+def _fmt(a):
+    if a["n"] == 0:
+        return "—"
+    return f"{a['correct']}/{a['n']} ({100 * a['accuracy']:.0f} %)"
+
+
+def print_summary(out: dict, fh=sys.stdout) -> None:
+    p = lambda *a: print(*a, file=fh)
     conf = out["confusion"]
     labels = list(next(iter(conf.values())))
-    short = {lab: lab[:6] for lab in labels}
-    print("true \\ verdict".ljust(26) + " ".join(short[lab].rjust(7) for lab in labels))
+    short = {
+        lab: lab.replace("_friction", "")
+        .replace("position_dependent", "pos_dep")
+        .replace("flexible_mode", "flex")
+        .replace("asymmetric", "asym")
+        .replace("unexplained", "unexpl")[:7]
+        for lab in labels
+    }
+    p("\nconfusion (true class × verdict)")
+    p("true \\ verdict".ljust(25) + " ".join(short[lab].rjust(7) for lab in labels))
     for c, row in conf.items():
-        print(c.ljust(26) + " ".join(str(row[lab]).rjust(7) for lab in labels))
+        p(c.ljust(25) + " ".join((str(row[lab]) if row[lab] else ".").rjust(7) for lab in labels))
+    p("\nper class".ljust(26) + "all".ljust(16) + "".join(s.ljust(16) for s in out["per_source"]))
+    for c, a in out["per_class"].items():
+        ps = out["per_class_source"][c]
+        p(c.ljust(25) + _fmt(a).ljust(16) + "".join(_fmt(ps[s]).ljust(16) for s in ps))
+    p("\nper source: " + ", ".join(f"{s} {_fmt(a)}" for s, a in out["per_source"].items()))
+    p("per loop:   " + ", ".join(f"{s} {_fmt(a)}" for s, a in out["per_loop"].items()))
+    p("per sample rate: " + ", ".join(f"{k} {_fmt(a)}" for k, a in out["per_rate"].items()))
+    p("\nper sub-shape")
+    for k, a in out["per_shape"].items():
+        p(f"  {k:55s} {_fmt(a)}")
+    p("\nheadline")
     for k in (
         "top1_single",
-        "two_effect_both_named",
+        "two_effect_both_in_top3",
         "out_of_library_unexplained",
         "false_alarm_clean",
-        "shrink_error_vs_oracle",
-        "seconds_per_record",
+        "asymmetric_in_stack",
     ):
-        print(f"{k}: {out[k]}")
+        v = out[k]
+        p(f"  {k:28s} {'—' if v is None else f'{100 * v:.1f} %'}")
+    p(f"  {'overall':28s} {_fmt(out['overall'])}")
+    se = out["shrink_error_vs_oracle"]
+    p(
+        f"  shrink error vs oracle (final − true-alone): n={se['n']} median|·|={se['median_abs']} "
+        f"max|·|={se['max_abs']} mean={se['mean_signed']}"
+    )
+    s = out["seconds_per_record"]
+    p(
+        f"  seconds per case (diagnose): mean {s['mean']:.1f}, median {s['median']:.1f}, max "
+        f"{s['max']:.1f}; simulation {s['simulate_mean']:.1f} s per case"
+    )
+    p("\ncalibration of d.confidence (target: ≥ 0.9 right ≥ 95 %)")
+    for k, a in out["calibration"].items():
+        p(f"  {k:9s} {_fmt(a)}")
+    p("\nresponse change ‖v − v₀‖/‖v₀‖ on valid (min / median / max)")
+    for c, v in out["response_change"].items():
+        p(f"  {c:25s} {100 * v[0]:5.1f} / {100 * v[1]:5.1f} / {100 * v[2]:5.1f} %")
+    if out["size_out_of_band"]:
+        p(f"\nsize outside [2, 80] % after the search: {len(out['size_out_of_band'])}")
+        for r in out["size_out_of_band"]:
+            p(f"  {r}")
+    p(f"\ncrashes: {len(out['crashes'])}")
+    for r in out["crashes"]:
+        p(f"  {r['source']} {r['class']} seed={r['seed']} fs={r['fs']:.1f}: {r['crash']}")
+    if out["simulation_failures"]:
+        p(f"\nSIMULATION FAILURES (benchmark bugs): {out['simulation_failures']}")
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--per-class", type=int, default=20)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=4.0, help="record length [s]")
-    p.add_argument("--json", help="write the results here")
-    args = p.parse_args()
-    out = run(args.per_class, args.seed, duration=args.duration)
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--per-class", type=int, default=3, help="cases per class and source")
+    p.add_argument("--sources", default=",".join(SOURCES), help="comma list of twin,scipy")
+    p.add_argument("--classes", default=",".join(CLASSES), help="comma list (default: all)")
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed0: 0 to develop, 1000000 for a reported run"
+    )
+    p.add_argument("--rate-min", type=float, default=250.0, help="Hz")
+    p.add_argument("--rate-max", type=float, default=5000.0, help="Hz")
+    p.add_argument("--duration-min", type=float, default=4.0, help="s")
+    p.add_argument("--duration-max", type=float, default=12.0, help="s")
+    p.add_argument("--jobs", type=int, default=1, help="worker processes")
+    p.add_argument("--json", help="write the summary and every case here")
+    a = p.parse_args(argv)
+    out = run(
+        a.per_class,
+        a.seed,
+        tuple(c.strip() for c in a.classes.split(",") if c.strip()),
+        sources=tuple(s.strip() for s in a.sources.split(",") if s.strip()),
+        jobs=a.jobs,
+        rate=(a.rate_min, a.rate_max),
+        durations=(a.duration_min, a.duration_max),
+    )
     print_summary(out)
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(out, fh, indent=1, default=float)
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(out, fh, indent=1, default=_json_default)
 
 
 if __name__ == "__main__":
