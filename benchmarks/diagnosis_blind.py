@@ -673,10 +673,7 @@ def make_case(
 
 
 def _conf_of(d):
-    # TODO(lead): drop fallback once diagnose has confidence
-    c = getattr(d, "confidence", math.nan)
-    amb = getattr(d, "ambiguous", None)
-    return (math.nan if c is None else float(c)), list(amb or [])
+    return float(d.confidence), list(d.ambiguous)
 
 
 def ranking(d) -> list[str]:

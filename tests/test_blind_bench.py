@@ -84,7 +84,9 @@ def _stub(train, valid):
         raise RuntimeError("stub crash")
     _stub.calls += 1
     e = SimpleNamespace(name="offset", shrink=0.1, significant=False)
-    return SimpleNamespace(verdict="none", stack=[], effects=[e], final={"shrink": 0.0})
+    return SimpleNamespace(
+        verdict="none", stack=[], effects=[e], final={"shrink": 0.0}, confidence=0.5, ambiguous=[]
+    )
 
 
 _stub.calls = 0
@@ -108,4 +110,4 @@ def test_two_case_run_records_answers_and_crashes():
     assert out["crashes"][0]["class"] == "cogging" and out["false_alarm_clean"] == 0.0
     assert 0.02 <= rows[1]["response_change"] <= 0.8 and rows[1]["size_in_band"]
     assert rows[0]["fs"] == pytest.approx(300.0) and rows[0]["n_samples"] == 601
-    assert math.isnan(rows[0]["confidence"])  # the fallback while diagnose lacks it
+    assert rows[0]["confidence"] == 0.5  # read from the diagnosis

@@ -56,7 +56,7 @@ def test_json_contract(emps):
 
 
 def test_cli_roundtrip_and_plot(tmp_path):
-    tr, va, _ = blind.make_case("offset", 11, duration=2.5)
+    tr, va, _ = blind.make_case("offset", 11, duration=2.5, rate=(1000.0, 1000.0))
     for name, r in (("train", tr), ("valid", va)):
         t = np.asarray(r.t)
         data = np.c_[t, np.asarray(r.x), np.asarray(r.F) / 2.0]
@@ -112,7 +112,10 @@ def test_bad_arguments():
 
 def test_blind_small():
     classes = ("none", *FIXED, "coulomb_friction+offset", "flexible_mode")
-    out = blind.run(per_class=1, seed0=500, classes=classes, duration=2.5)
+    out = blind.run(
+        per_class=1, seed0=500, classes=classes, duration=2.5, rate=(1000.0, 1000.0),
+        sources=("twin",), progress=False,
+    )
     rows = out["records"]
     single = [r for r in rows if r["class"] in FIXED]
     assert np.mean([r["verdict"] == r["class"] for r in single]) >= 5 / 6
