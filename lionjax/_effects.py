@@ -23,6 +23,8 @@ profiles them (:mod:`lionjax._diagnose`).
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -139,6 +141,8 @@ class LinearPosition(AbstractEffect):
     Attributes:
         center: x_c [m]; scale: ℓ [m] > 0 (the diagnosis uses the training record's mean and std).
     """
+
+    acts_on_force: ClassVar[bool] = False  # it modulates a and b: added once, b not divided
 
     center: Float[Array, ""]
     scale: Float[Array, ""]
