@@ -6,14 +6,17 @@ A model is linear in its parameters θ. Every parameter θⱼ owns one *column*:
     ε₁ ∋ sⱼ·(s^mⱼ/Λ)[uⱼ]·θⱼ,    ε₂ ∋ sⱼ·(s^(mⱼ+1)/Λ)[uⱼ]·θⱼ,
 
 to the two equation errors (ε₂ = dε₁/dt). W₀ is (s²/Λ, s³/Λ)[x] = (V₃, V₄). For the mass–damper
-ẍ + aẋ = bF this gives the paper's W = [[V₂, −Q₁], [V₃, −Q₂]], W₀ = [V₃, V₄] (GUIDE §2).
+ẍ + aẋ = bF this gives the paper's W = [[V₂, −Q₁], [V₃, −Q₂]], W₀ = [V₃, V₄]
+(docs/method.md, "Equation errors").
 
-Across regions (GUIDE §3) masking filtered signals is wrong — the filter has memory. Instead,
-with 1ᵢ(x)ẋ = d/dt gᵢ(x), gᵢ(x) = clip(x, loᵢ, hiᵢ), the model ẍ + Σᵢ 1ᵢ(x)(aᵢẋ − bᵢF) = 0 is
-exactly linear in (aᵢ, bᵢ) with columns (s/Λ)[gᵢ(x)] and −(1/Λ)[1ᵢ(x)·F].
+Across regions (docs/method.md, "Exact regressors across regions") masking filtered signals is
+wrong — the filter has memory. Instead, with 1ᵢ(x)ẋ = d/dt gᵢ(x), gᵢ(x) = clip(x, loᵢ, hiᵢ),
+the model ẍ + Σᵢ 1ᵢ(x)(aᵢẋ − bᵢF) = 0 is exactly linear in (aᵢ, bᵢ) with columns (s/Λ)[gᵢ(x)]
+and −(1/Λ)[1ᵢ(x)·F].
 
 Effects (offset, Coulomb friction, spring …) are :class:`AbstractEffect` columns appended with
-:class:`Augmented`; the estimators only ever see (W, W₀), so they need no change.
+:class:`Augmented` (on a multi-region base, one copy per region, scaled by that region's bᵢ);
+the estimators only ever see (W, W₀), so they need no change.
 """
 
 from __future__ import annotations
@@ -107,7 +110,8 @@ class MassDamper(AbstractModel):
     """ẍ + aẋ = bF  (a = C/M [1/s], b = 1/M [1/kg]); parameters ``("a", "b")``.
 
     Attributes:
-        x_hold, F_hold: intersample assumptions (defaults ``"foh"`` and ``"zoh"``, GUIDE §4).
+        x_hold, F_hold: intersample assumptions (defaults ``"foh"`` and ``"zoh"``;
+            docs/method.md, "Discretisation").
     """
 
     x_hold: Hold = eqx.field(static=True, default="foh")
@@ -145,7 +149,9 @@ def _region_fractions(x: Array, lo: float, hi: float) -> Array:
 
 
 class Piecewise(AbstractModel):
-    """ẍ + aᵢẋ = bᵢF in region i, regions split by sorted ``bounds`` [m] (GUIDE §3).
+    """ẍ + aᵢẋ = bᵢF in region i, regions split by sorted ``bounds`` [m].
+
+    See docs/method.md, "Exact regressors across regions".
 
     Region 1 is x < bounds[0], the last region x > bounds[-1]. Parameters are named
     ``a_1, b_1, a_2, b_2, …``. Columns are exact across regions: (s/Λ)[clip(x, loᵢ, hiᵢ)] for aᵢ
