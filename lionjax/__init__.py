@@ -27,6 +27,9 @@ from ._errors import (
     IdentificationError as IdentificationError,
     InputError as InputError,
     raise_if_failed as raise_if_failed,
+    result_code as result_code,
+    result_codes as result_codes,
+    result_message as result_message,
 )
 from ._estimators import (
     AbstractGain as AbstractGain,

@@ -1,12 +1,15 @@
-"""Candidate *regressor* effects for identification and diagnosis (GUIDE §6, layer 1).
+"""Candidate *regressor* effects for identification and diagnosis (layer 1;
+docs/method.md, "Effects").
 
-Sign convention of the augmented model (fixed, GUIDE §6; effects act on the force, in N):
+Sign convention of the augmented model (fixed; effects act on the force, in N):
 
     ẍ + aẋ = b·(F_applied + F₀ − F_c·sgn(ẋ) − k·(x − x₀)),   F_applied = sat_Fmax(F(t − τ)).
 
 Every effect here is linear in its parameters and adds :class:`~lionjax.Column` s to the model
 through :class:`~lionjax.Augmented`; its parameters are b times the physical ones, and
-:meth:`physical` divides by b. With ε₁ = V₃ + aV₂ − bQ₁ + … (GUIDE §2), the columns are
+:meth:`physical` divides by b (on a ``Piecewise`` base, one copy per region: bᵢ times the physical
+ones, names suffixed ``_i``; ``LinearPosition`` excepted, it modulates a and b). With
+ε₁ = V₃ + aV₂ − bQ₁ + … (docs/method.md, "Equation errors"), the columns are
 
 - offset (:class:`Offset`): −(1/Λ)[1], parameter b·F₀;
 - Coulomb (:class:`Coulomb`): +(1/Λ)[sgñ v̂], parameter b·F_c;
@@ -22,6 +25,8 @@ profiles them (:mod:`lionjax._diagnose`).
 """
 
 from __future__ import annotations
+
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -133,12 +138,15 @@ class Spring(AbstractEffect):
 class LinearPosition(AbstractEffect):
     """Position-dependent coefficients a(x) = a + a₁ξ, b(x) = b + b₁ξ, ξ = (x − x_c)/ℓ.
 
-    Exact columns (GUIDE §3): a₁ξẋ = d/dt(ℓξ²/2) → +(s/Λ)[ℓξ²/2]; b₁ξF → −(1/Λ)[ξF].
+    Exact columns (docs/method.md, "Exact regressors across regions"): a₁ξẋ = d/dt(ℓξ²/2)
+    → +(s/Λ)[ℓξ²/2]; b₁ξF → −(1/Λ)[ξF].
     :meth:`physical` reports da/dx = a₁/ℓ [1/(s·m)] and db/dx = b₁/ℓ [1/(kg·m)].
 
     Attributes:
         center: x_c [m]; scale: ℓ [m] > 0 (the diagnosis uses the training record's mean and std).
     """
+
+    acts_on_force: ClassVar[bool] = False  # it modulates a and b: added once, b not divided
 
     center: Float[Array, ""]
     scale: Float[Array, ""]

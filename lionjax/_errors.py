@@ -9,7 +9,10 @@ as a :class:`RESULTS` code per batch element and raised once, outside the trace,
 from __future__ import annotations
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Int
 
 
 class InputError(ValueError):
@@ -39,9 +42,48 @@ class RESULTS(eqx.Enumeration):
     )
 
 
-def result_codes(result: RESULTS) -> np.ndarray:
-    """The integer codes of a (possibly batched) ``RESULTS`` value as a numpy array."""
-    return np.asarray(result._value)
+def result_code(result: eqx.Enumeration) -> Int[Array, "..."]:
+    """The integer code of a (possibly batched) enumeration item, as a JAX array.
+
+    Works inside ``jit``/``vmap`` (e.g. to put the code in a solver's ``aux``). Any
+    ``eqx.Enumeration`` item is accepted (lionjax's :class:`RESULTS`, ``optimistix.RESULTS``, …).
+    An item is a PyTree whose single leaf is its code, so this reads it through the public PyTree
+    API rather than equinox's private attribute.
+    """
+    leaves = jax.tree_util.tree_leaves(result)
+    if len(leaves) != 1 or not jnp.issubdtype(jnp.result_type(leaves[0]), jnp.integer):
+        raise TypeError(
+            f"result_code: expected an eqx.Enumeration item (one integer leaf), got "
+            f"{type(result).__name__} with {len(leaves)} leaves; pass a solution's ``result``."
+        )
+    return leaves[0]
+
+
+def result_codes(result: eqx.Enumeration) -> np.ndarray:
+    """The integer codes of a (possibly batched) enumeration item as a numpy array (0 = success
+    for lionjax's :class:`RESULTS`). Host-side: call it on a concrete result, outside ``jit``."""
+    return np.asarray(result_code(result))
+
+
+def result_message(code: ArrayLike, enumeration: type[eqx.Enumeration] = RESULTS) -> str:
+    """The message of one integer ``code`` of ``enumeration`` (default lionjax's :class:`RESULTS`;
+    pass ``optimistix.RESULTS`` for an optimistix solution's code; "" for success).
+
+    Built on equinox's public API: the code is turned back into an item of ``enumeration`` by
+    unflattening the PyTree structure of its ``successful`` item (the member every RESULTS-style
+    enumeration of lionjax, optimistix, lineax and diffrax has), and ``enumeration[item]`` gives
+    the message.
+    """
+    c = np.asarray(code)
+    n = len(enumeration)
+    if c.shape != () or not np.issubdtype(c.dtype, np.integer) or not 0 <= int(c) < n:
+        raise InputError(
+            f"result_message: argument 'code' must be one integer in [0, {n}) "
+            f"for {enumeration.__name__}, got {code!r}."
+        )
+    treedef = jax.tree_util.tree_structure(enumeration.successful)
+    item = jax.tree_util.tree_unflatten(treedef, [c.astype(np.int32)])
+    return enumeration[item]
 
 
 def raise_if_failed(solution, *, what: str = "identification") -> None:
@@ -57,7 +99,7 @@ def raise_if_failed(solution, *, what: str = "identification") -> None:
     lines = []
     for index in bad[:20]:
         code = int(codes[tuple(index)])
-        msg = RESULTS._index_to_message[code]
+        msg = result_message(code)
         where = "" if codes.ndim == 0 else f"batch element {tuple(int(i) for i in index)}: "
         lines.append(f"  {where}{msg}")
     more = "" if len(bad) <= 20 else f"\n  ... and {len(bad) - 20} more"

@@ -54,7 +54,7 @@ class AbstractGain(eqx.Module):
 class FixedGain(AbstractGain):
     """A given gain: a scalar g (G = g·I) or a full symmetric positive definite matrix.
 
-    The paper uses G = 10⁴·I (with x in m this converges slowly; see GUIDE §2).
+    The paper uses G = 10⁴·I (with x in m this converges slowly; see docs/method.md, "Lion's law").
     """
 
     matrix: Float[Array, "..."]

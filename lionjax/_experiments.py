@@ -110,7 +110,8 @@ class LionSettings(eqx.Module):
         """The paper's settings: Λ = (s + 4)³ raw (λ = 12, 48, 64), G = 10⁴·I, θ₀ = 0.
 
         The paper does not state its units. In SI (x in m, F in N) G = 10⁴ moves b by
-        ≈ 0.02 %/s on these records: nothing converges in 10 s (GUIDE §2). With x in mm alone
+        ≈ 0.02 %/s on these records: nothing converges in 10 s (docs/method.md,
+        "Lion's law"). With x in mm alone
         (F in N, b then in mm/(s²·N)) a converges but b still does not. With x in mm *and* F in
         mN — which keeps a in 1/s and b in 1/kg as the paper reports them, and is equivalent to
         G = 10¹⁰ in SI — the law converges in ≈ 2 s, as in the paper's Fig. 4. That is the

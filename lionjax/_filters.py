@@ -5,10 +5,12 @@ Lion's method never differentiates measured data. It passes every signal u throu
     Vⱼ = s^(j−1)/Λ(s) · u,   j = 1 … 4,   Λ(s) = sⁿ + λ₁sⁿ⁻¹ + … + λₙ   (n ≥ 3, Hurwitz),
 
 so that the equation of motion ẍ + aẋ = bF becomes the algebraic relation V₃ + aV₂ − bQ₁ = 0
-between filtered signals (GUIDE §2). The paper uses n = 3, λ = (12, 48, 64) = (s + 4)³.
+between filtered signals (docs/method.md, "Equation errors"). The paper uses n = 3,
+λ = (12, 48, 64) = (s + 4)³.
 
 Data are samples, the method is continuous-time. Each signal is filtered *exactly* at the sample
-instants under an intersample assumption chosen per signal (GUIDE §4):
+instants under an intersample assumption chosen per signal
+(docs/method.md, "Discretisation"):
 
 - ``"zoh"``: the signal is held between samples (a force commanded by a 1 kHz device loop);
 - ``"foh"``: the signal is linear between samples (a smooth measured position).

@@ -1,4 +1,4 @@
-"""Batch least squares on Lion's regressors.
+"""Batch least squares on Lion's regressors (docs/method.md, "Batch least squares").
 
     θ_LS = argmin_θ Σₖ wₖ ‖Wₖθ + W₀ₖ + Nₖη‖²,
 

@@ -6,20 +6,24 @@ A model is linear in its parameters θ. Every parameter θⱼ owns one *column*:
     ε₁ ∋ sⱼ·(s^mⱼ/Λ)[uⱼ]·θⱼ,    ε₂ ∋ sⱼ·(s^(mⱼ+1)/Λ)[uⱼ]·θⱼ,
 
 to the two equation errors (ε₂ = dε₁/dt). W₀ is (s²/Λ, s³/Λ)[x] = (V₃, V₄). For the mass–damper
-ẍ + aẋ = bF this gives the paper's W = [[V₂, −Q₁], [V₃, −Q₂]], W₀ = [V₃, V₄] (GUIDE §2).
+ẍ + aẋ = bF this gives the paper's W = [[V₂, −Q₁], [V₃, −Q₂]], W₀ = [V₃, V₄]
+(docs/method.md, "Equation errors").
 
-Across regions (GUIDE §3) masking filtered signals is wrong — the filter has memory. Instead,
-with 1ᵢ(x)ẋ = d/dt gᵢ(x), gᵢ(x) = clip(x, loᵢ, hiᵢ), the model ẍ + Σᵢ 1ᵢ(x)(aᵢẋ − bᵢF) = 0 is
-exactly linear in (aᵢ, bᵢ) with columns (s/Λ)[gᵢ(x)] and −(1/Λ)[1ᵢ(x)·F].
+Across regions (docs/method.md, "Exact regressors across regions") masking filtered signals is
+wrong — the filter has memory. Instead, with 1ᵢ(x)ẋ = d/dt gᵢ(x), gᵢ(x) = clip(x, loᵢ, hiᵢ),
+the model ẍ + Σᵢ 1ᵢ(x)(aᵢẋ − bᵢF) = 0 is exactly linear in (aᵢ, bᵢ) with columns (s/Λ)[gᵢ(x)]
+and −(1/Λ)[1ᵢ(x)·F].
 
 Effects (offset, Coulomb friction, spring …) are :class:`AbstractEffect` columns appended with
-:class:`Augmented`; the estimators only ever see (W, W₀), so they need no change.
+:class:`Augmented` (on a multi-region base, one copy per region, scaled by that region's bᵢ);
+the estimators only ever see (W, W₀), so they need no change.
 """
 
 from __future__ import annotations
 
 import abc
 from collections.abc import Sequence
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -71,6 +75,22 @@ class AbstractModel(eqx.Module):
         """Parameters by name, in physical units (the default: θ itself)."""
         return {n: theta[..., i] for i, n in enumerate(self.names)}
 
+    @property
+    def gains(self) -> tuple[str, ...]:
+        """Names of the input gains b = 1/M [1/kg], one per region, that scale the force.
+
+        An effect acting on the force (:class:`AbstractEffect`) has parameters b times its
+        physical ones, in every region. The default is ``("b",)`` when the model has a parameter
+        ``b`` and ``()`` (no gain: force effects cannot be added) otherwise.
+        """
+        return ("b",) if "b" in self.names else ()
+
+    def region_weights(self, record: Record, hold: Hold) -> tuple[Array, ...]:
+        """One weight 1ᵢ(x) per region of :attr:`gains` (shape ``(T,)`` each) for a signal held
+        by ``hold``: a force effect's signal u becomes one column per region, 1ᵢ(x)·u. The default
+        is a single region (weight 1)."""
+        return (jnp.ones_like(record.x),)
+
     def regressors(self, record: Record, bank: FilterBank) -> Regressors:
         """Filter every signal once and assemble (W, W₀) — shapes ``(T, 2, p)``, ``(T, 2)``."""
         sigs = self.signals(record)
@@ -90,7 +110,8 @@ class MassDamper(AbstractModel):
     """ẍ + aẋ = bF  (a = C/M [1/s], b = 1/M [1/kg]); parameters ``("a", "b")``.
 
     Attributes:
-        x_hold, F_hold: intersample assumptions (defaults ``"foh"`` and ``"zoh"``, GUIDE §4).
+        x_hold, F_hold: intersample assumptions (defaults ``"foh"`` and ``"zoh"``;
+            docs/method.md, "Discretisation").
     """
 
     x_hold: Hold = eqx.field(static=True, default="foh")
@@ -128,7 +149,9 @@ def _region_fractions(x: Array, lo: float, hi: float) -> Array:
 
 
 class Piecewise(AbstractModel):
-    """ẍ + aᵢẋ = bᵢF in region i, regions split by sorted ``bounds`` [m] (GUIDE §3).
+    """ẍ + aᵢẋ = bᵢF in region i, regions split by sorted ``bounds`` [m].
+
+    See docs/method.md, "Exact regressors across regions".
 
     Region 1 is x < bounds[0], the last region x > bounds[-1]. Parameters are named
     ``a_1, b_1, a_2, b_2, …``. Columns are exact across regions: (s/Λ)[clip(x, loᵢ, hiᵢ)] for aᵢ
@@ -176,16 +199,25 @@ class Piecewise(AbstractModel):
             cols += [Column(f"g_{i + 1}", 1, 1.0), Column(f"F_{i + 1}", 0, -1.0)]
         return tuple(cols)
 
+    @property
+    def gains(self) -> tuple[str, ...]:
+        return tuple(f"b_{i + 1}" for i in range(self.n_regions))
+
+    def region_weights(self, record: Record, hold: Hold) -> tuple[Array, ...]:
+        """1ᵢ(x) per region: for a held (``"zoh"``) signal the fraction of each sample interval
+        x spends in region i (exact for a held signal); for ``"foh"`` the indicator at the samples
+        (exact except in the intervals where x crosses a bound)."""
+        x = record.x
+        if hold == "zoh":
+            return tuple(_region_fractions(x, lo, hi) for lo, hi in self._limits())
+        return tuple(((x >= lo) & (x <= hi)).astype(x.dtype) for lo, hi in self._limits())
+
     def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
         x, F = record.x, record.F
         out: dict[str, tuple[Array, Hold]] = {"x": (x, self.x_hold)}
-        for i, (lo, hi) in enumerate(self._limits()):
+        weights = self.region_weights(record, self.F_hold)
+        for i, ((lo, hi), weight) in enumerate(zip(self._limits(), weights, strict=True)):
             out[f"g_{i + 1}"] = (jnp.clip(x, lo, hi), self.x_hold)
-            weight = (
-                _region_fractions(x, lo, hi)
-                if self.F_hold == "zoh"
-                else (((x >= lo) & (x <= hi)).astype(x.dtype))
-            )
             out[f"F_{i + 1}"] = (weight * F, self.F_hold)
         return out
 
@@ -195,11 +227,18 @@ class Piecewise(AbstractModel):
 
 
 class AbstractEffect(eqx.Module):
-    """An unmodelled effect acting on the force (GUIDE §6), linear in its parameters.
+    """An unmodelled effect, linear in its parameters (``docs/method.md``, "Effects").
 
-    ẍ + aẋ = b·(F + F₀ − Fc·sgn ẋ − k(x − x₀)): each effect adds columns whose parameters are
-    b times the physical ones (e.g. c = b·F₀); :meth:`physical` divides by b.
+    ẍ + aẋ = b·(F + F₀ − Fc·sgn ẋ − k(x − x₀)): an effect that acts on the force
+    (``acts_on_force = True``) adds columns whose parameters are b times the physical ones
+    (e.g. c = b·F₀), and :meth:`physical` divides by the b it is given. Its columns must be of
+    order 0 (filtered by 1/Λ). On a base model with several regions, :class:`Augmented` repeats
+    such an effect once per region (ẍ + aᵢẋ = bᵢ·(F + F₀ − …)), so that it stays exact when
+    the bᵢ differ. An effect with ``acts_on_force = False`` (e.g. a modulation of a and b)
+    is added once and :meth:`physical` ignores b.
     """
+
+    acts_on_force: ClassVar[bool] = True
 
     @property
     @abc.abstractmethod
@@ -233,7 +272,19 @@ class Offset(AbstractEffect):
 
 
 class Augmented(AbstractModel):
-    """A base model plus effect columns; parameters ``base.names + effect names``."""
+    """A base model plus effect columns; parameters ``base.names + effect names``.
+
+    An effect that acts on the force enters every region with that region's gain:
+
+        ẍ + aᵢẋ = bᵢ·(F + F₀ − F_c·sgn ẋ − k·x),   in region i of the base model,
+
+    which is linear in (aᵢ, bᵢ, bᵢF₀, bᵢF_c, bᵢk). On a single-region base (``MassDamper``) its
+    parameters keep their names (``bF0``, physical ``F0``); on a base with R regions
+    (``Piecewise``) each is repeated per region with the region's suffix (``bF0_1 … bF0_R``,
+    physical ``F0_1 … F0_R`` = (bᵢF₀)/bᵢ), its column being 1ᵢ(x)·u (weights from
+    :meth:`AbstractModel.region_weights`). A record that stays in one region therefore leaves the
+    other regions' effect parameters unexcited, like their aᵢ and bᵢ.
+    """
 
     base: AbstractModel
     effects: tuple[AbstractEffect, ...]
@@ -243,29 +294,71 @@ class Augmented(AbstractModel):
             raise InputError("Augmented: base must be a plain model, not another Augmented.")
         self.base = base
         self.effects = tuple(effects)
+        for e in self.effects:
+            if not e.acts_on_force:
+                continue
+            if not base.gains:
+                raise InputError(
+                    f"Augmented: effect {type(e).__name__} acts on the force, but base model "
+                    f"{type(base).__name__} has no input gain b (its parameters are "
+                    f"{base.names}); use a base with one (MassDamper, Piecewise)."
+                )
+            if any(c.order != 0 for c in e.columns()):
+                raise InputError(
+                    f"Augmented: effect {type(e).__name__} acts on the force, so its columns "
+                    "must be of order 0 (filtered by 1/Λ); got orders "
+                    f"{[c.order for c in e.columns()]}."
+                )
         names = self.names
         if len(set(names)) != len(names):
             raise InputError(f"Augmented: parameter names repeat: {names}; add each effect once.")
 
+    def _suffixes(self, effect: AbstractEffect) -> tuple[str, ...]:
+        """Name suffixes of the copies of ``effect``: one per region for a force effect on a
+        multi-region base, else a single unsuffixed copy."""
+        if effect.acts_on_force and len(self.base.gains) > 1:
+            return tuple(f"_{i + 1}" for i in range(len(self.base.gains)))
+        return ("",)
+
     @property
     def names(self) -> tuple[str, ...]:
-        return self.base.names + tuple(n for e in self.effects for n in e.names)
+        return self.base.names + tuple(
+            n + sfx for e in self.effects for sfx in self._suffixes(e) for n in e.names
+        )
 
     def columns(self) -> tuple[Column, ...]:
-        return self.base.columns() + tuple(c for e in self.effects for c in e.columns())
+        return self.base.columns() + tuple(
+            Column(c.signal + sfx, c.order, c.sign)
+            for e in self.effects
+            for sfx in self._suffixes(e)
+            for c in e.columns()
+        )
 
     def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
         out = self.base.signals(record)
         for e in self.effects:
-            out.update(e.signals(record))
+            sfxs = self._suffixes(e)
+            for name, (u, hold) in e.signals(record).items():
+                if sfxs == ("",):
+                    out[name] = (u, hold)
+                    continue
+                weights = self.base.region_weights(record, hold)
+                for sfx, w in zip(sfxs, weights, strict=True):
+                    out[name + sfx] = (w * u, hold)
         return out
 
     def physical(self, theta: Array) -> dict[str, Array]:
+        """Base parameters as the base reports them, then each effect's physical parameters,
+        divided by the gain bᵢ of its region (suffix ``_i`` on a multi-region base)."""
         out = self.base.physical(theta)
-        b = out.get("b", theta[..., self.base.names.index("b")] if "b" in self.base.names else 1.0)
+        gains = [theta[..., self.base.names.index(g)] for g in self.base.gains]
         i = len(self.base.names)
         for e in self.effects:
             k = len(e.names)
-            out.update(e.physical(theta[..., i : i + k], b))
-            i += k
+            sfxs = self._suffixes(e)
+            for r, sfx in enumerate(sfxs):
+                b = gains[r] if e.acts_on_force else jnp.ones_like(theta[..., 0])
+                phys = e.physical(theta[..., i : i + k], b)
+                out.update({n + sfx: v for n, v in phys.items()})
+                i += k
         return out

@@ -1,7 +1,8 @@
 """E(Z) = (I − e^{−Z}) Z⁻¹ for the symmetric 2×2 Z = h·WGWᵀ, and Lion's exact step built on it.
 
 Layer 1 (core). Over one sample interval h with frozen regressors W (2 × p), θ̇ = −cG Wᵀ(Wθ + W₀)
-is linear in θ and its exact solution is θ ← θ − h·cGWᵀ E(hS)(Wθ + W₀), S = c·WGWᵀ (GUIDE §4).
+is linear in θ and its exact solution is θ ← θ − h·cGWᵀ E(hS)(Wθ + W₀), S = c·WGWᵀ
+(docs/method.md, "Lion's law").
 :func:`phi_sym2` evaluates E elementwise (any batch shape) in closed form; :func:`exact_step` is
 the step on lists of arrays, used by :func:`lionjax.lion` (one record) and by the batched
 kernel of :func:`lionjax.lion_batched` (elementwise over the batch).

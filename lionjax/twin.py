@@ -1,4 +1,5 @@
-"""The device twin (GUIDE §6): ``lionjax.twin.Plant``, its effects, ``simulate``, excitations.
+"""The device twin: ``lionjax.twin.Plant``, its effects, ``simulate``, excitations
+(docs/method.md, "Effects").
 
 A public namespace over the private ``lionjax._plant`` and ``lionjax._excitation`` modules. The
 twin's effects live here (``lionjax.twin.CoulombFriction`` …) so they are never confused with the

@@ -59,7 +59,7 @@ def test_reference_values_and_lionjax_form():
     assert (R.sigma_M, R.sigma_Fv, R.sigma_Fc, R.sigma_offset) == (0.1085, 1.1460, 0.1012, 0.0444)
     assert R.a == pytest.approx(2.1397, rel=1e-4)  # Fv/M [1/s]
     assert R.b == pytest.approx(0.010514, rel=1e-4)  # 1/M [1/kg]
-    assert R.F0 == 3.1648  # GUIDE §6: offset −3.1648 N is F0 = +3.1648 N
+    assert R.F0 == 3.1648  # docs/method.md, Effects: offset −3.1648 N is F0 = +3.1648 N
     A = R.asymmetric
     assert (A.M, A.Fv_pos, A.Fc_pos, A.Fv_neg, A.Fc_neg) == (
         95.1540,

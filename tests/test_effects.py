@@ -107,3 +107,72 @@ def test_bad_arguments():
         lj.Coulomb(-1.0, 1e-3)
     with pytest.raises(lj.InputError, match="scale"):
         lj.LinearPosition(0.0, 0.0)
+
+
+@pytest.mark.parametrize("bounds", [None, (0.0,), (-0.01, 0.01)])
+def test_physical_closed_form(bounds):
+    """θ built from known physical values: ẍ + aᵢẋ = bᵢ·(F + F₀ − F_c·sgn ẋ − k·x) in every
+    region, plus a(x), b(x) modulation; physical() must return them (the issue's case: b = 2,
+    b·F₀ = 6 → F₀ = 3, per region, with region gains that differ)."""
+    base = lj.MassDamper() if bounds is None else lj.Piecewise(bounds)
+    R = 1 if bounds is None else len(bounds) + 1
+    a, b = 15.0 + 5.0 * np.arange(R), 2.0 / (1.0 + 0.5 * np.arange(R))  # b = 2, 1.33, 1
+    F0, Fc, k, a1, b1, ell = 3.0, 0.7, 40.0, 3.0, -0.3, 0.02
+    effects = [lj.Offset(), lj.Coulomb(100.0, 1e-3), lj.Spring(), lj.LinearPosition(0.0, ell)]
+    model = lj.Augmented(base, effects)
+    base_theta = np.stack([a, b], axis=1).ravel()
+    theta = np.concatenate([base_theta, b * F0, b * Fc, b * k, [a1, b1]])
+    assert len(theta) == len(model.names)
+    phys = {n: float(v) for n, v in model.physical(jnp.asarray(theta)).items()}
+    sfx = [""] if bounds is None else [f"_{i + 1}" for i in range(R)]
+    expected = {f"{p}{s}": v for s, ai, bi in zip(sfx, a, b) for p, v in (("a", ai), ("b", bi))}
+    for name, value in (("F0", F0), ("Fc", Fc), ("k", k)):
+        expected.update({name + s: value for s in sfx})
+    expected.update(da_dx=a1 / ell, db_dx=b1 / ell)
+    assert phys.keys() == expected.keys()
+    for name, value in expected.items():
+        assert phys[name] == pytest.approx(value, rel=1e-14), name
+    # batched θ: the same per element
+    batched = model.physical(jnp.asarray(np.stack([theta, 2 * theta])))
+    np.testing.assert_allclose(batched[f"F0{sfx[-1]}"], [F0, F0], rtol=1e-14)
+
+
+def test_piecewise_offset_and_spring_recovered_across_regions():
+    """A record crossing x = 0 of ẍ + aᵢẋ = bᵢ·(F + F₀ − k·x) with b₁ ≠ b₂: the per-region
+    effect columns recover F₀ and k in both regions (one shared column could not: bᵢF₀ differ)."""
+    a, b, k, F0 = (15.0, 25.0), (2.0, 1.5), 40.0, 0.4
+
+    def rhs(t, y, F):
+        i = 0 if y[0] < 0 else 1
+        return [y[1], -a[i] * y[1] + b[i] * (F + F0 - k * y[0])]
+
+    F = 2 * _force(4)
+    _, x = _sim(rhs, F)
+    assert np.mean(x < 0) > 0.2 and np.mean(x > 0) > 0.2  # both regions visited
+    rec = lj.Record(x, F, DT)
+    model = lj.Augmented(lj.Piecewise((0.0,)), [lj.Spring(), lj.Offset()])
+    p = _lstsq_fit(model, rec, BANK)
+    # measured: a, b within 1.2e-4; k, F₀ within 4.5e-4 (x·1ᵢ(x) is first-order held, so the five
+    # intervals where x crosses 0 carry an O(dt) error)
+    for i in (1, 2):
+        assert p[f"a_{i}"] == pytest.approx(a[i - 1], rel=1e-3)
+        assert p[f"b_{i}"] == pytest.approx(b[i - 1], rel=1e-3)
+        assert p[f"k_{i}"] == pytest.approx(k, rel=2e-3)
+        assert p[f"F0_{i}"] == pytest.approx(F0, rel=2e-3)
+
+
+def test_force_effect_needs_a_gain():
+    class NoGain(lj.AbstractModel):
+        @property
+        def names(self):
+            return ("a",)
+
+        def columns(self):
+            return (lj.Column("x", 1, 1.0),)
+
+        def signals(self, record):
+            return {"x": (record.x, "foh")}
+
+    with pytest.raises(lj.InputError, match="no input gain"):
+        lj.Augmented(NoGain(), [lj.Offset()])
+    lj.Augmented(NoGain(), [lj.LinearPosition(0.0, 0.01)])  # modulates a, b: no gain needed

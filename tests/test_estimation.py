@@ -140,7 +140,7 @@ def test_lion_default_converges_within_1_percent(single):
 
 def test_lion_paper_settings_run():
     # The paper's settings (λ = (12, 48, 64), G = 1e4·I, θ₀ = 0) in SI units: they run, stay
-    # finite and move towards the truth — slowly (GUIDE §2).
+    # finite and move towards the truth — slowly (docs/method.md, "Lion's law").
     rec = single_region_record(T=10000)
     sol = lj.lion(lj.MassDamper(), rec, bank=lj.FilterBank.paper(), gain=lj.FixedGain(1e4))
     th = np.asarray(sol.theta)

@@ -1,3 +1,4 @@
-"""The device twin (GUIDE §6): piecewise base model, effects, simulation of records.
+"""The device twin: piecewise base model, effects, simulation of records (docs/method.md,
+"Effects").
 
 The public names live in :mod:`lionjax.twin`."""

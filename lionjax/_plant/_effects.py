@@ -1,6 +1,7 @@
-"""Effects of the device twin: switchable, parameterised, each with its equation (GUIDE §6).
+"""Effects of the device twin: switchable, parameterised, each with its equation
+(docs/method.md, "Effects").
 
-Sign convention of the augmented axis model (fixed, GUIDE §6; effects act on the force, in N):
+Sign convention of the augmented axis model (fixed; effects act on the force, in N):
 
     ẍ + a(x)·ẋ = b(x)·(F_applied + F₀ − F_friction(ẋ) − k·(x − x₀) + F_mode),
     F_applied(t) = sat(F_cmd(t − τ) / g),

@@ -17,7 +17,8 @@ from ._effects import AbstractPlantEffect
 class Plant(eqx.Module):
     """The device twin of one axis: a piecewise mass–damper plus switchable effects.
 
-    Base model (paper eq. 13, GUIDE §2), in region i of R regions split by sorted ``bounds``:
+    Base model (paper eq. 13; docs/method.md, "Model and units"), in region i of R regions split
+    by sorted ``bounds``:
 
         ẍ + aᵢ·ẋ = bᵢ·F_net,   region 1: x < bounds[0], …, region R: x > bounds[R−2],
 

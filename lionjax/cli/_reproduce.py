@@ -156,7 +156,8 @@ def report(result, summary: dict) -> str:
     L.append(
         "Settings. **paper**: Λ = (s+4)³ (λ = 12, 48, 64, raw 1/Λ), G = 10⁴·I, θ₀ = 0, the law run "
         "on x in mm and F in mN (a stays in 1/s, b in 1/kg; in SI units G = 10⁴ does not converge "
-        "within a record, and with x in mm alone b does not: GUIDE §2). **recommended**: the "
+        'within a record, and with x in mm alone b does not: docs/method.md, "Lion\'s law"). '
+        "**recommended**: the "
         "package defaults, Λ = (s+4)³ with unit DC gain, AutoGain (rate 1/s), SI units, θ₀ = 0.\n"
     )
     L.append(

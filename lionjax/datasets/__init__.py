@@ -8,7 +8,7 @@ published results are in ``lionjax/datasets/emps/PROVENANCE.md`` (public benchma
 redistribute outside the project without checking the licence).
 
 Published inverse dynamic model (IDIM): τ = M q̈ + Fv q̇ + Fc sgn(q̇) + offset. In lionjax's form
-(GUIDE §6) ẍ + a ẋ = b (F + F0 − Fc sgn ẋ) with a = Fv/M, b = 1/M and F0 = −offset.
+(docs/method.md, "Effects") ẍ + a ẋ = b (F + F0 − Fc sgn ẋ) with a = Fv/M, b = 1/M and F0 = −offset.
 """
 
 from __future__ import annotations
@@ -49,8 +49,9 @@ class EMPSReference:
     """Published IDIM-LS values for EMPS (Janot et al. 2019, sec. 3.4) and lionjax's form.
 
     Published model τ = M q̈ + Fv q̇ + Fc sgn(q̇) + offset (τ = gτ·ν, the force in N).
-    lionjax's form (GUIDE §6): ẍ + a ẋ = b (F + F0 − Fc sgn ẋ), so ``a = Fv/M`` [1/s],
-    ``b = 1/M`` [1/kg] and ``F0 = −offset`` [N] (the published offset −3.1648 N is F0 = +3.1648 N).
+    lionjax's form (docs/method.md, "Effects"): ẍ + a ẋ = b (F + F0 − Fc sgn ẋ), so
+    ``a = Fv/M`` [1/s], ``b = 1/M`` [1/kg] and ``F0 = −offset`` [N] (the published offset
+    −3.1648 N is F0 = +3.1648 N).
     """
 
     M: float = 95.1089  #: mass [kg]
