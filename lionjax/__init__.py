@@ -79,7 +79,13 @@ from ._io import (
     parse_columns as parse_columns,
     save_record as save_record,
 )
-from ._least_squares import LSSolution as LSSolution, least_squares as least_squares
+from ._least_squares import (
+    LinearFit as LinearFit,
+    LSSolution as LSSolution,
+    equation_error as equation_error,
+    least_squares as least_squares,
+    linear_lstsq as linear_lstsq,
+)
 from ._models import (
     AbstractEffect as AbstractEffect,
     AbstractModel as AbstractModel,
