@@ -718,8 +718,7 @@ def study(
             sub = Record(batch.x[d], batch.F[d], batch.dt[d], batch.t0[d])
         kw: dict[str, Any] = {}
         if banks is not None:
-            kw["bank"] = jax.tree.map(lambda c: c[idx["poles"][sel]], banks)
-            kw["batched_bank"] = True
+            kw["bank"] = jax.tree.map(lambda c: c[idx["poles"][sel]], banks)  # (chunk, n)
         else:
             kw["bank"] = default_bank()
         if "gain" in idx:  # one gain per element: the class called with a (chunk,) value

@@ -1,5 +1,7 @@
 """The fast batched estimator against the reference lionjax.lion / least_squares (float64)."""
 
+import inspect
+
 import jax
 import numpy as np
 import pytest
@@ -121,9 +123,23 @@ def test_padding_contributes_nothing(recs):
         np.testing.assert_allclose(sol.theta_ls[i], ls.theta, rtol=1e-9)
 
 
-def test_least_squares_batched(recs):
+def test_least_squares_batched(recs, monkeypatch):
+    """The statistics pass alone: no gain is constructed; equals lion_batched's LSStatistics
+    output and the per-record lj.least_squares(initial="discard")."""
     batch, _ = lj.stack_records(recs)
-    sol = lj.least_squares_batched(lj.MassDamper(), batch)
+
+    def no_gain(*args, **kwargs):
+        raise AssertionError("least_squares_batched constructed a gain")
+
+    with monkeypatch.context() as m:
+        m.setattr(lj.FixedGain, "__init__", no_gain)
+        m.setattr(lj.AutoGain, "__init__", no_gain)
+        sol = lj.least_squares_batched(lj.MassDamper(), batch)
+    stats = lj.lion_batched(
+        lj.MassDamper(), batch, gain=lj.FixedGain(1e3), outputs=(lj.LSStatistics(),)
+    ).output(lj.LSStatistics)
+    for name in ("theta", "covariance", "std", "condition", "rms", "n_used"):
+        np.testing.assert_allclose(getattr(stats, name), getattr(sol, name), rtol=1e-12)
     for i, r in enumerate(recs):
         ls = lj.least_squares(lj.MassDamper(), r, initial="discard")
         np.testing.assert_allclose(sol.theta[i], ls.theta, rtol=1e-9)
@@ -228,3 +244,76 @@ def test_fast_path_falls_back_per_record_where_the_series_bound_fails(recs, n_sm
     for i in (0, 1, 2, len(recs) - 1):
         ref = lj.lion(lj.MassDamper(), recs[i], gain=lj.FixedGain(g))
         np.testing.assert_allclose(fast.theta[i], ref.theta_final, rtol=1e-10)
+
+
+def test_signature_has_few_parameters_and_one_boolean():
+    """The strategy-object API: at most 12 parameters, ``throw`` the only boolean."""
+    params = inspect.signature(lj.lion_batched).parameters
+    assert len(params) <= 12, list(params)
+    booleans = [
+        name
+        for name, p in params.items()
+        if isinstance(p.default, bool) or p.annotation in (bool, "bool")
+    ]
+    assert booleans == ["throw"]
+
+
+def test_execution_checks_its_knobs():
+    assert lj.Execution().kernel == "auto" and lj.Execution(kernel="xla").kernel == "xla"
+    with pytest.raises(lj.InputError, match=r"kernel must be one of \('auto', 'xla'\).*'pallas'"):
+        lj.Execution(kernel="pallas")
+    with pytest.raises(lj.InputError, match="chunk"):
+        lj.Execution(chunk=0)
+    with pytest.raises(lj.InputError, match="phi"):
+        lj.Execution(phi="fast")
+    with pytest.raises(lj.InputError, match="outputs"):
+        lj.lion_batched(lj.MassDamper(), lj.stack_records(_records(1, 300))[0], outputs=("ls",))
+
+
+def test_per_record_bank_and_gain_equal_per_record_runs(recs):
+    """A FilterBank with coeffs (B, n) and gains with values (B,) give every record its own
+    filter and gain: the same numbers as lj.lion / lj.least_squares record by record."""
+    batch, _ = lj.stack_records(recs)
+    poles = [(-4.0, -4.0, -4.0), (-8.0, -8.0, -8.0), (-5.0, -6.0, -7.0), (-12.0, -12.0, -12.0)]
+    bank = lj.stack_banks(poles)
+    assert bank.batch_shape == (4,)
+    g = np.array([1e2, 1e3, 3e3, 1e4])
+    rate = np.array([1.0, 2.0, 3.0, 4.0])
+    fixed = lj.lion_batched(lj.MassDamper(), batch, bank=bank, gain=lj.FixedGain(g))
+    auto = lj.lion_batched(
+        lj.MassDamper(), batch, bank=bank, gain=lj.AutoGain(rate), outputs=(lj.LSStatistics(),)
+    )
+    for i, r in enumerate(recs):
+        b = lj.FilterBank.from_poles(np.array(poles[i]), True)
+        ref = lj.lion(lj.MassDamper(), r, bank=b, gain=lj.FixedGain(g[i]))
+        np.testing.assert_allclose(fixed.theta[i], ref.theta_final, rtol=1e-10)
+        ref = lj.lion(lj.MassDamper(), r, bank=b, gain=lj.AutoGain(rate[i]))
+        np.testing.assert_allclose(auto.gain[i], ref.gain, rtol=1e-10)
+        np.testing.assert_allclose(auto.theta[i], ref.theta_final, rtol=1e-10)
+        ls = lj.least_squares(lj.MassDamper(), r, bank=b, initial="discard")
+        np.testing.assert_allclose(auto.theta_ls[i], ls.theta, rtol=1e-9)
+    with pytest.raises(lj.InputError, match="one per record"):
+        lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g[:3]))
+    with pytest.raises(lj.InputError, match="one filter"):
+        lj.lion(lj.MassDamper(), recs[0], bank=bank)
+
+
+def test_euler_stepper_runs_batched(recs):
+    """The stepper's increment is the one law of lion and lion_batched: the explicit Euler
+    step runs batched too, and an unstable gain is reported per record."""
+    batch, _ = lj.stack_records(recs)
+    sol = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(1e3), stepper=lj.EulerStep())
+    for i, r in enumerate(recs):
+        ref = lj.lion(lj.MassDamper(), r, gain=lj.FixedGain(1e3), stepper=lj.EulerStep())
+        np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-10)
+    bad = lj.lion_batched(
+        lj.MassDamper(), batch, gain=lj.FixedGain(1e9), stepper=lj.EulerStep(), throw=False
+    )
+    unstable = lj._errors.result_codes(lj.RESULTS.unstable_step).item()
+    assert np.all(np.asarray(bad.result._value) == unstable)
+
+
+def test_missing_output_is_named(recs):
+    sol = lj.lion_batched(lj.MassDamper(), lj.stack_records(recs)[0], gain=lj.FixedGain(1e3))
+    with pytest.raises(lj.InputError, match="LSStatistics"):
+        _ = sol.theta_ls
