@@ -102,7 +102,7 @@ def phi_sym2(zp: ArrayLike, zq: ArrayLike, zr: ArrayLike) -> tuple[Array, Array,
 
 
 def _phi_series(zp, zq, zr, terms: int):
-    """E(Z) by the series alone, ``terms`` terms (valid where ρ(Z) is small; see _SERIES_BOUND)."""
+    """E(Z) by the series alone, ``terms`` terms (valid where ρ(Z) is small; see SERIES_BOUND)."""
     a, b = _series(zp + zr, zp * zr - zq * zq, terms)
     return a + b * zp, b * zq, a + b * zr
 

@@ -143,6 +143,8 @@ def test_cli_study(records, tmp_path, capsys):
             f"{out}.csv",
             "--plot",
             f"{out}.png",
+            "--chunk-size",
+            "3",  # the chunk of the module's `result`: the compiled call is shared
         ]
     )
     text = capsys.readouterr().out
@@ -151,7 +153,13 @@ def test_cli_study(records, tmp_path, capsys):
     assert len(rows) == 8 and (tmp_path / "o.png").stat().st_size > 1000
     # the CLI equals the API on the same grid (files round-trip in float64)
     api = lj.study(
-        lj.MassDamper(), records, gains=[3.0, 10.0], gain=lj.AutoGain, poles=POLES, progress=False
+        lj.MassDamper(),
+        records,
+        gains=[3.0, 10.0],
+        gain=lj.AutoGain,
+        poles=POLES,
+        chunk_size=3,
+        progress=False,
     )
     np.testing.assert_allclose([r["a"] for r in rows], api.theta_final[..., 0].ravel(), rtol=1e-9)
 
