@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-ROOFLINE_MSPS = 1000.0  # GUIDE §9: ~1 G sample-updates/s on this 2-core machine
+ROOFLINE_MSPS = 1000.0  # ~1 G sample-updates/s: the memory-bandwidth bound of the 2-core machine
 
 
 def rss_mb() -> float:
@@ -163,12 +163,12 @@ def phi_tiers(dtype) -> dict:
     (near-degenerate threshold ``thr``)."""
     import jax.numpy as jnp
 
-    from lionjax import _batched as lb, _phi
+    from lionjax import _phi
 
     f32 = dtype == "float32"
     return {
-        "bound": lb._SERIES_BOUND,
-        "nfast": lb._fast_series_terms(jnp.dtype(dtype)),
+        "bound": _phi.SERIES_BOUND,
+        "nfast": _phi.fast_series_terms(jnp.dtype(dtype)),
         "nslow": _phi._series_terms(jnp.dtype(dtype)),
         "thr": 3e-2 if f32 else 1e-3,
     }
@@ -368,8 +368,9 @@ def main(argv=None) -> dict:
     # one loop per core inside one program
     if "one_device" not in skip:
         recs1 = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dt, dtype))
+        one_device = lj.Execution(shard=False)
         run1 = lambda: lj.lion_batched(
-            model, recs1, gain=gain, shard=False, throw=False
+            model, recs1, gain=gain, execution=one_device, throw=False
         ).theta.block_until_ready()
         t0 = time.perf_counter()
         th1 = np.asarray(run1())

@@ -3,6 +3,7 @@
 from . import datasets as datasets, twin as twin
 from ._batched import (
     BatchedSolution as BatchedSolution,
+    Execution as Execution,
     LSBatchedSolution as LSBatchedSolution,
     ParallelSolution as ParallelSolution,
     host_devices as host_devices,
@@ -33,6 +34,7 @@ from ._errors import (
 )
 from ._estimators import (
     AbstractGain as AbstractGain,
+    AbstractSampleStepper as AbstractSampleStepper,
     AbstractStepper as AbstractStepper,
     AutoGain as AutoGain,
     DiffraxStep as DiffraxStep,
@@ -70,7 +72,10 @@ from ._figures import (
 )
 from ._filters import FilterBank as FilterBank
 from ._identify_many import (
+    AbstractBatchMethod as AbstractBatchMethod,
     BatchIdentification as BatchIdentification,
+    LeastSquares as LeastSquares,
+    Lion as Lion,
     identify_batch as identify_batch,
 )
 from ._io import (
@@ -95,6 +100,17 @@ from ._models import (
     Offset as Offset,
     Piecewise as Piecewise,
     Regressors as Regressors,
+)
+from ._outputs import (
+    AbstractOutput as AbstractOutput,
+    ConvergenceResult as ConvergenceResult,
+    ConvergenceTime as ConvergenceTime,
+    LSResult as LSResult,
+    LSStatistics as LSStatistics,
+    TailResult as TailResult,
+    TailStatistics as TailStatistics,
+    Trajectory as Trajectory,
+    TrajectoryResult as TrajectoryResult,
 )
 from ._record import Record as Record, resample as resample
 from ._study import (

@@ -17,89 +17,140 @@ Three ways to integrate it over sampled data, chosen by a *stepper* Module:
   interpolated raw signals (``foh`` linear, ``zoh`` held), solved by diffrax with an adaptive,
   stiff-capable solver (Kvaerno5 by default).
 
-The normalised law θ̇ = −G Wᵀε / (1 + μ‖W‖²_F) is the same with G scaled per sample.
+The normalised law θ̇ = −G Wᵀε / (1 + μ‖W‖²_F) is the same with G scaled per sample; μ is a
+field of the stepper (``ExactStep(normalisation=μ)``).
+
+The steppers and gains are strategy Modules with abstract methods: :class:`AbstractGain` maps
+the regressors' moment matrix R to G, :class:`AbstractStepper` integrates a record
+(:meth:`AbstractStepper.trajectory`), and :class:`AbstractSampleStepper` (exact, Euler) does so
+by one per-interval :meth:`~AbstractSampleStepper.increment`, which the streaming kernel of
+:func:`lionjax.lion_batched` applies elementwise over a batch — one law for both entry points.
 """
 
-from __future__ import annotations
-
+# No ``from __future__ import annotations``: equinox reads AbstractVar annotations at runtime.
 import abc
-from typing import Literal
+import dataclasses
+from typing import ClassVar, Literal
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from equinox import AbstractClassVar, AbstractVar
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._errors import RESULTS, InputError
 from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
-from ._phi import phi_sym2
+from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2
 from ._record import Record
-from ._solution import check_duration, finish, transient_mask
+from ._solution import check_duration, convergence_time, finish, transient_mask
 
 # ----------------------------------------------------------------------------------------------
 # Gains
 
 
 class AbstractGain(eqx.Module):
-    """How the gain matrix G (p×p, symmetric positive definite) is chosen."""
+    """How the gain matrix G (p×p, symmetric positive definite) is chosen.
+
+    One rule serves :func:`lion` and :func:`lionjax.lion_batched`: G is a function of
+    R = mean of WₖᵀWₖ over the samples after the filter transient (p×p; W the 2×p regressors),
+    which :func:`lion` forms from the stored regressors and :func:`lionjax.lion_batched` from
+    its streamed least-squares statistics. A gain whose values carry a leading batch axis
+    (``batch_shape == (B,)``) gives every record of a batch its own gain.
+    """
+
+    #: Whether G depends on R (then the batched estimator streams the statistics first).
+    uses_data: AbstractClassVar[bool]
+
+    @property
+    @abc.abstractmethod
+    def batch_shape(self) -> tuple[int, ...]:
+        """``()`` for one gain, ``(B,)`` for one gain per record of a batch."""
 
     @abc.abstractmethod
-    def __call__(self, regs: Regressors, mask: Array) -> tuple[Array, Array]:
-        """Return (G, ok) for these regressors; ``ok`` is False when G cannot be formed."""
+    def __call__(
+        self, R: Float[Array, "p p"], names: tuple[str, ...]
+    ) -> tuple[Float[Array, "p p"], Bool[Array, ""]]:
+        """(G, ok) for one record with regressor moment matrix R (``ok`` False when G cannot
+        be formed, e.g. unexcited parameters). ``names`` are the p parameter names (for
+        errors)."""
+
+
+def _check_gain_shape(G: Array, p: int, names: tuple[str, ...]) -> Array:
+    if G.ndim == 0:
+        return G * jnp.eye(p, dtype=G.dtype)
+    if G.shape != (p, p):
+        raise InputError(
+            f"FixedGain: the model has {p} parameters {names}, but G has shape {G.shape}; "
+            f"pass a scalar or a {p}×{p} matrix (a batch: (B,) or (B, {p}, {p}))."
+        )
+    return G
 
 
 class FixedGain(AbstractGain):
-    """A given gain: a scalar g (G = g·I) or a full symmetric positive definite matrix.
+    """A given gain: a scalar g (G = g·I) or a full symmetric positive definite matrix G.
 
-    The paper uses G = 10⁴·I (with x in m this converges slowly; see docs/method.md, "Lion's law").
+    Attributes:
+        matrix: g, shape ``()``, or G, ``(p, p)``; one per record of a batch: ``(B,)`` or
+            ``(B, p, p)`` (then :func:`lionjax.lion_batched` gives record i the gain
+            ``matrix[i]``). Units: those of θ² per (regressor² · s).
+
+    The paper uses G = 10⁴·I (with x in mm and F in mN; in SI units this converges slowly;
+    see docs/method.md, "Lion's law").
     """
 
     matrix: Float[Array, "..."]
+    uses_data: ClassVar[bool] = False
 
     def __init__(self, matrix: ArrayLike):
         self.matrix = jnp.asarray(matrix, dtype=jnp.result_type(float))
 
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.matrix.shape[:1]) if self.matrix.ndim in (1, 3) else ()
+
     def __check_init__(self):
         G = self.matrix
-        if G.ndim not in (0, 2) or (G.ndim == 2 and G.shape[0] != G.shape[1]):
+        square = G.ndim in (2, 3) and G.shape[-1] == G.shape[-2]
+        if G.ndim not in (0, 1) and not square:
             raise InputError(
-                f"FixedGain: expected a scalar or a square matrix, got shape {G.shape}."
+                f"FixedGain: expected a scalar g or a square matrix G (a batch of them: (B,) or "
+                f"(B, p, p)), got shape {G.shape}."
             )
         if not isinstance(G, jax.core.Tracer):
-            import numpy as np
-
             g = np.asarray(G, dtype=np.float64)
             if not np.all(np.isfinite(g)):
                 raise InputError("FixedGain: the gain must be finite.")
-            if g.ndim == 0 and not g > 0:
-                raise InputError(f"FixedGain: a scalar gain must be positive, got {float(g)}.")
-            if g.ndim == 2:
-                if not np.allclose(g, g.T, rtol=1e-10, atol=0.0):
+            if g.ndim <= 1 and not np.all(g > 0):
+                raise InputError(
+                    f"FixedGain: a scalar gain must be positive, got {np.min(g):g}. Pass g > 0."
+                )
+            if g.ndim >= 2:
+                gm = g.reshape((-1,) + g.shape[-2:])
+                asym = np.max(np.abs(gm - np.swapaxes(gm, -1, -2)))
+                if not np.allclose(gm, np.swapaxes(gm, -1, -2), rtol=1e-10, atol=0.0):
                     raise InputError(
                         "FixedGain: G must be symmetric positive definite, but G ≠ Gᵀ "
-                        f"(max |G − Gᵀ| = {np.max(np.abs(g - g.T)):.3g}). Use (G + Gᵀ)/2."
+                        f"(max |G − Gᵀ| = {asym:.3g}). Use (G + Gᵀ)/2."
                     )
-                ev = np.linalg.eigvalsh(g)
+                ev = np.linalg.eigvalsh(gm)
                 if ev.min() <= 0:
                     raise InputError(
                         "FixedGain: G must be symmetric positive definite, but its smallest "
                         f"eigenvalue is {ev.min():.3g}."
                     )
 
-    def __call__(self, regs: Regressors, mask: Array) -> tuple[Array, Array]:
-        p = regs.W.shape[-1]
-        G = self.matrix
-        if G.ndim == 0:
-            G = G * jnp.eye(p, dtype=regs.W.dtype)
-        elif G.shape != (p, p):
+    def __call__(self, R, names):
+        if self.batch_shape:
             raise InputError(
-                f"FixedGain: the model has {p} parameters {regs.names}, but G has shape "
-                f"{G.shape}; pass a scalar or a {p}×{p} matrix."
+                f"FixedGain: this gain holds {self.batch_shape[0]} values (one per record), "
+                "but one record is being estimated; use lionjax.lion_batched, or index the gain "
+                "(jax.tree.map(lambda a: a[i], gain))."
             )
-        return G.astype(regs.W.dtype), jnp.array(True)
+        G = _check_gain_shape(self.matrix.astype(R.dtype), R.shape[-1], names)
+        return G, jnp.array(True)
 
 
 class AutoGain(AbstractGain):
@@ -108,15 +159,42 @@ class AutoGain(AbstractGain):
     The averaged dynamics become θ̇ ≈ −rate·(θ − θ_LS): every parameter direction converges with
     time constant 1/rate [s], whatever the units, scales and filter gain. This is the default:
     it converges on an ordinary device record without tuning. Noise in θ(t) grows with ``rate``.
+
+    Attributes:
+        rate: [1/s], shape ``()``, or ``(B,)`` for one rate per record of a batch.
+        max_condition: R (column-normalised) with a larger condition number is a failure
+            (unexcited parameters: ``RESULTS.unidentifiable``).
     """
 
     rate: float | Array = 1.0
     max_condition: float = eqx.field(static=True, default=1e12)
+    uses_data: ClassVar[bool] = True
 
-    def __call__(self, regs: Regressors, mask: Array) -> tuple[Array, Array]:
-        W = regs.W
-        R = jnp.einsum("t,tip,tiq->pq", mask, W, W) / jnp.maximum(jnp.sum(mask), 1.0)
-        scale = jnp.sqrt(jnp.clip(jnp.diagonal(R), jnp.finfo(W.dtype).tiny, None))
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(jnp.shape(self.rate))
+
+    def __check_init__(self):
+        if jnp.ndim(self.rate) > 1:
+            raise InputError(
+                f"AutoGain: rate must be a number [1/s] or one per record, shape (B,), got "
+                f"shape {jnp.shape(self.rate)}."
+            )
+        if not isinstance(self.rate, jax.core.Tracer):
+            r = np.asarray(self.rate, dtype=np.float64)
+            if not np.all(np.isfinite(r) & (r > 0)):
+                raise InputError(
+                    f"AutoGain: rate must be positive and finite [1/s], got {r.tolist()}."
+                )
+
+    def __call__(self, R, names):
+        if self.batch_shape:
+            raise InputError(
+                f"AutoGain: this gain holds {self.batch_shape[0]} rates (one per record), but "
+                "one record is being estimated; use lionjax.lion_batched, or index the gain "
+                "(jax.tree.map(lambda a: a[i], gain))."
+            )
+        scale = jnp.sqrt(jnp.clip(jnp.diagonal(R), jnp.finfo(R.dtype).tiny, None))
         Rn = R / scale[:, None] / scale[None, :]
         ev, V = jnp.linalg.eigh(Rn)
         ok = ev[0] > ev[-1] / self.max_condition
@@ -126,33 +204,191 @@ class AutoGain(AbstractGain):
         return 0.5 * (G + G.T), ok
 
 
+def regressor_moments(regs: Regressors, mask: Array) -> Array:
+    """R = Σₖ mₖ WₖᵀWₖ / Σₖ mₖ (p×p): the mean regressor outer product over the samples with
+    weight ``mask`` (1 after the filter transient), what :class:`AbstractGain` rules see."""
+    W = regs.W
+    return jnp.einsum("t,tip,tiq->pq", mask, W, W) / jnp.maximum(jnp.sum(mask), 1.0)
+
+
 # ----------------------------------------------------------------------------------------------
 # Steppers
 
 
 class AbstractStepper(eqx.Module):
-    """How θ̇ = −c(W)·G Wᵀ(Wθ + W₀) is integrated between samples."""
+    """How θ̇ = −c(W)·G Wᵀ(Wθ + W₀) is integrated between samples, c = 1/(1 + μ‖W‖²_F).
+
+    Every stepper carries the normalisation μ ≥ 0 of the normalised law (``None``: Lion's
+    plain law, c = 1).
+    """
+
+    normalisation: AbstractVar[float | Array | None]
+
+    @abc.abstractmethod
+    def trajectory(
+        self,
+        model: AbstractModel,
+        bank: FilterBank,
+        record: Record,
+        regs: Regressors,
+        G: Float[Array, "p p"],
+        theta0: Float[Array, " p"],
+    ) -> tuple[Float[Array, "T p"], RESULTS]:
+        """θ at every sample of one record (row 0 = ``theta0``) and a :class:`RESULTS` code.
+
+        ``regs`` are the record's regressors W (T, 2, p), W₀ (T, 2) under ``bank``."""
 
 
-class ExactStep(AbstractStepper):
-    """Closed-form step over each interval with frozen regressors (module docstring).
+class AbstractSampleStepper(AbstractStepper):
+    """A stepper that advances θ over one sample interval h with frozen regressors.
+
+    Its :meth:`increment` is the whole law: :func:`lion` scans it over a record's stored
+    regressors, the streaming kernel of :func:`lionjax.lion_batched` applies it elementwise to
+    a batch of records sample by sample.
+    """
+
+    regressors: AbstractVar[Literal["midpoint", "zoh"]]
+    #: Whether :meth:`increment` reports per-step validity (else its flag is ``None``).
+    reports_stability: AbstractClassVar[bool]
+
+    @abc.abstractmethod
+    def increment(
+        self,
+        theta: list[Array],
+        W1: list[Array],
+        W2: list[Array],
+        y1: Array,
+        y2: Array,
+        G: list[list[Array]],
+        h: Array,
+        *,
+        series: int = 0,
+        one: Array | None = None,
+    ) -> tuple[list[Array], Array | None]:
+        """(Δθ, valid) over one interval: θ ← θ − Δθ, elementwise over any batch shape.
+
+        Arguments:
+            theta: θ, p arrays; W1, W2: the two rows of W (p arrays each); y1, y2: W₀;
+            G: the p×p gain as nested lists; h: the interval [s].
+            series: 0, or evaluate E(hS) by this many terms of its series alone, valid while
+                tr(hS) ≤ 1/2 (elements beyond the bound come back non-finite on purpose, to
+                be re-run with ``series=0``). Ignored by steppers without E.
+            one: a runtime 1 (see :func:`lionjax._phi.materialise`): the increments are
+                materialised once per element (the batched kernel); None leaves them as is.
+
+        ``valid`` is None when the step cannot fail, else a boolean per element."""
+
+    def trajectory(self, model, bank, record, regs, G, theta0):
+        W, W0 = regs.W, regs.W0
+        p = W.shape[-1]
+        if self.regressors == "midpoint":
+            Ws, W0s = 0.5 * (W[:-1] + W[1:]), 0.5 * (W0[:-1] + W0[1:])
+        else:
+            Ws, W0s = W[:-1], W0[:-1]
+        h = record.dt.astype(W.dtype)
+        Gl = [[G[i, j] for j in range(p)] for i in range(p)]
+
+        def step(carry, inputs):
+            theta, valid = carry
+            Wk, W0k = inputs
+            d, ok = self.increment(
+                [theta[i] for i in range(p)],
+                [Wk[0, i] for i in range(p)],
+                [Wk[1, i] for i in range(p)],
+                W0k[0],
+                W0k[1],
+                Gl,
+                h,
+            )
+            theta = theta - jnp.stack(d)
+            return (theta, valid if ok is None else valid & ok), theta
+
+        (_, valid), thetas = jax.lax.scan(step, (theta0, jnp.array(True)), (Ws, W0s))
+        result = RESULTS.where(valid, RESULTS.successful, RESULTS.unstable_step)
+        return jnp.concatenate([theta0[None], thetas]), result
+
+
+def _scale(mu, W1, W2):
+    """c = 1/(1 + μ‖W‖²_F), or None for the plain law (μ None)."""
+    if mu is None:
+        return None
+    return 1.0 / (1.0 + mu * sum(v * v for v in list(W1) + list(W2)))
+
+
+class ExactStep(AbstractSampleStepper):
+    """Closed-form step over each interval with frozen regressors (module docstring):
+    θ ← θ − h·cGWᵀ E(hS)(Wθ + W₀), S = c·WGWᵀ, E(Z) = (I − e^{−Z})Z⁻¹.
 
     Attributes:
         regressors: ``"midpoint"`` (default; W over [tₖ, tₖ₊₁] is (Wₖ + Wₖ₊₁)/2, second order
             against the continuous-time law) or ``"zoh"`` (Wₖ, causal).
+        normalisation: μ ≥ 0 of θ̇ = −G Wᵀε/(1 + μ‖W‖²_F) (in 1/regressor²), or None (default:
+            Lion's plain law, c = 1; the batched kernel then skips c entirely).
     """
 
     regressors: Literal["midpoint", "zoh"] = eqx.field(static=True, default="midpoint")
+    normalisation: float | Array | None = None
+    reports_stability: ClassVar[bool] = False
 
     def __check_init__(self):
         if self.regressors not in ("midpoint", "zoh"):
             raise InputError(
                 f"ExactStep: regressors must be 'midpoint' or 'zoh', got {self.regressors!r}."
             )
+        _check_mu(self.normalisation, "ExactStep")
+
+    def increment(self, theta, W1, W2, y1, y2, G, h, *, series=0, one=None):
+        c = _scale(self.normalisation, W1, W2)
+        if series:  # valid while tr(hS) ≤ bound; else the divisor is 0 and the element inf
+            phi = lambda zp, zq, zr: _phi_series(zp, zq, zr, series)
+            divisor = lambda tr_hs: jnp.where(tr_hs <= SERIES_BOUND, one, 0.0)
+        else:
+            phi, divisor = phi_sym2, one
+        return exact_step(theta, W1, W2, y1, y2, G, h, c, phi=phi, divisor=divisor), None
 
 
-class EulerStep(AbstractStepper):
-    """Explicit Euler θ ← θ − h·c·G Wₖᵀεₖ; guarded: h·c·‖GWₖᵀWₖ‖ > 2 is reported as a failure."""
+class EulerStep(AbstractSampleStepper):
+    """Explicit Euler θ ← θ − h·c·G Wₖᵀεₖ (regressors at the interval's start); guarded:
+    h·c·‖GWₖᵀWₖ‖ > 2 (unstable) is reported as ``RESULTS.unstable_step``.
+
+    Attributes:
+        normalisation: μ of the normalised law, or None (plain law).
+    """
+
+    normalisation: float | Array | None = None
+    regressors: ClassVar[str] = "zoh"
+    reports_stability: ClassVar[bool] = True
+
+    def __check_init__(self):
+        _check_mu(self.normalisation, "EulerStep")
+
+    def increment(self, theta, W1, W2, y1, y2, G, h, *, series=0, one=None):
+        p = len(theta)
+        c = _scale(self.normalisation, W1, W2)
+        GW1 = [sum(G[i][j] * W1[j] for j in range(p)) for i in range(p)]
+        GW2 = [sum(G[i][j] * W2[j] for j in range(p)) for i in range(p)]
+        if c is not None:
+            GW1, GW2 = [c * v for v in GW1], [c * v for v in GW2]
+        e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
+        e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
+        S11 = sum(W1[i] * GW1[i] for i in range(p))
+        S12 = sum(W1[i] * GW2[i] for i in range(p))
+        S22 = sum(W2[i] * GW2[i] for i in range(p))
+        # ‖G WᵀW‖ = the largest eigenvalue of S = W G Wᵀ (2×2 symmetric PSD)
+        rho = 0.5 * (S11 + S22) + jnp.sqrt(0.25 * (S11 - S22) ** 2 + S12 * S12)
+        d = materialise([h * (GW1[i] * e1 + GW2[i] * e2) for i in range(p)], one)
+        return d, h * rho <= 2.0
+
+
+def _check_mu(mu, what: str) -> None:
+    if mu is None or isinstance(mu, jax.core.Tracer):
+        return
+    m = np.asarray(mu, dtype=np.float64)
+    if m.ndim or not (np.isfinite(m) and m >= 0):
+        raise InputError(
+            f"{what}: normalisation must be a number μ ≥ 0 (or None for Lion's plain law), got "
+            f"{mu!r}."
+        )
 
 
 class DiffraxStep(AbstractStepper):
@@ -162,36 +398,23 @@ class DiffraxStep(AbstractStepper):
         solver: a diffrax solver (default ``Kvaerno5()``, implicit: stiff gains are fine).
         rtol, atol: tolerances of the PID step-size controller; steps are clipped to the
             sample instants (where held signals jump).
-        max_steps: step budget (default 64 per sample).
+        max_steps_per_sample: step budget (default 64 per sample).
+        normalisation: μ of the normalised law, or None (plain law).
     """
 
     solver: diffrax.AbstractSolver = diffrax.Kvaerno5()
     rtol: float = 1e-8
     atol: float = 1e-10
     max_steps_per_sample: int = eqx.field(static=True, default=64)
+    normalisation: float | Array | None = None
 
+    def __check_init__(self):
+        _check_mu(self.normalisation, "DiffraxStep")
 
-def _exact_update(theta, W, W0, G, h, mu):
-    """One exact step for a single sample: W (2, p), W0 (2,), θ (p,)."""
-    c = 1.0 / (1.0 + mu * jnp.sum(W * W))
-    GW = c * (G @ W.T)  # (p, 2)
-    S = W @ GW  # (2, 2)
-    zp, zq, zr = phi_sym2(h * S[0, 0], h * 0.5 * (S[0, 1] + S[1, 0]), h * S[1, 1])
-    eps = W @ theta + W0
-    Ee = jnp.stack([zp * eps[0] + zq * eps[1], zq * eps[0] + zr * eps[1]])
-    return theta - h * (GW @ Ee)
-
-
-def _euler_update(theta, W, W0, G, h, mu):
-    c = 1.0 / (1.0 + mu * jnp.sum(W * W))
-    GW = c * (G @ W.T)
-    eps = W @ theta + W0
-    S = W @ GW
-    # ‖G WᵀW‖ spectral radius = largest eigenvalue of S = W G Wᵀ (2×2 symmetric PSD).
-    rho = 0.5 * (S[0, 0] + S[1, 1]) + jnp.sqrt(
-        0.25 * (S[0, 0] - S[1, 1]) ** 2 + (0.5 * (S[0, 1] + S[1, 0])) ** 2
-    )
-    return theta - h * (GW @ eps), h * rho <= 2.0
+    def trajectory(self, model, bank, record, regs, G, theta0):
+        mu = jnp.asarray(0.0 if self.normalisation is None else self.normalisation, G.dtype)
+        thetas, ok = _diffrax_theta(model, bank, record, G, mu, theta0, self)
+        return thetas, RESULTS.where(ok, RESULTS.successful, RESULTS.nonfinite)
 
 
 class LionSolution(eqx.Module):
@@ -219,6 +442,26 @@ class LionSolution(eqx.Module):
     def params(self) -> dict[str, Array]:
         """Final estimate by name."""
         return {n: self.theta_final[..., i] for i, n in enumerate(self.names)}
+
+    def convergence_time(
+        self, reference: Float[ArrayLike, " p"], tolerance: float = 0.02
+    ) -> Float[Array, ""]:
+        """Seconds from the record start after which every |θᵢ(t) − θ_refᵢ| ≤
+        tolerance·|θ_refᵢ| until the end (``inf``: still outside at the last sample).
+
+        The definition of :class:`lionjax.ConvergenceTime` (and so of
+        :func:`lionjax.lion_batched` and :func:`lionjax.study`), evaluated on the saved
+        trajectory: exact with ``save_every=1`` (the default), else resolved to the saved
+        samples. ``reference`` is θ_ref ``(p,)``, typically the least-squares answer
+        ``lionjax.least_squares(model, record, initial="discard").theta``.
+        """
+        ref = jnp.asarray(reference, self.theta.dtype)
+        if ref.shape != self.theta.shape[-1:]:
+            raise InputError(
+                f"LionSolution.convergence_time: reference must have shape "
+                f"({self.theta.shape[-1]},) for parameters {self.names}, got {ref.shape}."
+            )
+        return convergence_time(self.theta, ref, lambda i: self.t[i] - self.t[0], tolerance)
 
 
 def _diffrax_theta(model, bank, record, G, mu, theta0, stepper: DiffraxStep):
@@ -286,7 +529,7 @@ def lion(
     bank: FilterBank | None = None,
     gain: AbstractGain | None = None,
     stepper: AbstractStepper | None = None,
-    normalisation: float | Array = 0.0,
+    normalisation: float | Array | None = None,
     theta0: ArrayLike | None = None,
     save_every: int = 1,
     transient: float | Array | None = None,
@@ -300,9 +543,12 @@ def lion(
         bank: the filter Λ (default ``FilterBank.from_poles([-4, -4, -4], unit_dc_gain=True)``,
             the paper's poles with unit DC gain).
         gain: :class:`AutoGain` (default, rate 1/s) or :class:`FixedGain` (the paper:
-            ``FixedGain(1e4)`` with ``FilterBank.paper()``).
-        stepper: :class:`ExactStep` (default), :class:`EulerStep` or :class:`DiffraxStep`.
-        normalisation: μ ≥ 0 of the normalised law (0: Lion's plain law).
+            ``FixedGain(1e4)`` with ``FilterBank.paper()``); G is the gain's rule applied to
+            R = mean WᵀW after ``transient`` (the same rule as :func:`lionjax.lion_batched`).
+        stepper: :class:`ExactStep` (default), :class:`EulerStep` or :class:`DiffraxStep`; its
+            ``normalisation`` μ selects the normalised law (``ExactStep(normalisation=μ)``).
+        normalisation: shorthand for the stepper's μ (``lion(..., normalisation=μ)`` is
+            ``lion(..., stepper=ExactStep(normalisation=μ))``); give it in one place only.
         theta0: initial estimate, shape ``(p,)`` (default zeros, as in the paper).
         save_every: keep every n-th sample of the trajectory (the last sample always kept).
         transient: seconds excluded when forming data-dependent gains (default 3·λₙ₋₁/λₙ, three
@@ -328,13 +574,26 @@ def lion(
     ):
         if not isinstance(val, typ):
             raise InputError(f"lion: {arg} must be a {typ.__name__}, got {type(val).__name__}.")
+    if bank.batch_shape:
+        raise InputError(
+            f"lion: bank holds {bank.batch_shape[0]} filters (coeffs of shape "
+            f"{bank.coeffs.shape}), but lion runs one record with one filter; use "
+            "lionjax.lion_batched for one filter per record."
+        )
+    if normalisation is not None:
+        if stepper.normalisation is not None:
+            raise InputError(
+                "lion: normalisation is given twice, as an argument and as "
+                f"{type(stepper).__name__}.normalisation; give it in the stepper only."
+            )
+        stepper = dataclasses.replace(stepper, normalisation=normalisation)
     check_duration(record, bank, "lion")
-    sol = _lion(model, record, bank, gain, stepper, normalisation, theta0, save_every, transient)
+    sol = _lion(model, record, bank, gain, stepper, theta0, save_every, transient)
     return finish(sol, throw, what="lion")
 
 
 @eqx.filter_jit
-def _lion(model, record, bank, gain, stepper, normalisation, theta0, save_every, transient):
+def _lion(model, record, bank, gain, stepper, theta0, save_every, transient):
     regs = model.regressors(record, bank)
     W, W0 = regs.W, regs.W0
     T, _, p = W.shape
@@ -344,39 +603,12 @@ def _lion(model, record, bank, gain, stepper, normalisation, theta0, save_every,
         raise InputError(
             f"lion: theta0 must have shape ({p},) for parameters {regs.names}, got {theta0.shape}."
         )
-    mu = jnp.asarray(normalisation, dtype)
-    mask = transient_mask(record, bank, transient)
-    G, gain_ok = gain(regs, mask)
-    h = record.dt.astype(dtype)
-    ok = gain_ok
-    if isinstance(stepper, DiffraxStep):
-        thetas, solver_ok = _diffrax_theta(model, bank, record, G, mu, theta0, stepper)
-        result = RESULTS.where(solver_ok, RESULTS.successful, RESULTS.nonfinite)
+    if gain.uses_data:
+        R = regressor_moments(regs, transient_mask(record, bank, transient))
     else:
-        if isinstance(stepper, ExactStep) and stepper.regressors == "midpoint":
-            Ws, W0s = 0.5 * (W[:-1] + W[1:]), 0.5 * (W0[:-1] + W0[1:])
-        else:
-            Ws, W0s = W[:-1], W0[:-1]
-        if isinstance(stepper, EulerStep):
-
-            def step(carry, inputs):
-                theta, stable = carry
-                theta, st = _euler_update(theta, *inputs, G, h, mu)
-                return (theta, stable & st), theta
-
-            (_, stable), thetas = jax.lax.scan(step, (theta0, jnp.array(True)), (Ws, W0s))
-            result = RESULTS.where(stable, RESULTS.successful, RESULTS.unstable_step)
-        elif isinstance(stepper, ExactStep):
-
-            def step(theta, inputs):
-                theta = _exact_update(theta, *inputs, G, h, mu)
-                return theta, theta
-
-            _, thetas = jax.lax.scan(step, theta0, (Ws, W0s))
-            result = RESULTS.successful
-        else:
-            raise InputError(f"lion: unknown stepper {type(stepper).__name__}.")
-        thetas = jnp.concatenate([theta0[None], thetas])
+        R = jnp.eye(p, dtype=dtype)
+    G, ok = gain(R, regs.names)
+    thetas, result = stepper.trajectory(model, bank, record, regs, G, theta0)
     eps = jnp.einsum("tip,tp->ti", W, thetas) + W0
     J = 0.5 * jnp.sum(eps * eps, axis=-1)
     idx = np.unique(np.concatenate([np.arange(0, T, save_every), [T - 1]]))

@@ -59,6 +59,8 @@ class FilterBank(eqx.Module):
 
     Attributes:
         coeffs: (λ₁, …, λₙ), shape ``(n,)``, n ≥ 3; Λ must be Hurwitz (checked when concrete).
+            A batch of filters — one per record for :func:`lionjax.lion_batched`, e.g. a grid of
+            pole sets (:func:`lionjax.stack_banks`) — has ``coeffs`` of shape ``(B, n)``.
         unit_dc_gain: if True every output is multiplied by λₙ, i.e. the bank is λₙ·s^(j−1)/Λ
             and V₁ → u at DC. This only rescales the equation errors (LS is unchanged), but it
             keeps regressors O(signal) whatever the poles, which is what a gain G should see.
@@ -67,7 +69,7 @@ class FilterBank(eqx.Module):
     filter with :meth:`paper`.
     """
 
-    coeffs: Float[Array, " n"]
+    coeffs: Float[Array, "*B n"]
     unit_dc_gain: bool = eqx.field(static=True, default=False)
 
     def __init__(self, coeffs: ArrayLike, unit_dc_gain: bool = False):
@@ -75,22 +77,24 @@ class FilterBank(eqx.Module):
         self.unit_dc_gain = bool(unit_dc_gain)
 
     def __check_init__(self):
-        if self.coeffs.ndim != 1 or self.coeffs.shape[0] < 3:
+        if self.coeffs.ndim not in (1, 2) or self.coeffs.shape[-1] < 3:
             raise InputError(
                 "FilterBank: coeffs must be (λ₁, …, λₙ) with n ≥ 3 (a second-order model needs "
-                f"a filter of relative degree ≥ 3), got shape {self.coeffs.shape}."
+                "a filter of relative degree ≥ 3), shape (n,) or (B, n) for one filter per "
+                f"record, got shape {self.coeffs.shape}."
             )
         if _is_concrete(self.coeffs):
-            c = np.asarray(self.coeffs, dtype=np.float64)
-            if not np.all(np.isfinite(c)):
-                raise InputError(f"FilterBank: coeffs must be finite, got {c.tolist()}.")
-            roots = np.roots(np.concatenate([[1.0], c]))
-            if np.any(roots.real >= 0):
-                raise InputError(
-                    "FilterBank: Λ(s) must be Hurwitz (all roots in the open left half-plane), "
-                    f"but coeffs {c.tolist()} have roots {np.round(roots, 6).tolist()}. Choose "
-                    "poles with negative real parts, e.g. FilterBank.from_poles([-4, -4, -4])."
-                )
+            for c in np.asarray(self.coeffs, dtype=np.float64).reshape(-1, self.order):
+                if not np.all(np.isfinite(c)):
+                    raise InputError(f"FilterBank: coeffs must be finite, got {c.tolist()}.")
+                roots = np.roots(np.concatenate([[1.0], c]))
+                if np.any(roots.real >= 0):
+                    raise InputError(
+                        "FilterBank: Λ(s) must be Hurwitz (all roots in the open left "
+                        f"half-plane), but coeffs {c.tolist()} have roots "
+                        f"{np.round(roots, 6).tolist()}. Choose poles with negative real parts, "
+                        "e.g. FilterBank.from_poles([-4, -4, -4])."
+                    )
 
     @classmethod
     def from_poles(cls, poles: ArrayLike, unit_dc_gain: bool = False) -> FilterBank:
@@ -126,6 +130,11 @@ class FilterBank(eqx.Module):
     def order(self) -> int:
         """n, the degree of Λ (the last axis of ``coeffs``, also for a batch of banks)."""
         return self.coeffs.shape[-1]
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """``()`` for one filter, ``(B,)`` for one filter per record (``coeffs`` ``(B, n)``)."""
+        return tuple(self.coeffs.shape[:-1])
 
     @property
     def poles(self) -> Array:

@@ -5,17 +5,20 @@
 ``lengths`` mask makes the padding contribute nothing; each record keeps its own ``dt`` and its
 own filter discretisation) and identifies them all in one streamed, jitted call:
 
-- ``method="ls"``: :func:`lionjax.least_squares_batched`, the LS answer θ = −(ΦᵀΦ)⁻¹Φᵀy from
-  sufficient statistics streamed over the samples after the filter transient. Per record this
-  is ``lionjax.least_squares(model, record, initial="discard")``: no initial-state nuisance
-  columns. (The single-record default ``initial="estimate"`` fits them and uses every sample —
-  a different estimator, within noise of this one once the record is much longer than the
-  transient.) With it the nominal standard deviations √diag(σ²(ΦᵀΦ)⁻¹), σ² = RSS/(N − p), as
-  that call reports them.
-- ``method="lion"``: :func:`lionjax.lion_batched`, per record Lion's law with the exact step
-  (``lionjax.lion(model, record, stepper=ExactStep())``, θ at the end of the record), with the
-  streamed LS answer, its condition number and the convergence time to within ``tolerance`` of
-  it computed in the same call.
+- ``method=LeastSquares()``: :func:`lionjax.least_squares_batched`, the LS answer
+  θ = −(ΦᵀΦ)⁻¹Φᵀy from sufficient statistics streamed over the samples after the filter
+  transient. Per record this is ``lionjax.least_squares(model, record, initial="discard")``:
+  no initial-state nuisance columns. (The single-record default ``initial="estimate"`` fits
+  them and uses every sample — a different estimator, within noise of this one once the record
+  is much longer than the transient.) With it the nominal standard deviations
+  √diag(σ²(ΦᵀΦ)⁻¹), σ² = RSS/(N − p), as that call reports them.
+- ``method=Lion(gain=..., stepper=..., theta0=..., tolerance=...)``: :func:`lionjax.lion_batched`,
+  per record Lion's law (``lionjax.lion(model, record, gain=gain, stepper=stepper)``, θ at the
+  end of the record), with the streamed LS answer, its condition number and the convergence
+  time to within ``tolerance`` of it computed in the same call.
+
+The method is a strategy Module (:class:`AbstractBatchMethod`) whose ``run`` fills the rows:
+:func:`identify_batch` itself has no per-method branch.
 
 Nothing is dropped or reordered: row i is ``records[i]``. A record shorter than the filter
 transient is not run (``result = -1``); a record whose regressors are not excited (condition
@@ -27,21 +30,29 @@ reason in ``messages``; the estimates of every failed row are NaN, never a silen
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike
+from jaxtyping import Array, ArrayLike
 
-from ._batched import least_squares_batched, lion_batched, stack_records
+from ._batched import (
+    DEFAULT_EXECUTION,
+    Execution,
+    least_squares_batched,
+    lion_batched,
+    stack_records,
+)
 from ._errors import RESULTS, InputError, result_codes
-from ._estimators import AbstractGain, AutoGain, default_bank
+from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain, ExactStep, default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel, Piecewise
+from ._outputs import ConvergenceTime, LSStatistics
 from ._record import Record
 from ._solution import default_transient
 from ._tables import write_csv, write_json
@@ -49,20 +60,15 @@ from ._tables import write_csv, write_json
 #: ``result`` of a record that was not run (shorter than the filter transient).
 NOT_RUN = -1
 
-_EQUALS = {
-    "ls": "lionjax.least_squares(model, record, initial='discard') per record (streamed "
-    "statistics over the samples after the filter transient)",
-    "lion": "lionjax.lion(model, record, stepper=ExactStep()) per record (theta at the end of "
-    "the record); *_ls columns: least_squares(initial='discard')",
-}
-
 
 class BatchIdentification(eqx.Module):
     """Results of :func:`identify_batch`: one row per record (B records, p parameters).
 
     Attributes:
-        method: ``"ls"`` or ``"lion"``; model: the model's class name; names: the p parameter
-            names (``a``, ``b``; per region ``a_1``, ``b_1``, … for ``Piecewise``).
+        method: the method's name, ``"ls"`` (:class:`LeastSquares`) or ``"lion"``
+            (:class:`Lion`); equals: the per-record estimator the rows equal; model: the
+            model's class name; names: the p parameter names (``a``, ``b``; per region
+            ``a_1``, ``b_1``, … for ``Piecewise``).
         labels: one label per record (file names on the command line).
         settings: the filter, regions and gain used (plain data, written to JSON).
         theta: estimates, ``(B, p)`` [a in 1/s, b in 1/kg]; NaN for failed rows.
@@ -97,6 +103,7 @@ class BatchIdentification(eqx.Module):
     result: np.ndarray
     messages: tuple[str, ...] = eqx.field(static=True)
     tolerance: float = eqx.field(static=True, default=0.02)
+    equals: str = eqx.field(static=True, default="")
 
     @property
     def ok(self) -> np.ndarray:
@@ -153,7 +160,7 @@ class BatchIdentification(eqx.Module):
             "method": self.method,
             "model": self.model,
             "names": list(self.names),
-            "equals": _EQUALS[self.method],
+            "equals": self.equals,
             "settings": self.settings,
             "tolerance": self.tolerance,
             "n_records": len(self.labels),
@@ -167,14 +174,192 @@ class BatchIdentification(eqx.Module):
         return write_csv(path, self.to_records())
 
 
-def _check(model, records, method, labels, bank, gain) -> tuple[list[Record], tuple[str, ...]]:
+class _Rows(eqx.Module):
+    """What a method computes for the records it runs (R of them, p parameters)."""
+
+    theta: Array  # (R, p)
+    theta_ls: Array  # (R, p)
+    condition: Array  # (R,)
+    result: Array  # (R,) RESULTS codes
+    std: Array | None = None  # (R, p)
+    rms: Array | None = None  # (R,)
+    final_J: Array | None = None  # (R,)
+    convergence_time: Array | None = None  # (R,)
+
+
+class AbstractBatchMethod(eqx.Module):
+    """How :func:`identify_batch` estimates every record: a strategy Module.
+
+    Concrete methods: :class:`LeastSquares`, :class:`Lion`. ``name`` labels the method in the
+    tables and JSON (``"ls"``, ``"lion"``) and ``equals`` states the per-record estimator the
+    rows equal.
+    """
+
+    name: ClassVar[str]
+    equals: ClassVar[str]
+    #: The method's own columns of :class:`BatchIdentification` (the others stay None).
+    columns: ClassVar[tuple[str, ...]]
+
+    @abc.abstractmethod
+    def check(self, model: AbstractModel, n_records: int) -> None:
+        """Raise :class:`InputError` for settings that do not fit the model / the records."""
+
+    @abc.abstractmethod
+    def run(
+        self,
+        model: AbstractModel,
+        batch: Record,
+        rows: np.ndarray,
+        *,
+        bank: FilterBank,
+        lengths: Array | None,
+        transient: float | None,
+        max_condition: float,
+        execution: Execution,
+    ) -> _Rows:
+        """Estimate the stacked ``batch`` (records ``rows`` of the list) in one batched call."""
+
+    @abc.abstractmethod
+    def settings(self) -> dict[str, Any]:
+        """The method's settings as plain data (for JSON)."""
+
+
+class LeastSquares(AbstractBatchMethod):
+    """Least squares from streamed statistics (:func:`lionjax.least_squares_batched`): per
+    record ``lionjax.least_squares(model, record, initial="discard")``, with the nominal
+    standard deviations √diag(σ²(ΦᵀΦ)⁻¹) and the rms equation error."""
+
+    name: ClassVar[str] = "ls"
+    columns: ClassVar[tuple[str, ...]] = ("std", "rms")
+    equals: ClassVar[str] = (
+        "lionjax.least_squares(model, record, initial='discard') per record (streamed "
+        "statistics over the samples after the filter transient)"
+    )
+
+    def check(self, model, n_records):
+        return None
+
+    def run(self, model, batch, rows, *, bank, lengths, transient, max_condition, execution):
+        sol = least_squares_batched(
+            model,
+            batch,
+            bank=bank,
+            lengths=lengths,
+            transient=transient,
+            max_condition=max_condition,
+            execution=execution,
+            throw=False,
+        )
+        return _Rows(
+            theta=sol.theta,
+            theta_ls=sol.theta,
+            condition=sol.condition,
+            result=result_codes(sol.result),
+            std=sol.std,
+            rms=sol.rms,
+        )
+
+    def settings(self):
+        return {}
+
+
+class Lion(AbstractBatchMethod):
+    """Lion's estimator (:func:`lionjax.lion_batched`): per record
+    ``lionjax.lion(model, record, gain=gain, stepper=stepper, theta0=theta0)`` (θ at the end of
+    the record), with the streamed LS answer, its condition number and the convergence time to
+    within ``tolerance`` of it.
+
+    Attributes:
+        gain: :class:`lionjax.AutoGain` (default, rate 1/s) or :class:`lionjax.FixedGain`.
+        stepper: ``ExactStep()`` (default; ``normalisation=μ`` for the normalised law).
+        theta0: initial estimate ``(p,)`` or one per record ``(B, p)`` (default zeros).
+        tolerance: relative band of the convergence time (default 0.02 = 2 %).
+    """
+
+    gain: AbstractGain = AutoGain()
+    stepper: AbstractSampleStepper = ExactStep()
+    theta0: ArrayLike | None = None
+    tolerance: float = 0.02
+    name: ClassVar[str] = "lion"
+    columns: ClassVar[tuple[str, ...]] = ("final_J", "convergence_time")
+    equals: ClassVar[str] = (
+        "lionjax.lion(model, record, gain=gain, stepper=stepper) per record (theta at the end "
+        "of the record); *_ls columns: least_squares(initial='discard')"
+    )
+
+    def __check_init__(self):
+        if not isinstance(self.gain, AbstractGain):
+            raise InputError(
+                f"Lion: gain must be a FixedGain or AutoGain, got {type(self.gain).__name__}."
+            )
+        if not isinstance(self.stepper, AbstractSampleStepper):
+            raise InputError(
+                "Lion: stepper must be an AbstractSampleStepper (lionjax.ExactStep(...), "
+                f"lionjax.EulerStep()), got {type(self.stepper).__name__}."
+            )
+        if not (isinstance(self.tolerance, int | float) and 0 < self.tolerance < 1):
+            raise InputError(
+                f"Lion: tolerance must be in (0, 1) (0.02 = 2 %), got {self.tolerance!r}."
+            )
+
+    def check(self, model, n_records):
+        p = len(model.names)
+        if self.theta0 is not None and np.shape(self.theta0) not in ((p,), (n_records, p)):
+            raise InputError(
+                f"identify_batch: Lion.theta0 must have shape ({p},) or ({n_records}, {p}) for "
+                f"parameters {model.names}, got {np.shape(self.theta0)}."
+            )
+
+    def run(self, model, batch, rows, *, bank, lengths, transient, max_condition, execution):
+        theta0 = None
+        if self.theta0 is not None:  # (p,) for all, or (n_records, p): the rows that run
+            th0 = np.asarray(self.theta0, float)
+            theta0 = jnp.asarray(th0[rows] if th0.ndim == 2 else th0, batch.x.dtype)
+        sol = lion_batched(
+            model,
+            batch,
+            bank=bank,
+            gain=self.gain,
+            stepper=self.stepper,
+            theta0=theta0,
+            lengths=lengths,
+            outputs=(LSStatistics(transient), ConvergenceTime(tolerance=self.tolerance)),
+            execution=execution,
+            throw=False,
+        )
+        return _Rows(
+            theta=sol.theta,
+            theta_ls=sol.theta_ls,
+            condition=sol.ls_condition,
+            result=result_codes(sol.result),
+            final_J=sol.J,
+            convergence_time=sol.t_converged,
+        )
+
+    def settings(self):
+        mu = self.stepper.normalisation
+        return {
+            "gain": {type(self.gain).__name__: _gain_fields(self.gain)},
+            "stepper": type(self.stepper).__name__,
+            "normalisation": 0.0 if mu is None else float(mu),
+        }
+
+
+def _check(model, records, method, labels, bank) -> tuple[list[Record], tuple[str, ...]]:
     if not isinstance(model, AbstractModel):
         raise InputError(
             f"identify_batch: model must be a lionjax model (e.g. MassDamper()), got "
             f"{type(model).__name__}."
         )
-    if method not in ("ls", "lion"):
-        raise InputError(f"identify_batch: method must be 'ls' or 'lion', got {method!r}.")
+    if not isinstance(method, AbstractBatchMethod):
+        hint = {"ls": "LeastSquares()", "lion": "Lion(gain=..., stepper=..., theta0=...)"}.get(
+            method if isinstance(method, str) else None
+        )
+        raise InputError(
+            "identify_batch: method must be a method Module, lionjax.LeastSquares() or "
+            f"lionjax.Lion(...), got {method!r}"
+            + (f"; for method={method!r} pass method=lionjax.{hint}." if hint else ".")
+        )
     if isinstance(records, Record):
         raise InputError(
             "identify_batch: records must be a list of Records (each x of shape (T,), any "
@@ -211,10 +396,7 @@ def _check(model, records, method, labels, bank, gain) -> tuple[list[Record], tu
             f"identify_batch: bank must be one filter (coeffs of shape (n,)), got coeffs of "
             f"shape {bank.coeffs.shape}."
         )
-    if not isinstance(gain, AbstractGain):
-        raise InputError(
-            f"identify_batch: gain must be a FixedGain or AutoGain, got {type(gain).__name__}."
-        )
+    method.check(model, len(records))
     return records, labels
 
 
@@ -222,16 +404,12 @@ def identify_batch(
     model: AbstractModel,
     records: Sequence[Record],
     *,
-    method: Literal["ls", "lion"] = "ls",
+    method: AbstractBatchMethod | None = None,
     labels: Sequence[str] | None = None,
     bank: FilterBank | None = None,
-    gain: AbstractGain | None = None,
-    normalisation: float | None = None,
-    theta0: ArrayLike | None = None,
     transient: float | None = None,
     max_condition: float = 1e7,
-    tolerance: float = 0.02,
-    shard: bool = True,
+    execution: Execution = DEFAULT_EXECUTION,
 ) -> BatchIdentification:
     """Identify every record of a list in one batched call; one labelled row per record.
 
@@ -240,18 +418,17 @@ def identify_batch(
             ``Piecewise(bounds)``).
         records: records of shape ``(T,)`` each, any lengths T and sampling intervals dt
             (padded and masked; each record keeps its own dt and filter discretisation).
-        method: ``"ls"`` (default; equals ``least_squares(..., initial="discard")`` per record)
-            or ``"lion"`` (equals ``lion(..., stepper=ExactStep())`` per record).
+        method: :class:`LeastSquares` ``()`` (default; equals ``least_squares(...,
+            initial="discard")`` per record) or :class:`Lion` ``(gain=..., stepper=...,
+            theta0=..., tolerance=...)`` (equals ``lion(..., gain=gain, stepper=stepper)`` per
+            record).
         labels: one label per record (default ``"0"``, ``"1"``, …).
         bank: the filter Λ (default :func:`lionjax.default_bank`).
-        gain: Lion's gain (``"lion"`` only; default ``AutoGain(1.0)``); normalisation: μ of the
-            normalised law (None or 0: the plain law); theta0: Lion's initial estimate ``(p,)``
-            or ``(B, p)`` (default zeros).
         transient: seconds after a record's start excluded from the LS statistics and from the
             gain's R (default 3·λₙ₋₁/λₙ); records shorter than it are not run.
         max_condition: rows whose condition number reaches this are failures (not excited).
-        tolerance: relative band of Lion's ``convergence_time`` (default 2 %).
-        shard: as :func:`lionjax.lion_batched` (one CPU device already uses every core).
+        execution: the performance knobs of :func:`lionjax.lion_batched` (one CPU device
+            already uses every core).
 
     Returns:
         a :class:`BatchIdentification`: row i is ``records[i]``; failures are rows with
@@ -261,34 +438,20 @@ def identify_batch(
         InputError: for a bad argument (naming it); never for a record that merely fails.
     """
     bank = default_bank() if bank is None else bank
-    gain = AutoGain() if gain is None else gain
-    records, labels = _check(model, records, method, labels, bank, gain)
+    method = LeastSquares() if method is None else method
+    records, labels = _check(model, records, method, labels, bank)
     B = len(records)
     p = len(model.names)
-    if theta0 is not None:
-        th0 = np.asarray(theta0, float)
-        if th0.shape not in ((p,), (B, p)):
-            raise InputError(
-                f"identify_batch: theta0 must have shape ({p},) or ({B}, {p}) for parameters "
-                f"{model.names}, got {th0.shape}."
-            )
-        theta0 = np.broadcast_to(th0, (B, p))
     if not (max_condition > 1):
         raise InputError(f"identify_batch: max_condition must be > 1, got {max_condition!r}.")
     tr = float(default_transient(bank)) if transient is None else float(transient)
     if not (np.isfinite(tr) and tr >= 0):
         raise InputError(f"identify_batch: transient must be ≥ 0 seconds, got {transient!r}.")
 
-    mu = None if normalisation is None or normalisation == 0 else float(normalisation)
     n = np.array([r.n_samples for r in records])
     dt = np.array([float(r.dt) for r in records])
-    theta = np.full((B, p), np.nan)
-    theta_ls = np.full((B, p), np.nan)
-    condition = np.full(B, np.nan)
-    rms = np.full(B, np.nan) if method == "ls" else None
-    final_J = np.full(B, np.nan) if method == "lion" else None
-    t_conv = np.full(B, np.nan) if method == "lion" else None
-    std = np.full((B, p), np.nan) if method == "ls" else None
+    full = lambda *shape: np.full((B,) + shape, np.nan)
+    theta, theta_ls, condition = full(p), full(p), full()
     result = np.full(B, NOT_RUN, int)
     messages = [""] * B
     # The same rule as check_duration for one record: the record must outlast the transient.
@@ -304,48 +467,30 @@ def identify_batch(
             f"than the filter transient {tr:.4g} s ({why}); use a longer record or faster "
             "filter poles."
         )
-
+    optional: dict[str, np.ndarray | None] = {
+        key: (full(p) if key == "std" else full()) if key in method.columns else None
+        for key in ("std", "rms", "final_J", "convergence_time")
+    }
     if run.size:
         batch, lengths = stack_records([records[i] for i in run])
         lengths = None if np.all(n[run] == n[run[0]]) else lengths  # nothing padded
-        if method == "ls":
-            sol = least_squares_batched(
-                model,
-                batch,
-                bank=bank,
-                lengths=lengths,
-                transient=transient,
-                max_condition=max_condition,
-                shard=shard,
-                throw=False,
-            )
-            theta[run] = np.asarray(sol.theta)
-            theta_ls[run] = theta[run]
-            std[run] = np.asarray(sol.std)
-            condition[run] = np.asarray(sol.condition)
-            rms[run] = np.asarray(sol.rms)
-        else:
-            sol = lion_batched(
-                model,
-                batch,
-                bank=bank,
-                gain=gain,
-                normalisation=mu,
-                theta0=None if theta0 is None else jnp.asarray(theta0[run], batch.x.dtype),
-                lengths=lengths,
-                ls=True,
-                convergence=True,
-                tolerance=tolerance,
-                transient=transient,
-                shard=shard,
-                throw=False,
-            )
-            theta[run] = np.asarray(sol.theta)
-            theta_ls[run] = np.asarray(sol.theta_ls)
-            condition[run] = np.asarray(sol.ls_condition)
-            final_J[run] = np.asarray(sol.J)
-            t_conv[run] = np.asarray(sol.t_converged)
-        codes = result_codes(sol.result).astype(int)
+        rows = method.run(
+            model,
+            batch,
+            run,
+            bank=bank,
+            lengths=lengths,
+            transient=transient,
+            max_condition=max_condition,
+            execution=execution,
+        )
+        theta[run] = np.asarray(rows.theta)
+        theta_ls[run] = np.asarray(rows.theta_ls)
+        condition[run] = np.asarray(rows.condition)
+        for key, column in optional.items():
+            if column is not None:
+                column[run] = np.asarray(getattr(rows, key))
+        codes = np.asarray(rows.result).astype(int)
         # A condition number is ≥ 1; below that (0 from an all-zero ΦᵀΦ, or NaN) the
         # regressors are degenerate: singular, so infinite.
         cond = condition[run]
@@ -363,11 +508,10 @@ def identify_batch(
                 messages[i] += f" (condition number {condition[i]:.3g}, bound {max_condition:.3g})"
     failed = result != 0
     theta[failed] = np.nan
-    if std is not None:
-        std[failed] = np.nan
-    if method == "lion":
-        theta_ls[failed] = np.nan
-        t_conv[failed] = np.nan
+    theta_ls[failed] = np.nan
+    for key in ("std", "convergence_time"):
+        if optional[key] is not None:
+            optional[key][failed] = np.nan
     settings = {
         "filter": {
             "coeffs": np.asarray(bank.coeffs).tolist(),
@@ -375,28 +519,27 @@ def identify_batch(
             "transient_s": tr,
         },
         "regions": list(model.bounds) if isinstance(model, Piecewise) else [],
+        **method.settings(),
     }
-    if method == "lion":
-        settings["gain"] = {type(gain).__name__: _gain_fields(gain)}
-        settings["normalisation"] = 0.0 if mu is None else float(mu)
     return BatchIdentification(
-        method=method,
+        method=method.name,
         model=type(model).__name__,
         names=tuple(model.names),
         labels=labels,
         settings=settings,
         theta=theta,
-        std=std,
+        std=optional["std"],
         theta_ls=theta_ls,
         condition=condition,
-        rms=rms,
-        final_J=final_J,
-        convergence_time=t_conv,
+        rms=optional["rms"],
+        final_J=optional["final_J"],
+        convergence_time=optional["convergence_time"],
         n_samples=n,
         dt=dt,
         result=result,
         messages=tuple(messages),
-        tolerance=tolerance,
+        tolerance=getattr(method, "tolerance", 0.02),
+        equals=method.equals,
     )
 
 

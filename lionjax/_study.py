@@ -3,7 +3,8 @@
 :func:`study` flattens the whole grid — datasets (or twin records labelled by excitation,
 operating point and noise seed), gains, filter pole sets and initial guesses — into the batch
 axis of the batched estimator (:func:`lionjax.lion_batched` with one gain and one filter per batch
-element: ``batched_gain=True``, ``batched_bank=True``), runs it in chunks (one jitted call per
+element: a gain Module whose value has shape ``(B,)`` and a :class:`~lionjax.FilterBank` whose
+coefficients have shape ``(B, n)``), runs it in chunks (one jitted call per
 chunk, every chunk the same size so it compiles once) with a progress bar, and reshapes the
 answers into a labelled :class:`StudyResult` (dims, coords, arrays of shape ``(*grid, p)``).
 Memory per grid point does not grow with the record length: the estimator streams the records
@@ -28,11 +29,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike
 
-from ._batched import lion_batched, stack_records
+from ._batched import DEFAULT_EXECUTION, Execution, lion_batched, stack_records
 from ._errors import InputError
-from ._estimators import AutoGain, FixedGain, default_bank
+from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain, FixedGain, default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel
+from ._outputs import ConvergenceTime, LSStatistics, TailStatistics, Trajectory
 from ._record import Record
 from ._tables import write_csv, write_json
 
@@ -133,6 +135,8 @@ class StudyResult(eqx.Module):
         tolerance: the relative band of ``convergence_time``; softness: that of ``time_outside``.
         transient: the LS window's start [s] (None: 3·λₙ₋₁/λₙ of each filter).
         complete: False if the run was interrupted (NaN where not computed).
+        gain_class: the name of the gain Module class of the ``gain`` axis (``"FixedGain"``:
+            coordinates g of G = g·I; ``"AutoGain"``: rates [1/s]), or of the one gain used.
     """
 
     dims: tuple[str, ...] = eqx.field(static=True)
@@ -151,6 +155,7 @@ class StudyResult(eqx.Module):
     softness: float = eqx.field(static=True, default=0.25)
     transient: float | None = eqx.field(static=True, default=None)
     complete: bool = eqx.field(static=True, default=True)
+    gain_class: str | None = eqx.field(static=True, default=None)
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -493,12 +498,43 @@ def _progress(done: int, total: int, width: int = 30) -> None:
 def stack_banks(pole_sets: ArrayLike, unit_dc_gain: bool = True) -> FilterBank:
     """A batched :class:`FilterBank` (``coeffs`` of shape ``(K, n)``) from K pole sets.
 
-    Each set is checked (Hurwitz, conjugate pairs) by :meth:`FilterBank.from_poles`; the result
-    is what ``lion_batched(..., batched_bank=True)`` takes (index it with
-    ``jax.tree.map(lambda c: c[idx], bank)`` to give every batch element its filter).
+    Each set is checked (Hurwitz, conjugate pairs) by :meth:`FilterBank.from_poles`; with one
+    set per record it is what :func:`lionjax.lion_batched` takes as one filter per record
+    (index it with ``jax.tree.map(lambda c: c[idx], bank)`` to give every batch element its
+    filter).
     """
     banks = [FilterBank.from_poles(np.asarray(P), unit_dc_gain) for P in pole_sets]
-    return jax.tree.map(lambda *c: jnp.stack(c), *banks)
+    return FilterBank(jnp.stack([b.coeffs for b in banks]), unit_dc_gain)
+
+
+def gain_class(gain, what: str) -> type[AbstractGain] | AbstractGain | None:
+    """Check a ``gain`` argument of :func:`study` / :func:`lionjax.tune`: a gain Module class
+    (called with each grid value) or, for :func:`study`, one gain Module. The old strings
+    ``"fixed"``/``"auto"`` are refused with their replacement."""
+    if isinstance(gain, str):
+        repl = {"fixed": "lionjax.FixedGain", "auto": "lionjax.AutoGain"}.get(gain)
+        raise InputError(
+            f"{what}: gain={gain!r}: gains are given as Module classes, not strings: "
+            + (f"use gain={repl}." if repl else "gain=lionjax.FixedGain or lionjax.AutoGain.")
+        )
+    if gain is None or isinstance(gain, AbstractGain):
+        return gain
+    if isinstance(gain, type) and issubclass(gain, AbstractGain):
+        return gain
+    raise InputError(
+        f"{what}: gain must be a gain Module class (lionjax.FixedGain: G = g·I, "
+        f"lionjax.AutoGain: G = rate·R⁻¹) or a gain Module, got {gain!r}."
+    )
+
+
+def refuse_gain_type(gain_type, what: str) -> None:
+    """The removed ``gain_type=`` argument: an error naming its replacement."""
+    if gain_type is not None:
+        repl = {"fixed": "lionjax.FixedGain", "auto": "lionjax.AutoGain"}.get(gain_type)
+        raise InputError(
+            f"{what}: gain_type={gain_type!r} was replaced by the gain Module class: "
+            + (f"pass gain={repl}." if repl else "gain=lionjax.FixedGain or lionjax.AutoGain.")
+        )
 
 
 def study(
@@ -506,24 +542,26 @@ def study(
     records: Record | Sequence[Record] | StudyRecords,
     *,
     gains: Sequence[float] | None = None,
-    gain_type: Literal["fixed", "auto"] = "fixed",
+    gain: type[AbstractGain] | AbstractGain | None = None,
     poles: Sequence[Sequence[float]] | None = None,
     unit_dc_gain: bool = True,
     theta0s: Sequence[ArrayLike] | None = None,
     dataset_names: Sequence[str] | None = None,
-    normalisation: float | None = None,
+    stepper: AbstractSampleStepper | None = None,
     tolerance: float = 0.02,
     softness: float = 0.25,
     transient: float | None = None,
     save_every: int | None = None,
     chunk_size: int | None = None,
     progress: bool = True,
-    shard: bool = True,
+    execution: Execution = DEFAULT_EXECUTION,
+    gain_type: None = None,
 ) -> StudyResult:
     """Lion's estimator over a grid of records × gains × filter poles × initial guesses.
 
     The whole grid is flattened into the batch axis of :func:`lionjax.lion_batched` — one
-    gain (``batched_gain``) and one filter (``batched_bank``) per batch element — and run in
+    gain and one filter per batch element (a gain value ``(B,)``, filter coefficients
+    ``(B, n)``) — and run in
     chunks of ``chunk_size`` elements, one jitted call per chunk (every chunk the same size, so
     it compiles once). The LS answer, the convergence time to within ``tolerance`` of it, its
     smooth surrogate and the tail statistics are streamed in the same pass: memory per grid
@@ -534,16 +572,26 @@ def study(
         records: one :class:`Record` (no record axis), a batch ``(D, T)`` or a list of records
             (dim ``"dataset"``; different lengths are padded and masked), or a
             :class:`StudyRecords` (its dims, e.g. excitation × operating point × noise seed).
-        gains: a grid of scalar gains: G = g·I (``gain_type="fixed"``, paper: 1e4) or AutoGain
-            rates [1/s] (``gain_type="auto"``, G = rate·R⁻¹). None: AutoGain(1.0), no gain axis.
+        gains: a grid of scalar gain values, each passed to the ``gain`` class: G = g·I
+            (``gain=lionjax.FixedGain``, the default with a grid; paper: 1e4) or AutoGain rates
+            [1/s] (``gain=lionjax.AutoGain``, G = rate·R⁻¹). None: no gain axis.
+        gain: the gain Module class of the ``gains`` grid (default :class:`lionjax.FixedGain`),
+            or, without ``gains``, one gain Module for every grid point (default
+            ``AutoGain(1.0)``).
         poles: a grid of filter pole sets [rad/s], e.g. ``[(-4, -4, -4), (-8, -8, -8)]``
             (all of the same length, real, negative). None: :func:`default_bank`, no pole axis.
         unit_dc_gain: filter normalisation for ``poles`` (λₙ/Λ, as the default bank).
         theta0s: a grid of initial estimates, each ``(p,)``. None: zeros, no θ₀ axis.
         dataset_names: labels of the datasets (default "0", "1", …; dim ``"dataset"`` only).
-        normalisation, tolerance, softness, transient, shard: as
-            :func:`lionjax.lion_batched` (``transient`` [s]: the start of the LS window and of
-            AutoGain's R; None: 3·λₙ₋₁/λₙ of each filter).
+        stepper: Lion's per-sample stepper (default ``ExactStep()``; its ``normalisation`` μ
+            selects the normalised law).
+        tolerance, softness: of the convergence time (:class:`lionjax.ConvergenceTime`: the
+            band, default 2 %, and the width of its smooth surrogate).
+        transient: [s] the start of the LS window and of AutoGain's R (None: 3·λₙ₋₁/λₙ of each
+            filter; :class:`lionjax.LSStatistics`).
+        execution: the performance knobs of :func:`lionjax.lion_batched`.
+        gain_type: removed (an error naming the replacement): pass ``gain=lionjax.FixedGain``
+            or ``gain=lionjax.AutoGain``.
         save_every: also keep θ every ``save_every`` samples (``trajectory``; records of one
             common ``dt``).
         chunk_size: grid points per batched call (default: all in one call).
@@ -555,8 +603,23 @@ def study(
     """
     if not isinstance(model, AbstractModel):
         raise InputError(f"study: model must be an AbstractModel, got {type(model).__name__}.")
-    if gain_type not in ("fixed", "auto"):
-        raise InputError(f"study: gain_type must be 'fixed' or 'auto', got {gain_type!r}.")
+    refuse_gain_type(gain_type, "study")
+    gain = gain_class(gain, "study")
+    if gains is not None and isinstance(gain, AbstractGain):
+        raise InputError(
+            f"study: gains= is a grid of values for a gain class, but gain is the Module "
+            f"{gain!r}; pass gain={type(gain).__name__} (the class) with gains=[...], or drop "
+            "gains."
+        )
+    if gains is None:
+        gain = AutoGain() if gain is None or isinstance(gain, type) else gain
+        if gain.batch_shape:
+            raise InputError(
+                f"study: gain must be one gain for every grid point, got a batch of "
+                f"{gain.batch_shape[0]}; give the values as gains=[...]."
+            )
+    else:
+        gain = FixedGain if gain is None else gain
     batch, lengths, rec_dims, rec_coords = _as_batch(records)
     D = batch.x.shape[0]
     p = len(model.names)
@@ -622,8 +685,13 @@ def study(
     else:
         di = np.zeros(N, int)
 
-    # The whole grid in one batch axis (pole sets included: one filter per element through
-    # batched_bank, tested equal to one call per pole set), run in equal chunks.
+    outputs = (
+        LSStatistics(transient),
+        ConvergenceTime(tolerance=tolerance, softness=softness),
+        TailStatistics(),
+    ) + (() if save_every is None else (Trajectory(save_every),))
+    # The whole grid in one batch axis (pole sets included: one filter per element, a bank
+    # with coeffs (chunk, n), tested equal to one call per pole set), run in equal chunks.
     chunk = N if chunk_size is None else int(chunk_size)
     if chunk < 1:
         raise InputError(f"study: chunk_size must be a positive int, got {chunk_size!r}.")
@@ -650,29 +718,23 @@ def study(
             sub = Record(batch.x[d], batch.F[d], batch.dt[d], batch.t0[d])
         kw: dict[str, Any] = {}
         if banks is not None:
-            kw["bank"] = jax.tree.map(lambda c: c[idx["poles"][sel]], banks)
-            kw["batched_bank"] = True
+            kw["bank"] = jax.tree.map(lambda c: c[idx["poles"][sel]], banks)  # (chunk, n)
         else:
             kw["bank"] = default_bank()
-        if "gain" in idx:
-            gv = jnp.asarray(np.asarray(coords["gain"])[idx["gain"][sel]], dtype)
-            kw["gain"] = jax.vmap(FixedGain if gain_type == "fixed" else AutoGain)(gv)
-            kw["batched_gain"] = True
+        if "gain" in idx:  # one gain per element: the class called with a (chunk,) value
+            kw["gain"] = gain(jnp.asarray(np.asarray(coords["gain"])[idx["gain"][sel]], dtype))
+        else:
+            kw["gain"] = gain
         if "theta0" in idx:
             kw["theta0"] = jnp.asarray(np.asarray(coords["theta0"])[idx["theta0"][sel]], dtype)
         ln = lengths[d]
         return lion_batched(
             model,
             sub,
+            stepper=stepper,
             lengths=None if np.all(ln == batch.x.shape[1]) else jnp.asarray(ln, jnp.int32),
-            normalisation=normalisation,
-            ls=True,
-            convergence=True,
-            tolerance=tolerance,
-            softness=softness,
-            transient=transient,
-            save_every=save_every,
-            shard=shard,
+            outputs=outputs,
+            execution=execution,
             throw=False,
             **kw,
         )
@@ -728,4 +790,5 @@ def study(
         softness=float(softness),
         transient=None if transient is None else float(transient),
         complete=complete,
+        gain_class=gain.__name__ if isinstance(gain, type) else type(gain).__name__,
     )

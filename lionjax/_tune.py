@@ -3,8 +3,8 @@
 Everything in the estimator is differentiable, so the two settings a designer picks — the gain
 and the filter pole — can be tuned by gradient descent on a stated objective. The settings are
 
-    G = g·I (``gain_type="fixed"``) or G = g·R⁻¹ (``"auto"``, :class:`lionjax.AutoGain`, g the
-    rate in 1/s),   Λ(s) = (s + p)ⁿ (one real pole −p of multiplicity n = ``filter_order``),
+    G = g·I (``gain=lionjax.FixedGain``) or G = g·R⁻¹ (``gain=lionjax.AutoGain``, g the rate
+    in 1/s),   Λ(s) = (s + p)ⁿ (one real pole −p of multiplicity n = ``filter_order``),
 
 parameterised as z = (log g, log p) so that both stay positive and a unit step in z is a factor
 e. The objective (:class:`TuneObjective`) is, in seconds,
@@ -20,9 +20,11 @@ noise: a parameter whose noise σᵢ fills the whole tolerance band costs κ sec
 
 :func:`tune_objective` evaluates J at any (g, p) — over a grid, it is the map the tuned point
 must agree with — and :func:`tune` minimises it with optimistix (BFGS by default). Both run the
-same function: one :func:`lionjax.lion_batched` call (``fast=False``, ``convergence=True``, the
-reference θ_LS streamed in the same call with the same filter and differentiated with it, and
-a **fixed** ``transient`` so that the LS window does not jump with p). Its gradient in z is
+same function: one :func:`lionjax.lion_batched` call (E(hS) in closed form,
+``Execution(phi="closed")``; outputs :class:`lionjax.LSStatistics` with a **fixed**
+``transient`` so that the LS window does not jump with p, :class:`lionjax.ConvergenceTime`
+against that θ_LS — streamed in the same call with the same filter and differentiated with
+it — and :class:`lionjax.TailStatistics`). Its gradient in z is
 computed in forward mode (two tangents, one pass, memory independent of the record length)
 behind a ``jax.custom_jvp``, so the solver's ``jax.linearize`` never stores the time loop; it is
 tested against central finite differences.
@@ -30,9 +32,10 @@ tested against central finite differences.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -41,13 +44,14 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
-from ._batched import lion_batched
+from ._batched import DEFAULT_EXECUTION, Execution, lion_batched
 from ._errors import RESULTS, IdentificationError, InputError
-from ._estimators import AutoGain, FixedGain
+from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain
 from ._filters import FilterBank
 from ._models import AbstractModel
+from ._outputs import ConvergenceTime, LSStatistics, TailStatistics
 from ._record import Record
-from ._study import StudyRecords, StudyResult, _as_batch
+from ._study import StudyRecords, StudyResult, _as_batch, gain_class, refuse_gain_type
 
 
 class TuneObjective(eqx.Module):
@@ -126,7 +130,8 @@ class TuneSolution(eqx.Module):
     """The tuned gain and filter pole from :func:`tune` (R records, p parameters).
 
     Attributes:
-        gain_type: ``"fixed"`` (G = gain·I) or ``"auto"`` (G = gain·R⁻¹, gain in 1/s).
+        gain_class: the gain Module class: :class:`lionjax.FixedGain` (G = gain·I) or
+            :class:`lionjax.AutoGain` (G = gain·R⁻¹, gain in 1/s).
         gain: the tuned g; pole: the tuned p [rad/s] (filter Λ = (s + p)ⁿ, poles −p).
         filter_order: n; unit_dc_gain: the filter normalisation (λₙ/Λ if True).
         init_gain, init_pole: the start of the search.
@@ -141,7 +146,7 @@ class TuneSolution(eqx.Module):
         spec: the :class:`TuneObjective`.
     """
 
-    gain_type: str = eqx.field(static=True)
+    gain_class: type[AbstractGain] = eqx.field(static=True)
     gain: float
     pole: float
     filter_order: int = eqx.field(static=True)
@@ -168,14 +173,15 @@ class TuneSolution(eqx.Module):
         return FilterBank.from_poles(np.full(self.filter_order, -self.pole), self.unit_dc_gain)
 
     @property
-    def gain_strategy(self) -> FixedGain | AutoGain:
-        """The tuned gain as a Module for :func:`lionjax.lion` / :func:`lionjax.lion_batched`."""
-        return FixedGain(self.gain) if self.gain_type == "fixed" else AutoGain(self.gain)
+    def gain_strategy(self) -> AbstractGain:
+        """The tuned gain as a Module for :func:`lionjax.lion` / :func:`lionjax.lion_batched`:
+        ``gain_class(gain)``."""
+        return self.gain_class(self.gain)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (for JSON): settings, objective values and the per-record results."""
         return {
-            "gain_type": self.gain_type,
+            "gain_class": self.gain_class.__name__,
             "gain": self.gain,
             "pole": self.pole,
             "poles": [-self.pole] * self.filter_order,
@@ -210,12 +216,12 @@ class _Setup(eqx.Module):
     batch: Record
     lengths: Array | None
     model: AbstractModel = eqx.field(static=True)
-    gain_type: str = eqx.field(static=True)
+    gain_class: type[AbstractGain] = eqx.field(static=True)
     filter_order: int = eqx.field(static=True)
     unit_dc_gain: bool = eqx.field(static=True)
-    normalisation: float | None = eqx.field(static=True)
+    stepper: AbstractSampleStepper | None
     spec: TuneObjective
-    shard: bool = eqx.field(static=True)
+    execution: Execution = eqx.field(static=True)
 
 
 def _evaluate(z: Float[Array, "M 2"], setup: _Setup):
@@ -231,23 +237,21 @@ def _evaluate(z: Float[Array, "M 2"], setup: _Setup):
     sub = Record(batch.x[rec], batch.F[rec], batch.dt, batch.t0)
     n, unit = setup.filter_order, setup.unit_dc_gain
     bank = jax.vmap(lambda q: FilterBank.from_poles(-q * jnp.ones(n, q.dtype), unit))(p)
-    gain = jax.vmap(FixedGain if setup.gain_type == "fixed" else AutoGain)(g)
+    gain = setup.gain_class(g)  # one gain per element: a value of shape (M·R,)
     spec = setup.spec
     sol = lion_batched(
         setup.model,
         sub,
         bank=bank,
-        batched_bank=True,
         gain=gain,
-        batched_gain=True,
+        stepper=setup.stepper,
         lengths=None if setup.lengths is None else setup.lengths[rec],
-        normalisation=setup.normalisation,
-        convergence=True,
-        tolerance=spec.tolerance,
-        softness=spec.softness,
-        transient=spec.transient,
-        fast=False,
-        shard=setup.shard,
+        outputs=(
+            LSStatistics(spec.transient),
+            ConvergenceTime(tolerance=spec.tolerance, softness=spec.softness),
+            TailStatistics(),
+        ),
+        execution=setup.execution,
         throw=False,
     )
     per = spec.per_record(sol.time_outside, sol.tail_std, sol.theta_ls)
@@ -308,14 +312,25 @@ def _solve(z0, setup, solver, max_steps):
 
 
 def _prepare(
-    model, records, gain_type, filter_order, unit_dc_gain, normalisation, objective, shard, what
+    model, records, gain, filter_order, unit_dc_gain, stepper, objective, execution, what
 ) -> tuple[_Setup, tuple[str, ...]]:
     if not isinstance(model, AbstractModel):
         raise InputError(f"{what}: model must be an AbstractModel, got {type(model).__name__}.")
-    if gain_type not in ("fixed", "auto"):
+    gain = gain_class(gain, what)
+    if not isinstance(gain, type):
         raise InputError(
-            f"{what}: gain_type must be 'fixed' (G = g·I) or 'auto' (AutoGain rate), got "
-            f"{gain_type!r}."
+            f"{what}: gain must be the gain Module class whose value is tuned "
+            f"(lionjax.AutoGain: the rate; lionjax.FixedGain: g of G = g·I), got the Module "
+            f"{gain!r}; pass gain={type(gain).__name__}."
+        )
+    if stepper is not None and not isinstance(stepper, AbstractSampleStepper):
+        raise InputError(
+            f"{what}: stepper must be an AbstractSampleStepper (lionjax.ExactStep(...)), got "
+            f"{type(stepper).__name__}."
+        )
+    if not isinstance(execution, Execution):
+        raise InputError(
+            f"{what}: execution must be a lionjax.Execution, got {type(execution).__name__}."
         )
     if not (isinstance(filter_order, int) and filter_order >= 3):
         raise InputError(
@@ -353,12 +368,13 @@ def _prepare(
         batch=Record(batch.x, batch.F, batch.dt[0], batch.t0[0]),
         lengths=None if np.all(lengths == T) else jnp.asarray(lengths, jnp.int32),
         model=model,
-        gain_type=gain_type,
+        gain_class=gain,
         filter_order=filter_order,
         unit_dc_gain=bool(unit_dc_gain),
-        normalisation=normalisation,
+        stepper=stepper,
         spec=spec,
-        shard=shard,
+        # the closed-form E: one program for the value and its forward-mode gradient
+        execution=dataclasses.replace(execution, phi="closed"),
     )
     return setup, labels
 
@@ -377,11 +393,12 @@ def tune_objective(
     poles: Float[ArrayLike, "*M"],
     *,
     objective: TuneObjective | None = None,
-    gain_type: Literal["fixed", "auto"] = "auto",
+    gain: type[AbstractGain] = AutoGain,
     filter_order: int = 3,
     unit_dc_gain: bool = True,
-    normalisation: float | None = None,
-    shard: bool = True,
+    stepper: AbstractSampleStepper | None = None,
+    execution: Execution = DEFAULT_EXECUTION,
+    gain_type: None = None,
 ) -> np.ndarray:
     """The tuning objective J(g, p) [s] (see :class:`TuneObjective`) at given points.
 
@@ -390,14 +407,17 @@ def tune_objective(
 
     Arguments:
         model, records: as :func:`tune`.
-        gains: g (``"fixed"``: G = g·I; ``"auto"``: AutoGain rate [1/s]), any shape.
+        gains: g (``gain=lionjax.FixedGain``: G = g·I; ``lionjax.AutoGain``: the rate [1/s]),
+            any shape.
         poles: p [rad/s] of the filter Λ = (s + p)ⁿ, broadcast against ``gains``.
-        objective, gain_type, filter_order, unit_dc_gain, normalisation, shard: as :func:`tune`.
+        objective, gain, filter_order, unit_dc_gain, stepper, execution, gain_type: as
+            :func:`tune`.
 
     Returns:
         J of shape ``broadcast(gains, poles)`` [s], a numpy array.
     """
     what = "tune_objective"
+    refuse_gain_type(gain_type, what)
     g = _positive(gains, "gains", what)
     p = _positive(poles, "poles", what)
     try:
@@ -408,7 +428,7 @@ def tune_objective(
             "shape (e.g. from numpy.meshgrid)."
         ) from None
     setup, _ = _prepare(
-        model, records, gain_type, filter_order, unit_dc_gain, normalisation, objective, shard, what
+        model, records, gain, filter_order, unit_dc_gain, stepper, objective, execution, what
     )
     z = jnp.stack([jnp.log(g.ravel()), jnp.log(p.ravel())], axis=1).astype(setup.batch.x.dtype)
     J, _ = _evaluate_jit(z, setup)
@@ -420,16 +440,17 @@ def tune(
     records: Record | Sequence[Record] | StudyRecords,
     *,
     objective: TuneObjective | None = None,
-    gain_type: Literal["fixed", "auto"] = "auto",
+    gain: type[AbstractGain] = AutoGain,
     init_gain: float = 1.0,
     init_pole: float = 4.0,
     filter_order: int = 3,
     unit_dc_gain: bool = True,
-    normalisation: float | None = None,
+    stepper: AbstractSampleStepper | None = None,
     solver: optx.AbstractMinimiser | None = None,
     max_steps: int = 64,
-    shard: bool = True,
+    execution: Execution = DEFAULT_EXECUTION,
     throw: bool = True,
+    gain_type: None = None,
 ) -> TuneSolution:
     """Tune Lion's gain g and filter pole p by gradient descent on J(g, p) (module docstring).
 
@@ -447,22 +468,28 @@ def tune(
             lengths; one common ``dt``) or a :class:`StudyRecords`; J averages over them.
         objective: the :class:`TuneObjective` (default κ = 1 s, tolerance 2 %, softness 0.5,
             transient 0.5 s).
-        gain_type: ``"auto"`` (default): G = g·R⁻¹, g the AutoGain rate [1/s]; ``"fixed"``:
-            G = g·I (the paper's form, G = 10⁴·I).
+        gain: the gain Module class whose value g is tuned: :class:`lionjax.AutoGain`
+            (default): G = g·R⁻¹, g the rate [1/s]; :class:`lionjax.FixedGain`: G = g·I (the
+            paper's form, G = 10⁴·I).
         init_gain, init_pole: the start, g and p [rad/s] (filter poles −p, n-fold).
         filter_order: n of Λ = (s + p)ⁿ (default 3, the paper's).
         unit_dc_gain: filter normalisation (λₙ/Λ, the package default).
-        normalisation: μ of the normalised law (None: plain Lion law).
+        stepper: Lion's per-sample stepper (default ``ExactStep()``; ``normalisation=μ`` for the
+            normalised law).
         solver: an optimistix minimiser.
         max_steps: solver step limit.
-        shard: shard the batch over the local devices (as :func:`lionjax.lion_batched`).
+        execution: the performance knobs of :func:`lionjax.lion_batched` (E(hS) is always
+            evaluated in closed form here).
         throw: raise :class:`lionjax.IdentificationError` if the solver fails or the tuned
             estimator does not give finite estimates; with False see ``success``/``message``.
+        gain_type: removed (an error naming the replacement): pass ``gain=lionjax.AutoGain``
+            or ``gain=lionjax.FixedGain``.
 
     Returns:
         a :class:`TuneSolution`.
     """
     what = "tune"
+    refuse_gain_type(gain_type, what)
     g0 = float(_positive(init_gain, "init_gain", what).reshape(-1)[0])
     p0 = float(_positive(init_pole, "init_pole", what).reshape(-1)[0])
     if not (isinstance(max_steps, int) and max_steps >= 1):
@@ -474,7 +501,7 @@ def tune(
             f"atol=1e-3)), got {type(solver).__name__}."
         )
     setup, labels = _prepare(
-        model, records, gain_type, filter_order, unit_dc_gain, normalisation, objective, shard, what
+        model, records, gain, filter_order, unit_dc_gain, stepper, objective, execution, what
     )
     dtype = setup.batch.x.dtype
     z0 = jnp.asarray([math.log(g0), math.log(p0)], dtype)
@@ -503,7 +530,7 @@ def tune(
             f"({RESULTS._index_to_message[int(codes[codes != 0][0])] if bad else 'J not finite'})"
         )
     out = TuneSolution(
-        gain_type=gain_type,
+        gain_class=setup.gain_class,
         gain=float(np.exp(zf[0])),
         pole=float(np.exp(zf[1])),
         filter_order=filter_order,

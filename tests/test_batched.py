@@ -1,5 +1,7 @@
 """The fast batched estimator against the reference lionjax.lion / least_squares (float64)."""
 
+import inspect
+
 import jax
 import numpy as np
 import pytest
@@ -74,7 +76,10 @@ def test_batched_equals_lion_fixed_gain(recs, g):
 def test_batched_autogain_ls_and_convergence(recs):
     batch, _ = lj.stack_records(recs)
     sol = lj.lion_batched(
-        lj.MassDamper(), batch, gain=lj.AutoGain(3.0), ls=True, convergence=True, save_every=100
+        lj.MassDamper(),
+        batch,
+        gain=lj.AutoGain(3.0),
+        outputs=(lj.LSStatistics(), lj.ConvergenceTime(), lj.Trajectory(100)),
     )
     for i, r in enumerate(recs):
         ref = lj.lion(lj.MassDamper(), r, gain=lj.AutoGain(3.0))
@@ -87,6 +92,10 @@ def test_batched_autogain_ls_and_convergence(recs):
         out = np.any(np.abs(th - np.asarray(ls.theta)) > 0.02 * np.abs(np.asarray(ls.theta)), 1)
         last = np.flatnonzero(out)[-1]
         assert float(sol.t_converged[i]) == pytest.approx((last + 1) * DT, abs=1e-9)
+        # one definition: the stored-trajectory convergence time of lj.lion agrees
+        assert float(ref.convergence_time(ls.theta)) == pytest.approx(
+            float(sol.t_converged[i]), abs=1e-9
+        )
     assert sol.trajectory.shape == (29, len(recs), 2)
     np.testing.assert_allclose(sol.trajectory[-1, 0], ref_traj_at(recs[0], 2900), rtol=1e-10)
 
@@ -97,10 +106,18 @@ def ref_traj_at(rec, k):
 
 def test_padding_contributes_nothing(recs):
     short = [
-        lj.Record(r.x[: 2500 + 100 * i], r.F[: 2500 + 100 * i], DT) for i, r in enumerate(recs)
+        # two lengths (padded and not) keep the per-record references to one new compilation
+        lj.Record(r.x[:n], r.F[:n], DT)
+        for r, n in zip(recs, (2500, 3000, 2500, 3000))
     ]
     batch, lengths = lj.stack_records(short)
-    sol = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(1e3), lengths=lengths, ls=True)
+    sol = lj.lion_batched(
+        lj.MassDamper(),
+        batch,
+        gain=lj.FixedGain(1e3),
+        lengths=lengths,
+        outputs=(lj.LSStatistics(),),
+    )
     for i, r in enumerate(short):
         ref = lj.lion(lj.MassDamper(), r, gain=lj.FixedGain(1e3))
         np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-10)
@@ -108,9 +125,23 @@ def test_padding_contributes_nothing(recs):
         np.testing.assert_allclose(sol.theta_ls[i], ls.theta, rtol=1e-9)
 
 
-def test_least_squares_batched(recs):
+def test_least_squares_batched(recs, monkeypatch):
+    """The statistics pass alone: no gain is constructed; equals lion_batched's LSStatistics
+    output and the per-record lj.least_squares(initial="discard")."""
     batch, _ = lj.stack_records(recs)
-    sol = lj.least_squares_batched(lj.MassDamper(), batch)
+
+    def no_gain(*args, **kwargs):
+        raise AssertionError("least_squares_batched constructed a gain")
+
+    with monkeypatch.context() as m:
+        m.setattr(lj.FixedGain, "__init__", no_gain)
+        m.setattr(lj.AutoGain, "__init__", no_gain)
+        sol = lj.least_squares_batched(lj.MassDamper(), batch)
+    stats = lj.lion_batched(
+        lj.MassDamper(), batch, gain=lj.FixedGain(1e3), outputs=(lj.LSStatistics(),)
+    ).output(lj.LSStatistics)
+    for name in ("theta", "covariance", "std", "condition", "rms", "n_used"):
+        np.testing.assert_allclose(getattr(stats, name), getattr(sol, name), rtol=1e-12)
     for i, r in enumerate(recs):
         ls = lj.least_squares(lj.MassDamper(), r, initial="discard")
         np.testing.assert_allclose(sol.theta[i], ls.theta, rtol=1e-9)
@@ -122,7 +153,7 @@ def test_piecewise_and_normalised(recs):
     batch, _ = lj.stack_records(recs[:2])
     model = lj.Piecewise((-0.001, 0.001))
     G = lj.FixedGain(1e4)
-    sol = lj.lion_batched(model, batch, gain=G, normalisation=0.5)
+    sol = lj.lion_batched(model, batch, gain=G, stepper=lj.ExactStep(normalisation=0.5))
     for i, r in enumerate(recs[:2]):
         ref = lj.lion(model, r, gain=G, normalisation=0.5)
         np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-9, atol=1e-12)
@@ -131,19 +162,20 @@ def test_piecewise_and_normalised(recs):
 def test_jit_equals_nojit_and_vmap_equals_loop(recs):
     batch, _ = lj.stack_records(recs)
     G = lj.FixedGain(1e3)
-    a = lj.lion_batched(lj.MassDamper(), batch, gain=G, shard=False).theta
+    one = lj.Execution(shard=False)
+    a = lj.lion_batched(lj.MassDamper(), batch, gain=G, execution=one).theta
     with jax.disable_jit():
         b = lj.lion_batched(
             lj.MassDamper(),
-            jax.tree.map(lambda v: v[:, :60] if v.ndim == 2 else v, batch),
+            jax.tree.map(lambda v: v[:, :30] if v.ndim == 2 else v, batch),
             gain=G,
-            shard=False,
+            execution=one,
         ).theta
     c = lj.lion_batched(
         lj.MassDamper(),
-        jax.tree.map(lambda v: v[:, :60] if v.ndim == 2 else v, batch),
+        jax.tree.map(lambda v: v[:, :30] if v.ndim == 2 else v, batch),
         gain=G,
-        shard=False,
+        execution=one,
     ).theta
     np.testing.assert_allclose(b, c, rtol=1e-12)
     loop = np.stack(
@@ -163,7 +195,7 @@ def test_bad_input_errors(recs):
     with pytest.raises(lj.InputError, match="records must be a batch"):
         lj.lion_batched(lj.MassDamper(), recs[0])
     with pytest.raises(lj.InputError, match="stepper"):
-        lj.lion_batched(lj.MassDamper(), lj.stack_records(recs)[0], stepper=lj.EulerStep())
+        lj.lion_batched(lj.MassDamper(), lj.stack_records(recs)[0], stepper=lj.DiffraxStep())
 
 
 def test_unexcited_reported_per_element(recs):
@@ -182,9 +214,10 @@ def test_split_loops_equal_one_loop(recs):
     batch, lengths = lj.stack_records(
         recs[:3] + [lj.Record(recs[3].x[:2500], recs[3].F[:2500], DT)]
     )
-    kw = dict(gain=lj.AutoGain(2.0), ls=True, convergence=True, lengths=lengths, save_every=500)
-    one = lj.lion_batched(lj.MassDamper(), batch, split=1, **kw)
-    three = lj.lion_batched(lj.MassDamper(), batch, split=3, **kw)
+    outputs = (lj.LSStatistics(), lj.ConvergenceTime(), lj.TailStatistics(), lj.Trajectory(500))
+    kw = dict(gain=lj.AutoGain(2.0), outputs=outputs, lengths=lengths)
+    one = lj.lion_batched(lj.MassDamper(), batch, execution=lj.Execution(split=1), **kw)
+    three = lj.lion_batched(lj.MassDamper(), batch, execution=lj.Execution(split=3), **kw)
     for name in ("theta", "J", "theta_ls", "t_converged", "trajectory", "tail_mean"):
         np.testing.assert_allclose(getattr(three, name), getattr(one, name), rtol=1e-12, atol=0)
 
@@ -193,8 +226,8 @@ def test_split_loops_equal_one_loop(recs):
 def test_fast_path_falls_back_per_record_where_the_series_bound_fails(recs, n_small):
     """Records whose tr(hS) exceeds the series bound are re-run with the closed form — gathered
     into a small batch (2 of 32 records beyond the bound) or the whole batch (2 of 4): the
-    result equals fast=False and lj.lion for every record."""
-    from lionjax._batched import _SERIES_BOUND
+    result equals Execution(phi="closed") and lj.lion for every record."""
+    from lionjax._phi import SERIES_BOUND as _SERIES_BOUND
 
     # the system is linear: scaled records are records too, with 0.09× the regressors' W²
     scales = [1.0, 1.0] + [0.3] * n_small
@@ -206,8 +239,83 @@ def test_fast_path_falls_back_per_record_where_the_series_bound_fails(recs, n_sm
     assert min(DT * g * q for q in peak[:2]) > _SERIES_BOUND
     assert max(DT * g * q for q in peak[2:]) < 0.5 * _SERIES_BOUND
     fast = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g))
-    slow = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g), fast=False)
+    slow = lj.lion_batched(
+        lj.MassDamper(), batch, gain=lj.FixedGain(g), execution=lj.Execution(phi="closed")
+    )
     np.testing.assert_allclose(fast.theta, slow.theta, rtol=1e-10)
     for i in (0, 1, 2, len(recs) - 1):
         ref = lj.lion(lj.MassDamper(), recs[i], gain=lj.FixedGain(g))
         np.testing.assert_allclose(fast.theta[i], ref.theta_final, rtol=1e-10)
+
+
+def test_signature_has_few_parameters_and_one_boolean():
+    """The strategy-object API: at most 12 parameters, ``throw`` the only boolean."""
+    params = inspect.signature(lj.lion_batched).parameters
+    assert len(params) <= 12, list(params)
+    booleans = [
+        name
+        for name, p in params.items()
+        if isinstance(p.default, bool) or p.annotation in (bool, "bool")
+    ]
+    assert booleans == ["throw"]
+
+
+def test_execution_checks_its_knobs():
+    assert lj.Execution().kernel == "auto" and lj.Execution(kernel="xla").kernel == "xla"
+    with pytest.raises(lj.InputError, match=r"kernel must be one of \('auto', 'xla'\).*'pallas'"):
+        lj.Execution(kernel="pallas")
+    with pytest.raises(lj.InputError, match="chunk"):
+        lj.Execution(chunk=0)
+    with pytest.raises(lj.InputError, match="phi"):
+        lj.Execution(phi="fast")
+    with pytest.raises(lj.InputError, match="outputs"):
+        lj.lion_batched(lj.MassDamper(), lj.stack_records(_records(1, 300))[0], outputs=("ls",))
+
+
+def test_per_record_bank_and_gain_equal_per_record_runs(recs):
+    """A FilterBank with coeffs (B, n) and gains with values (B,) give every record its own
+    filter and gain: the same numbers as lj.lion / lj.least_squares record by record."""
+    batch, _ = lj.stack_records(recs)
+    poles = [(-4.0, -4.0, -4.0), (-8.0, -8.0, -8.0), (-5.0, -6.0, -7.0), (-12.0, -12.0, -12.0)]
+    bank = lj.stack_banks(poles)
+    assert bank.batch_shape == (4,)
+    g = np.array([1e2, 1e3, 3e3, 1e4])
+    rate = np.array([1.0, 2.0, 3.0, 4.0])
+    fixed = lj.lion_batched(lj.MassDamper(), batch, bank=bank, gain=lj.FixedGain(g))
+    auto = lj.lion_batched(
+        lj.MassDamper(), batch, bank=bank, gain=lj.AutoGain(rate), outputs=(lj.LSStatistics(),)
+    )
+    for i, r in enumerate(recs):
+        b = lj.FilterBank.from_poles(np.array(poles[i]), True)
+        ref = lj.lion(lj.MassDamper(), r, bank=b, gain=lj.FixedGain(g[i]))
+        np.testing.assert_allclose(fixed.theta[i], ref.theta_final, rtol=1e-10)
+        ref = lj.lion(lj.MassDamper(), r, bank=b, gain=lj.AutoGain(rate[i]))
+        np.testing.assert_allclose(auto.gain[i], ref.gain, rtol=1e-10)
+        np.testing.assert_allclose(auto.theta[i], ref.theta_final, rtol=1e-10)
+        ls = lj.least_squares(lj.MassDamper(), r, bank=b, initial="discard")
+        np.testing.assert_allclose(auto.theta_ls[i], ls.theta, rtol=1e-9)
+    with pytest.raises(lj.InputError, match="one per record"):
+        lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g[:3]))
+    with pytest.raises(lj.InputError, match="one filter"):
+        lj.lion(lj.MassDamper(), recs[0], bank=bank)
+
+
+def test_euler_stepper_runs_batched(recs):
+    """The stepper's increment is the one law of lion and lion_batched: the explicit Euler
+    step runs batched too, and an unstable gain is reported per record."""
+    batch, _ = lj.stack_records(recs)
+    sol = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(1e3), stepper=lj.EulerStep())
+    for i, r in enumerate(recs):
+        ref = lj.lion(lj.MassDamper(), r, gain=lj.FixedGain(1e3), stepper=lj.EulerStep())
+        np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-10)
+    bad = lj.lion_batched(
+        lj.MassDamper(), batch, gain=lj.FixedGain(1e9), stepper=lj.EulerStep(), throw=False
+    )
+    unstable = lj._errors.result_codes(lj.RESULTS.unstable_step).item()
+    assert np.all(np.asarray(bad.result._value) == unstable)
+
+
+def test_missing_output_is_named(recs):
+    sol = lj.lion_batched(lj.MassDamper(), lj.stack_records(recs)[0], gain=lj.FixedGain(1e3))
+    with pytest.raises(lj.InputError, match="LSStatistics"):
+        _ = sol.theta_ls

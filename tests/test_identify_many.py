@@ -236,5 +236,9 @@ def test_identify_batch_bad_arguments(folder):
         lj.identify_batch(lj.MassDamper(), [rec], labels=["a", "b"])
     with pytest.raises(lj.InputError, match="method"):
         lj.identify_batch(lj.MassDamper(), [rec], method="euler")
+    with pytest.raises(lj.InputError, match=r"method=lionjax\.LeastSquares\(\)"):
+        lj.identify_batch(lj.MassDamper(), [rec], method="ls")
+    with pytest.raises(lj.InputError, match="theta0"):
+        lj.identify_batch(lj.MassDamper(), [rec], method=lj.Lion(theta0=[1.0, 2.0, 3.0]))
     with pytest.raises(lj.InputError, match="no records"):
         lj.identify_batch(lj.MassDamper(), [])

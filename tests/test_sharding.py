@@ -19,12 +19,13 @@ SCRIPT = textwrap.dedent(
     F = np.sin(2 * np.pi * 1.3 * t)[None] + 0.3 * rng.normal(size=(B, T))
     x = np.cumsum(np.cumsum(F, 1), 1) * 1e-6
     rec = lj.Record(x, F, 1e-3)
-    kw = dict(gain=lj.AutoGain(2.0), ls=True, convergence=True, throw=False)
+    outputs = (lj.LSStatistics(), lj.ConvergenceTime(), lj.TailStatistics())
+    kw = dict(gain=lj.AutoGain(2.0), outputs=outputs, throw=False)
     placed = lj.shard_records(rec)
     assert len(placed.x.sharding.device_set) == 2, placed.x.sharding
-    a = lj.lion_batched(lj.MassDamper(), placed, shard=True, **kw)
+    a = lj.lion_batched(lj.MassDamper(), placed, execution=lj.Execution(shard=True), **kw)
     assert len(a.theta.sharding.device_set) == 2, a.theta.sharding  # it did run sharded
-    b = lj.lion_batched(lj.MassDamper(), rec, shard=False, **kw)
+    b = lj.lion_batched(lj.MassDamper(), rec, execution=lj.Execution(shard=False), **kw)
     for name in ("theta", "J", "theta_ls", "t_converged"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-10, atol=0)
     # std = sqrt(E[θ²] − E[θ]²) amplifies last-bit differences of the (differently fused) kernel

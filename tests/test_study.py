@@ -25,7 +25,7 @@ def result(records):
         lj.MassDamper(),
         records,
         gains=[3.0, 10.0],
-        gain_type="auto",
+        gain=lj.AutoGain,
         poles=POLES,
         chunk_size=3,
         progress=False,
@@ -101,7 +101,7 @@ def test_study_interrupt_returns_partial(records, monkeypatch, capsys):
         return real(*a, **k)
 
     monkeypatch.setattr(study_mod, "lion_batched", flaky)
-    res = lj.study(lj.MassDamper(), records, gains=[3.0, 10.0], gain_type="auto", chunk_size=2)
+    res = lj.study(lj.MassDamper(), records, gains=[3.0, 10.0], gain=lj.AutoGain, chunk_size=2)
     err = capsys.readouterr().err
     assert "interrupted after 1/2 chunks" in err and "1/2 chunks" in err
     assert not res.complete
@@ -114,6 +114,13 @@ def test_study_bad_input(records):
         lj.study(lj.MassDamper(), records, poles=[(-4.0, 4.0, -4.0)])
     with pytest.raises(lj.InputError, match="theta0s"):
         lj.study(lj.MassDamper(), records, theta0s=[(1.0, 2.0, 3.0)])
+    # the gain is a Module class now; the old strings name their replacement
+    with pytest.raises(lj.InputError, match=r"gain=lionjax\.AutoGain"):
+        lj.study(lj.MassDamper(), records, gains=[1.0], gain_type="auto")
+    with pytest.raises(lj.InputError, match=r"gain=lionjax\.FixedGain"):
+        lj.study(lj.MassDamper(), records, gains=[1.0], gain="fixed")
+    with pytest.raises(lj.InputError, match="gains="):
+        lj.study(lj.MassDamper(), records, gains=[1.0], gain=lj.AutoGain(2.0))
 
 
 def test_cli_study(records, tmp_path, capsys):
@@ -136,6 +143,8 @@ def test_cli_study(records, tmp_path, capsys):
             f"{out}.csv",
             "--plot",
             f"{out}.png",
+            "--chunk-size",
+            "3",  # the chunk of the module's `result`: the compiled call is shared
         ]
     )
     text = capsys.readouterr().out
@@ -144,19 +153,25 @@ def test_cli_study(records, tmp_path, capsys):
     assert len(rows) == 8 and (tmp_path / "o.png").stat().st_size > 1000
     # the CLI equals the API on the same grid (files round-trip in float64)
     api = lj.study(
-        lj.MassDamper(), records, gains=[3.0, 10.0], gain_type="auto", poles=POLES, progress=False
+        lj.MassDamper(),
+        records,
+        gains=[3.0, 10.0],
+        gain=lj.AutoGain,
+        poles=POLES,
+        chunk_size=3,
+        progress=False,
     )
     np.testing.assert_allclose([r["a"] for r in rows], api.theta_final[..., 0].ravel(), rtol=1e-9)
 
 
 def test_one_batched_call_over_pole_sets(records, result):
-    """The study runs every pole set in one lion_batched call (batched_bank=True, one filter per
-    batch element): with a batch size (12) different from the filter order (3), and the
+    """The study runs every pole set in one lion_batched call (one filter per batch element: a
+    FilterBank with coeffs (B, n)): with a batch size (12) different from the filter order (3), and the
     default per-filter transient 3·λ₂/λ₃, it equals the per-pole-set run (chunks of 3) and
     per-element lj.lion."""
     poles = POLES + [(-5.0, -6.0, -7.0)]
     res = lj.study(
-        lj.MassDamper(), records, gains=[3.0, 10.0], gain_type="auto", poles=poles, progress=False
+        lj.MassDamper(), records, gains=[3.0, 10.0], gain=lj.AutoGain, poles=poles, progress=False
     )
     assert res.shape == (2, 2, 3)
     np.testing.assert_allclose(res.theta_final[:, :, :2], result.theta_final, rtol=1e-12)
@@ -235,7 +250,7 @@ def test_study_over_labelled_records_vs_lion(grid_records, tmp_path):
         model,
         grid_records,
         gains=[5.0],
-        gain_type="auto",
+        gain=lj.AutoGain,
         poles=[P],
         softness=0.5,
         transient=0.5,
@@ -288,7 +303,7 @@ def test_cli_study_tune_and_map(monkeypatch, tmp_path, capsys):
     def fake_tune(model, records, **kw):
         calls.update(kw, n_records=len(records))
         return lj.TuneSolution(
-            gain_type=kw["gain_type"],
+            gain_class=kw["gain"],
             gain=12.0,
             pole=25.0,
             filter_order=3,

@@ -37,7 +37,9 @@ def objective_values(records):
 
 
 def test_gradient_matches_central_differences(records, objective_values):
-    setup, _ = _tune._prepare(lj.MassDamper(), records, "auto", 3, True, None, None, True, "test")
+    setup, _ = _tune._prepare(
+        lj.MassDamper(), records, lj.AutoGain, 3, True, None, None, lj.Execution(), "test"
+    )
     grad = jax.jit(jax.grad(lambda z: _tune._objective(z, setup)[0]))(jnp.asarray(Z_FD))
     _, Jfd = objective_values
     fd = np.array([(Jfd[0] - Jfd[1]) / (2 * H_FD), (Jfd[2] - Jfd[3]) / (2 * H_FD)])
@@ -88,7 +90,7 @@ def test_study_map_is_the_tuned_function(records, objective_values):
         lj.MassDamper(),
         records,
         gains=GAINS,
-        gain_type="auto",
+        gain=lj.AutoGain,
         poles=[(-p, -p, -p) for p in POLES],
         tolerance=obj.tolerance,
         softness=obj.softness,
@@ -106,6 +108,10 @@ def test_tune_bad_input(records):
         lj.tune(lj.MassDamper(), records, init_gain=-1.0)
     with pytest.raises(lj.InputError, match="gain_type"):
         lj.tune(lj.MassDamper(), records, gain_type="adaptive")
+    with pytest.raises(lj.InputError, match=r"gain=lionjax\.FixedGain"):
+        lj.tune(lj.MassDamper(), records, gain_type="fixed")
+    with pytest.raises(lj.InputError, match="Module class"):
+        lj.tune(lj.MassDamper(), records, gain="auto")
     with pytest.raises(lj.InputError, match="solver"):
         lj.tune(lj.MassDamper(), records, solver="bfgs")
     with pytest.raises(lj.InputError, match="transient"):

@@ -161,11 +161,12 @@ def run(args) -> int:
             )
     elif args.transient is not None:
         kw["transient"] = args.transient
+    gain = {"fixed": lj.FixedGain, "auto": lj.AutoGain}[args.gain_type]
     res = lj.study(
         lj.MassDamper(),
         records,
         gains=gains,
-        gain_type=args.gain_type,
+        gain=gain,
         poles=poles,
         unit_dc_gain=True,
         dataset_names=names,
@@ -217,7 +218,7 @@ def run(args) -> int:
             lj.MassDamper(),
             records,
             objective=spec,
-            gain_type=args.gain_type,
+            gain=gain,
             init_gain=g0,
             init_pole=p0,
             throw=False,

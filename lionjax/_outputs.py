@@ -1,0 +1,470 @@
+"""What the batched estimator accumulates while it streams: the output accumulator Modules.
+
+:func:`lionjax.lion_batched` never stores the regressors; everything it reports besides θ(T) is
+accumulated sample by sample inside its fused kernel. Each quantity is an *accumulator* Module
+passed in ``outputs=(...)``:
+
+- :class:`LSStatistics`: ΦᵀΦ, Φᵀy, yᵀy and the sample count after the filter transient, so
+  θ_LS = −(ΦᵀΦ)⁻¹Φᵀy (= ``lionjax.least_squares(..., initial="discard")``) needs no regressor;
+- :class:`ConvergenceTime`: the last sample at which θ is outside the ``tolerance`` band around
+  a reference (θ_LS by default) and a smooth surrogate of that time (for gradients);
+- :class:`TailStatistics`: Σθ, Σθ² over the last quarter of each record (noise in θ);
+- :class:`Trajectory`: θ every ``every`` samples.
+
+An accumulator says what it keeps and how (abstract :meth:`AbstractOutput.init`,
+:meth:`~AbstractOutput.update`, :meth:`~AbstractOutput.finalise`); the kernel loops over the
+requested ones inside its one per-sample step, so adding one adds only its own work. Its state
+is an :class:`Accumulated` (``carry``: values carried from sample to sample; ``sums``: running
+sums, which the kernel adds up per slab of samples for accuracy). :meth:`~AbstractOutput.finalise`
+turns the state into a result Module (:class:`LSResult`, :class:`ConvergenceResult`,
+:class:`TailResult`, :class:`TrajectoryResult`), found on the solution by
+``solution.output(LSStatistics)``.
+
+Accumulators that need no estimate (``needs_theta = False``: :class:`LSStatistics`) run in a
+statistics pass before the estimation pass, since a data-dependent gain (:class:`AutoGain`:
+G = rate·R⁻¹, R = ΦᵀΦ/n) and the default reference of :class:`ConvergenceTime` need θ_LS first.
+"""
+
+# No ``from __future__ import annotations``: equinox reads AbstractVar annotations at runtime.
+import abc
+import dataclasses
+from typing import Any, ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from equinox import AbstractClassVar, AbstractVar
+from jaxtyping import Array, ArrayLike, Float, PyTree
+
+from ._errors import InputError
+from ._filters import FilterBank
+from ._solution import band_scale, default_transient, outside_band, relative_errors, settle_time
+
+
+class Accumulated(eqx.Module):
+    """The state of one accumulator in the kernel (every array has the batch axis last).
+
+    Attributes:
+        carry: values carried from sample to sample (e.g. the last sample outside the band).
+        sums: running sums; the kernel accumulates them per slab of samples and adds the slab's
+            partial sums to the totals (shorter sums in float32).
+    """
+
+    carry: PyTree
+    sums: PyTree
+
+
+@dataclasses.dataclass(frozen=True)
+class Context:
+    """What accumulators see outside the kernel (batch axis first; trace-time only).
+
+    Attributes:
+        dtype: the records' float dtype; p, names: the parameters.
+        dt: sampling interval per record [s], ``(B,)``; t0: first sample time [s], ``(B,)``.
+        length: valid samples per record, ``(B,)`` (T where not padded).
+        bank: the filter (``coeffs`` ``(n,)`` or ``(B, n)``).
+        least_squares: the streamed LS answer (:class:`LSResult`) once the statistics pass has
+            run, else None.
+    """
+
+    dtype: Any
+    p: int
+    names: tuple[str, ...]
+    dt: Array
+    t0: Array
+    length: Array
+    bank: FilterBank
+    least_squares: "LSResult | None" = None
+
+
+class Sample:
+    """One step k → k+1 of the kernel, as accumulators see it (trace-time, batch last).
+
+    Attributes:
+        k: the step's first sample index (int32 scalar; the new sample is k + 1).
+        active: (Bs,) bool, False on padding samples (``lengths``), or None (no padding).
+        h: the sampling interval [s] (scalar, or (Bs,) with one dt per record).
+        dtype: the float dtype.
+    """
+
+    def __init__(self, k, active, h, dtype, end, theta):
+        self.k, self.active, self.h, self.dtype = k, active, h, dtype
+        self._end, self._theta, self._cache = end, theta, {}
+
+    def end_regressors(self) -> tuple[list[Array], list[Array], Array, Array]:
+        """(W1, W2, y1, y2) at sample k + 1 (rows of W, p arrays each, and W₀), computed once."""
+        if "end" not in self._cache:
+            self._cache["end"] = self._end()
+        return self._cache["end"]
+
+    def theta(self) -> list[Array]:
+        """θ after the step (p arrays); only in the estimation pass."""
+        if self._theta is None:
+            raise InputError("Sample.theta: no estimate in the statistics pass (needs_theta).")
+        if "theta" not in self._cache:
+            self._cache["theta"] = self._theta()
+        return self._cache["theta"]
+
+    def weight(self, first: Array) -> Array:
+        """1.0 where sample k + 1 is at or after index ``first`` (per record) and real."""
+        w = (self.k + 1 >= first).astype(self.dtype)
+        return w if self.active is None else w * self.active.astype(self.dtype)
+
+
+class AbstractOutput(eqx.Module):
+    """An accumulator streamed by :func:`lionjax.lion_batched` (module docstring).
+
+    Concrete accumulators are final classes; the kernel calls, per batch of rows, ``init``
+    once, ``update`` at every sample and, outside the kernel, ``finalise`` once.
+    """
+
+    #: False: accumulated in the statistics pass, before any estimate exists.
+    needs_theta: AbstractClassVar[bool]
+    #: Samples between snapshots of θ handed to :meth:`finalise` (None: no snapshots).
+    every: AbstractVar[int | None]
+
+    @property
+    @abc.abstractmethod
+    def needs_least_squares(self) -> bool:
+        """Whether :meth:`prepare` needs the LS answer (``Context.least_squares``)."""
+
+    @abc.abstractmethod
+    def prepare(self, ctx: Context) -> PyTree:
+        """Per-record inputs of the kernel, every array with the batch axis first (or None)."""
+
+    @abc.abstractmethod
+    def init(self, inputs: PyTree, p: int, theta0: list[Array] | None, zero: Array) -> Accumulated:
+        """The state before the first step; ``inputs`` as from :meth:`prepare` (batch last),
+        p the number of parameters, ``theta0`` the initial estimate (p arrays; None in the
+        statistics pass), ``zero`` a (Bs,) array of zeros of the float dtype."""
+
+    @abc.abstractmethod
+    def update(self, state: Accumulated, sample: Sample, inputs: PyTree) -> Accumulated:
+        """The state after one more sample (elementwise over the rows)."""
+
+    @abc.abstractmethod
+    def finalise(self, state: Accumulated, ctx: Context, snapshots: Array | None) -> eqx.Module:
+        """The result Module from the final state (batch first); ``snapshots`` θ every
+        ``every`` samples, ``(B, K, p)``, when ``every`` is set."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Least squares
+
+
+class LSResult(eqx.Module):
+    """The least-squares answer from streamed statistics, per record (B records, p parameters).
+
+    Attributes:
+        theta: θ_LS = −(ΦᵀΦ)⁻¹Φᵀy, ``(B, p)``.
+        covariance: σ²(ΦᵀΦ)⁻¹, σ² = RSS/(N − p), N = 2·n_used rows (as
+            :func:`lionjax.least_squares`), ``(B, p, p)``; std: √diag, ``(B, p)``.
+        condition: condition number of the column-normalised ΦᵀΦ's square root, i.e. of Φ
+            (inf if ΦᵀΦ is singular), ``(B,)``.
+        rms: root-mean-square equation error ``(B,)``; n_used: samples in the sums ``(B,)``.
+        moments: R = ΦᵀΦ/n_used, the mean regressor outer product (what gains see), ``(B, p, p)``.
+    """
+
+    theta: Float[Array, "B p"]
+    covariance: Float[Array, "B p p"]
+    std: Float[Array, "B p"]
+    condition: Float[Array, " B"]
+    rms: Float[Array, " B"]
+    n_used: Float[Array, " B"]
+    moments: Float[Array, "B p p"]
+
+
+class LSStatistics(AbstractOutput):
+    """Stream ΦᵀΦ, Φᵀy, yᵀy over the samples at or after ``transient`` seconds from each
+    record's start (regressors at the samples, as :func:`lionjax.least_squares` with
+    ``initial="discard"``); finalised to an :class:`LSResult`.
+
+    Attributes:
+        transient: [s], a number or one per record ``(B,)``; default 3·λₙ₋₁/λₙ of each filter.
+            Also the window of a data-dependent gain's R and of :class:`ConvergenceTime`'s
+            default reference.
+    """
+
+    transient: float | Array | None = None
+    needs_theta: ClassVar[bool] = False
+    every: ClassVar[None] = None
+
+    @property
+    def needs_least_squares(self) -> bool:
+        return False
+
+    def prepare(self, ctx):
+        dtype, dt = ctx.dtype, ctx.dt
+        if self.transient is None:
+            tr = default_transient(ctx.bank).astype(dtype)
+        else:
+            tr = jnp.asarray(self.transient, dtype)
+        if tr.ndim > 1 or (tr.ndim == 1 and tr.shape != dt.shape):
+            raise InputError(
+                f"LSStatistics: transient must be seconds, a number or one per record "
+                f"{dt.shape}, got shape {tr.shape}."
+            )
+        tr = jnp.broadcast_to(tr, dt.shape)
+        # first k with k·dt ≥ tr, computed as lionjax.lion's transient mask does
+        kk = jnp.ceil(tr / dt)
+        kk = jnp.where(dt * (kk - 1) >= tr, kk - 1, kk)
+        kk = jnp.where(dt * kk < tr, kk + 1, kk)
+        return jnp.maximum(kk, 0).astype(jnp.int32)
+
+    @staticmethod
+    def _size(p: int) -> int:
+        return p * (p + 1) // 2 + p + 2  # ΦᵀΦ (upper), Φᵀy, yᵀy, count
+
+    def init(self, inputs, p, theta0, zero):
+        return Accumulated(None, [zero] * self._size(p))
+
+    def update(self, state, sample, inputs):
+        W1, W2, y1, y2 = sample.end_regressors()
+        p = len(W1)
+        w = sample.weight(inputs)  # statistics of sample k+1 (sample 0 is in every transient)
+        terms = [W1[i] * W1[j] + W2[i] * W2[j] for i in range(p) for j in range(i, p)]
+        terms += [W1[i] * y1 + W2[i] * y2 for i in range(p)] + [y1 * y1 + y2 * y2, 1.0]
+        return Accumulated(None, [a + w * t for a, t in zip(state.sums, terms, strict=True)])
+
+    def finalise(self, state, ctx, snapshots):
+        return _ls_result(jnp.stack(state.sums, -1), ctx.p)
+
+
+def _solve_ls(stats: Array, p: int):
+    """θ_LS, the condition number of the column-normalised ΦᵀΦ, A = ΦᵀΦ and (ΦᵀΦ)⁻¹ from the
+    streamed statistics. A zero or indefinite normalised ΦᵀΦ (a flat record) has condition inf."""
+    npp = p * (p + 1) // 2
+    A = jnp.zeros(stats.shape[:-1] + (p, p), stats.dtype)
+    idx = 0
+    for i in range(p):
+        for j in range(i, p):
+            A = A.at[..., i, j].set(stats[..., idx]).at[..., j, i].set(stats[..., idx])
+            idx += 1
+    b = stats[..., npp : npp + p]
+    tiny = jnp.finfo(A.dtype).tiny
+    d = jnp.sqrt(jnp.clip(jnp.diagonal(A, axis1=-2, axis2=-1), tiny, None))
+    An = A / d[..., :, None] / d[..., None, :]
+    ev = jnp.linalg.eigvalsh(An)
+    cond = jnp.where(
+        ev[..., 0] > 0, jnp.sqrt(ev[..., -1] / jnp.clip(ev[..., 0], tiny, None)), jnp.inf
+    )
+    An_inv = jnp.linalg.inv(An)
+    theta = -jnp.einsum("...ij,...j->...i", An_inv, b / d) / d
+    return theta, cond, A, An_inv / d[..., :, None] / d[..., None, :]
+
+
+def _ls_result(stats: Array, p: int) -> LSResult:
+    """The :class:`LSResult` of statistics ``(B, m)`` (ΦᵀΦ upper, Φᵀy, yᵀy, count)."""
+    th, cond, A, A_inv = _solve_ls(stats, p)
+    n_used = stats[:, -1]
+    # RSS = θᵀAθ + 2θᵀb + yᵀy (cancels: a few 1e-4 relative on noise-free data)
+    rss = jnp.einsum("bp,bpq,bq->b", th, A, th) + 2 * jnp.sum(th * stats[:, -p - 2 : -2], -1)
+    rss = jnp.clip(rss + stats[:, -2], 0.0, None)
+    sigma2 = rss / jnp.clip(2 * n_used - p, 1.0, None)
+    cov = sigma2[:, None, None] * A_inv
+    return LSResult(
+        theta=th,
+        covariance=cov,
+        std=jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)),
+        condition=cond,
+        rms=jnp.sqrt(rss / jnp.clip(2 * n_used, 1.0, None)),
+        n_used=n_used,
+        moments=A / jnp.clip(n_used, 1.0, None)[:, None, None],
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Convergence time
+
+
+class ConvergenceResult(eqx.Module):
+    """The convergence time per record (B records).
+
+    Attributes:
+        t_converged: seconds from the record start after which every
+            |θᵢ − θ_refᵢ| ≤ tolerance·|θ_refᵢ| until the end; ``inf`` if θ is outside the band
+            at the last sample, ``(B,)``.
+        time_outside: its smooth surrogate [s], Σₖ h·σ((log rₖ − log tol)/s) over the samples,
+            rₖ² = Σᵢ rᵢ⁴/Σᵢ rᵢ² (a smooth max over parameters of the relative errors
+            rᵢ = (θᵢ − θ_refᵢ)/|θ_refᵢ|), s = ``softness``, ``(B,)``.
+        reference: θ_ref, ``(B, p)``.
+    """
+
+    t_converged: Float[Array, " B"]
+    time_outside: Float[Array, " B"]
+    reference: Float[Array, "B p"]
+
+
+class _BandInputs(eqx.Module):
+    reference: Array  # (B, p) outside the kernel, (p, Bs) inside
+    scale: Array  # 1/|θ_ref|, same shape
+
+
+class ConvergenceTime(AbstractOutput):
+    """Track the convergence time: the first time after which θ stays within ``tolerance`` of
+    ``reference`` until the end of the record (the one definition of lionjax:
+    :meth:`lionjax.LionSolution.convergence_time` evaluates it on a stored trajectory),
+    and its smooth surrogate; finalised to a :class:`ConvergenceResult`.
+
+    Attributes:
+        reference: θ_ref, ``(p,)`` or ``(B, p)``; None (default): each record's streamed LS
+            answer (:class:`LSStatistics`, with its transient when one is among the outputs).
+        tolerance: the relative band, in (0, 1) (default 0.02 = 2 %).
+        softness: width s > 0 of the surrogate's sigmoid in log relative error (default 0.25).
+    """
+
+    reference: Float[ArrayLike, "*B p"] | None = None
+    tolerance: float | Array = 0.02
+    softness: float | Array = 0.25
+    needs_theta: ClassVar[bool] = True
+    every: ClassVar[None] = None
+
+    def __check_init__(self):
+        for name, ok, want in (
+            ("tolerance", lambda v: 0 < v < 1, "in (0, 1) (0.02 = 2 %)"),
+            ("softness", lambda v: v > 0, "> 0"),
+        ):
+            v = getattr(self, name)
+            if not isinstance(v, jax.core.Tracer) and not (jnp.ndim(v) == 0 and ok(float(v))):
+                raise InputError(f"ConvergenceTime: {name} must be a number {want}, got {v!r}.")
+
+    @property
+    def needs_least_squares(self) -> bool:
+        return self.reference is None
+
+    def _reference(self, ctx):
+        B = ctx.dt.shape[0]
+        if self.reference is None:
+            ref = ctx.least_squares.theta
+        else:
+            ref = jnp.asarray(self.reference, ctx.dtype)
+            if ref.shape not in ((ctx.p,), (B, ctx.p)):
+                raise InputError(
+                    f"ConvergenceTime: reference must have shape ({ctx.p},) or ({B}, {ctx.p}) "
+                    f"for parameters {ctx.names}, got {ref.shape}."
+                )
+            ref = jnp.broadcast_to(ref, (B, ctx.p))
+        return jnp.where(jnp.isfinite(ref), ref, 0.0)
+
+    def prepare(self, ctx):
+        ref = self._reference(ctx)
+        return _BandInputs(ref, jnp.stack(band_scale(list(ref.T)), -1))
+
+    def init(self, inputs, p, theta0, zero):
+        ref, scale = list(inputs.reference), list(inputs.scale)
+        out0 = outside_band(relative_errors(theta0, ref, scale), self.tolerance)
+        return Accumulated(jnp.where(out0, 0, -1).astype(jnp.int32), zero)
+
+    def update(self, state, sample, inputs):
+        th = sample.theta()
+        rel = relative_errors(th, list(inputs.reference), list(inputs.scale))
+        out = outside_band(rel, self.tolerance)
+        if sample.active is not None:
+            out = out & sample.active
+        last_out = jnp.where(out, sample.k + 1, state.carry)
+        # smooth max over parameters: r² = Σ rᵢ⁴ / Σ rᵢ² ≤ max rᵢ²
+        tiny = jnp.finfo(sample.dtype).tiny
+        r2 = sum(r * r for r in rel)
+        r4 = sum(r * r * r * r for r in rel)
+        lr = 0.5 * jnp.log(r4 / (r2 + tiny) + tiny)
+        sig = jax.nn.sigmoid((lr - jnp.log(self.tolerance)) / self.softness)
+        h = sample.h
+        wk = h if sample.active is None else h * sample.active.astype(sample.dtype)
+        return Accumulated(last_out, state.sums + wk * sig)
+
+    def finalise(self, state, ctx, snapshots):
+        t = settle_time(state.carry, ctx.length, lambda i: i.astype(ctx.dtype) * ctx.dt)
+        return ConvergenceResult(t, state.sums, self._reference(ctx))
+
+
+# ----------------------------------------------------------------------------------------------
+# Tail statistics
+
+
+class TailResult(eqx.Module):
+    """Mean and standard deviation of θ(t) over the last quarter of each record, ``(B, p)``
+    (in the units of θ; the population standard deviation: the noise θ keeps once converged)."""
+
+    mean: Float[Array, "B p"]
+    std: Float[Array, "B p"]
+
+
+class TailStatistics(AbstractOutput):
+    """Stream Σθ, Σθ² and the count over the samples from ⌊3·length/4⌋ on (the last quarter of
+    each record); finalised to a :class:`TailResult`."""
+
+    needs_theta: ClassVar[bool] = True
+    every: ClassVar[None] = None
+
+    @property
+    def needs_least_squares(self) -> bool:
+        return False
+
+    def prepare(self, ctx):
+        return (3 * ctx.length) // 4
+
+    def init(self, inputs, p, theta0, zero):
+        return Accumulated(None, [zero] * (2 * p + 1))
+
+    def update(self, state, sample, inputs):
+        th = sample.theta()
+        wt = sample.weight(inputs)
+        tl = [wt * a for a in th] + [wt * a * a for a in th] + [wt]
+        return Accumulated(None, [a + b for a, b in zip(state.sums, tl, strict=True)])
+
+    def finalise(self, state, ctx, snapshots):
+        p = ctx.p
+        tail = jnp.stack(state.sums, -1)
+        wsum = jnp.clip(tail[:, -1:], 1.0, None)
+        mean = tail[:, :p] / wsum
+        std = jnp.sqrt(jnp.clip(tail[:, p : 2 * p] / wsum - mean**2, 0.0, None))
+        return TailResult(mean, std)
+
+
+# ----------------------------------------------------------------------------------------------
+# Trajectory
+
+
+class TrajectoryResult(eqx.Module):
+    """θ every ``every`` samples: ``t`` [s] ``(K,)`` (times of the first record: t₀ + k·h for
+    k = every, 2·every, …), ``theta`` ``(K, B, p)``."""
+
+    t: Float[Array, " K"]
+    theta: Float[Array, "K B p"]
+
+
+class Trajectory(AbstractOutput):
+    """Keep θ every ``every`` samples (exactly: the kernel's slab length becomes the largest
+    divisor of ``every`` not above ``Execution.chunk``); finalised to a
+    :class:`TrajectoryResult`. Memory ``(T/every, B, p)``.
+
+    Attributes:
+        every: samples between saved estimates, a positive int.
+    """
+
+    every: int = eqx.field(static=True)
+    needs_theta: ClassVar[bool] = True
+
+    def __check_init__(self):
+        if not (isinstance(self.every, int) and self.every >= 1):
+            raise InputError(f"Trajectory: every must be a positive int, got {self.every!r}.")
+
+    @property
+    def needs_least_squares(self) -> bool:
+        return False
+
+    def prepare(self, ctx):
+        return None
+
+    def init(self, inputs, p, theta0, zero):
+        return Accumulated(None, None)
+
+    def update(self, state, sample, inputs):
+        return state
+
+    def finalise(self, state, ctx, snapshots):
+        traj = jnp.moveaxis(snapshots, 0, 1)  # (B, K, p) → (K, B, p)
+        K = traj.shape[0]
+        t0 = ctx.t0.reshape(-1)[0]
+        t = t0 + ctx.dt[0] * self.every * jnp.arange(1, K + 1, dtype=ctx.dtype)
+        return TrajectoryResult(t, traj)
