@@ -1,79 +1,69 @@
-"""lionjax: Lion's identification method in JAX, a device twin, and sim-to-real diagnosis."""
+"""lionjax: Lion's identification method in JAX, a device twin, and sim-to-real diagnosis.
 
-from . import datasets as datasets, twin as twin
+The top level is the method's core, read top to bottom as the method runs (docs/method.md):
+
+- data: :class:`Record` (x [m], F [N], dt [s]), :func:`load_record` / :func:`save_record`,
+  :func:`resample`; batches of records: :func:`stack_records`, :func:`shard_records`;
+- the filter bank 1/Λ(s): :class:`FilterBank`, :func:`default_bank`;
+- models ẍ + aẋ = bF + effects, as regressors: :class:`MassDamper`, :class:`Piecewise`,
+  :class:`Augmented` with :class:`Offset`, :class:`Coulomb`, :class:`Spring`,
+  :class:`LinearPosition` (bases :class:`AbstractModel`, :class:`AbstractEffect`);
+- Lion's law on one record: :func:`lion` with a gain (:class:`FixedGain`, :class:`AutoGain`)
+  and a stepper (:class:`ExactStep`, :class:`EulerStep`, :class:`DiffraxStep`);
+  least squares: :func:`least_squares`, :func:`linear_lstsq`;
+- many records at once: :func:`lion_batched` with accumulated ``outputs``
+  (:class:`LSStatistics`, :class:`ConvergenceTime`, :class:`TailStatistics`,
+  :class:`Trajectory`) and an :class:`Execution`; :func:`least_squares_batched`,
+  :func:`lion_parallel`; :func:`identify_batch` with a method (:class:`Lion`,
+  :class:`LeastSquares`);
+- errors: :class:`InputError` (bad input, raised before any work), :class:`IdentificationError`
+  and :data:`RESULTS` (a run that failed), :func:`raise_if_failed`;
+- the everyday entry points :func:`study` and :func:`diagnose`.
+
+Namespaces: :mod:`lionjax.twin` (the device twin: plant, effects, excitations, simulate),
+:mod:`lionjax.studies` (gain/pole studies, tuning, their figures), :mod:`lionjax.diagnosis`
+(the sim-to-real diagnosis and its figure), :mod:`lionjax.paper` (the paper's reproduction, one
+module per section), :mod:`lionjax.datasets` (bundled measured data), :mod:`lionjax.solutions`
+(what the estimators return, and reading result codes), :mod:`lionjax.extend` (the abstract
+bases and building blocks for writing new outputs, steppers, batch methods, candidates).
+"""
+
+from . import (
+    datasets as datasets,
+    diagnosis as diagnosis,
+    extend as extend,
+    paper as paper,
+    solutions as solutions,
+    studies as studies,
+    twin as twin,
+)
 from ._batched import (
-    BatchedSolution as BatchedSolution,
     Execution as Execution,
-    LSBatchedSolution as LSBatchedSolution,
-    ParallelSolution as ParallelSolution,
-    host_devices as host_devices,
     least_squares_batched as least_squares_batched,
     lion_batched as lion_batched,
     lion_parallel as lion_parallel,
     shard_records as shard_records,
     stack_records as stack_records,
 )
-from ._diagnose import (
-    AbstractCandidate as AbstractCandidate,
-    Diagnosis as Diagnosis,
-    diagnose as diagnose,
-)
-from ._effects import (
-    Coulomb as Coulomb,
-    LinearPosition as LinearPosition,
-    Spring as Spring,
-)
 from ._errors import (
     RESULTS as RESULTS,
     IdentificationError as IdentificationError,
     InputError as InputError,
     raise_if_failed as raise_if_failed,
-    result_code as result_code,
-    result_codes as result_codes,
-    result_message as result_message,
 )
 from ._estimators import (
     AbstractGain as AbstractGain,
-    AbstractSampleStepper as AbstractSampleStepper,
     AbstractStepper as AbstractStepper,
     AutoGain as AutoGain,
     DiffraxStep as DiffraxStep,
     EulerStep as EulerStep,
     ExactStep as ExactStep,
     FixedGain as FixedGain,
-    LionSolution as LionSolution,
     default_bank as default_bank,
     lion as lion,
 )
-from ._experiments import (
-    Calibration as Calibration,
-    EffectCase as EffectCase,
-    EffectRow as EffectRow,
-    Identification as Identification,
-    LionSettings as LionSettings,
-    PaperConfig as PaperConfig,
-    PaperResult as PaperResult,
-    PaperTable as PaperTable,
-    Verification as Verification,
-    calibrate_force as calibrate_force,
-    effect_study as effect_study,
-    identify_records as identify_records,
-    identify_regions as identify_regions,
-    paper_records as paper_records,
-    paper_table as paper_table,
-    realistic_effects as realistic_effects,
-    reproduce_paper as reproduce_paper,
-    twin_runs as twin_runs,
-    verification_record as verification_record,
-    verify as verify,
-)
-from ._figures import (
-    paper_figures as paper_figures,
-)
 from ._filters import FilterBank as FilterBank
 from ._identify_many import (
-    AbstractBatchMethod as AbstractBatchMethod,
-    BatchIdentification as BatchIdentification,
     LeastSquares as LeastSquares,
     Lion as Lion,
     identify_batch as identify_batch,
@@ -81,51 +71,54 @@ from ._identify_many import (
 from ._io import (
     load_record as load_record,
     load_records as load_records,
-    parse_columns as parse_columns,
     save_record as save_record,
 )
-from ._least_squares import (
-    LinearFit as LinearFit,
-    LSSolution as LSSolution,
-    equation_error as equation_error,
-    least_squares as least_squares,
-    linear_lstsq as linear_lstsq,
+from ._least_squares import least_squares as least_squares, linear_lstsq as linear_lstsq
+from ._model_effects import (
+    Coulomb as Coulomb,
+    LinearPosition as LinearPosition,
+    Spring as Spring,
 )
 from ._models import (
     AbstractEffect as AbstractEffect,
     AbstractModel as AbstractModel,
     Augmented as Augmented,
-    Column as Column,
     MassDamper as MassDamper,
     Offset as Offset,
     Piecewise as Piecewise,
-    Regressors as Regressors,
 )
 from ._outputs import (
-    AbstractOutput as AbstractOutput,
-    ConvergenceResult as ConvergenceResult,
     ConvergenceTime as ConvergenceTime,
-    LSResult as LSResult,
     LSStatistics as LSStatistics,
-    TailResult as TailResult,
     TailStatistics as TailStatistics,
     Trajectory as Trajectory,
-    TrajectoryResult as TrajectoryResult,
 )
 from ._record import Record as Record, resample as resample
-from ._study import (
-    StudyRecords as StudyRecords,
-    StudyResult as StudyResult,
-    stack_banks as stack_banks,
-    study as study,
-    study_records as study_records,
-)
-from ._study_plot import study_figure as study_figure
-from ._tune import (
-    TuneObjective as TuneObjective,
-    TuneSolution as TuneSolution,
-    tune as tune,
-    tune_objective as tune_objective,
-)
+from .diagnosis import diagnose as diagnose
+from .studies import study as study
 
 __version__ = "0.1.0"
+
+#: The top-level public names (the method's core and the everyday entry points); the sub-packages
+#: are namespaces (see the module docstring) and are not counted here.
+__all__ = [
+    # data
+    "Record", "load_record", "load_records", "save_record", "resample", "stack_records",
+    "shard_records",
+    # filters
+    "FilterBank", "default_bank",
+    # models and effects
+    "AbstractModel", "MassDamper", "Piecewise", "Augmented", "AbstractEffect", "Offset",
+    "Coulomb", "Spring", "LinearPosition",
+    # Lion's law and least squares on one record
+    "AbstractGain", "FixedGain", "AutoGain", "AbstractStepper", "ExactStep", "EulerStep",
+    "DiffraxStep", "lion", "least_squares", "linear_lstsq",
+    # many records
+    "lion_batched", "least_squares_batched", "lion_parallel", "Execution", "LSStatistics",
+    "ConvergenceTime", "TailStatistics", "Trajectory", "identify_batch", "Lion",
+    "LeastSquares",
+    # errors
+    "InputError", "IdentificationError", "RESULTS", "raise_if_failed",
+    # entry points
+    "study", "diagnose",
+]  # fmt: skip

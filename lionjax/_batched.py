@@ -12,7 +12,7 @@ statistics pass alone (no estimate, no gain).
 The call is made of strategy Modules, as diffrax's ``diffeqsolve`` is: the filter
 (:class:`lionjax.FilterBank`, one per record when its ``coeffs`` are ``(B, n)``), the gain
 (:class:`lionjax.AbstractGain`, one per record when its value is ``(B,)``), the stepper
-(:class:`lionjax.AbstractSampleStepper`, which owns the normalisation μ), the outputs and the
+(:class:`lionjax.extend.AbstractSampleStepper`, which owns the normalisation μ), the outputs and the
 performance knobs (:class:`Execution`).
 
 Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kernel
@@ -78,7 +78,7 @@ from ._outputs import (
 )
 from ._phi import fast_series_terms, materialise, phi_sym2
 from ._record import Record
-from ._solution import finish
+from ._solution_tools import finish
 
 # ----------------------------------------------------------------------------------------------
 # Devices
@@ -237,9 +237,9 @@ class BatchedSolution(eqx.Module):
         J: final cost ½εᵀε at the last sample, shape ``(B,)``.
         gain: the gain matrices G, shape ``(B, p, p)``.
         outputs: the finalised accumulators, one per ``outputs`` argument and in its order
-            (:class:`lionjax.LSResult`, :class:`lionjax.ConvergenceResult`,
-            :class:`lionjax.TailResult`, :class:`lionjax.TrajectoryResult`); by type with
-            :meth:`output`, or through the shortcuts below.
+            (:class:`lionjax.solutions.LSResult`, :class:`lionjax.solutions.ConvergenceResult`,
+            :class:`lionjax.solutions.TailResult`, :class:`lionjax.solutions.TrajectoryResult`);
+            by type with            :meth:`output`, or through the shortcuts below.
         kinds: the accumulator types of ``outputs``.
         names: parameter names; result: a :class:`RESULTS` code per record, ``(B,)``.
 
@@ -263,7 +263,7 @@ class BatchedSolution(eqx.Module):
 
     def output(self, kind: type[AbstractOutput]) -> eqx.Module:
         """The finalised accumulator of type ``kind`` (e.g. ``sol.output(lj.LSStatistics)``
-        is the :class:`lionjax.LSResult`)."""
+        is the :class:`lionjax.solutions.LSResult`)."""
         for k, out in zip(self.kinds, self.outputs, strict=True):
             if k is kind:
                 return out
@@ -883,7 +883,8 @@ def lion_batched(
         records: a batch of records, ``x``/``F`` of shape ``(B, T)``, ``dt`` and ``t0`` of
             shape ``(B,)`` or ``()`` (build with :func:`stack_records`).
         bank: the filter (default :func:`lionjax.default_bank`); ``coeffs`` of shape
-            ``(B, n)`` give every record its own filter (pole studies, :func:`lionjax.stack_banks`).
+            ``(B, n)`` give every record its own filter (pole studies,
+            :func:`lionjax.studies.stack_banks`).
         gain: an :class:`AbstractGain`: :class:`AutoGain` (default, rate 1/s; G from a first
             streamed pass of the LS statistics) or :class:`FixedGain`; a value of shape ``(B,)``
             (``FixedGain(g)``, ``AutoGain(rate)``) gives every record its own gain.

@@ -45,7 +45,7 @@ from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
 from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2
 from ._record import Record
-from ._solution import check_duration, convergence_time, finish, transient_mask
+from ._solution_tools import check_duration, convergence_time, finish, transient_mask
 
 # ----------------------------------------------------------------------------------------------
 # Gains

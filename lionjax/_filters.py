@@ -60,7 +60,7 @@ class FilterBank(eqx.Module):
     Attributes:
         coeffs: (λ₁, …, λₙ), shape ``(n,)``, n ≥ 3; Λ must be Hurwitz (checked when concrete).
             A batch of filters — one per record for :func:`lionjax.lion_batched`, e.g. a grid of
-            pole sets (:func:`lionjax.stack_banks`) — has ``coeffs`` of shape ``(B, n)``.
+            pole sets (:func:`lionjax.studies.stack_banks`) — has ``coeffs`` of shape ``(B, n)``.
         unit_dc_gain: if True every output is multiplied by λₙ, i.e. the bank is λₙ·s^(j−1)/Λ
             and V₁ → u at DC. This only rescales the equation errors (LS is unchanged), but it
             keeps regressors O(signal) whatever the poles, which is what a gain G should see.

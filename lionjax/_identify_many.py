@@ -54,7 +54,7 @@ from ._filters import FilterBank
 from ._models import AbstractModel, Piecewise
 from ._outputs import ConvergenceTime, LSStatistics
 from ._record import Record
-from ._solution import default_transient
+from ._solution_tools import default_transient
 from ._tables import write_csv, write_json
 
 #: ``result`` of a record that was not run (shorter than the filter transient).

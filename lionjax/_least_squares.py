@@ -38,7 +38,7 @@ from ._estimators import default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel
 from ._record import Record
-from ._solution import check_duration, finish, transient_mask
+from ._solution_tools import check_duration, finish, transient_mask
 
 
 class LSSolution(eqx.Module):

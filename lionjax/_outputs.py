@@ -38,7 +38,13 @@ from jaxtyping import Array, ArrayLike, Float, PyTree
 
 from ._errors import InputError
 from ._filters import FilterBank
-from ._solution import band_scale, default_transient, outside_band, relative_errors, settle_time
+from ._solution_tools import (
+    band_scale,
+    default_transient,
+    outside_band,
+    relative_errors,
+    settle_time,
+)
 
 
 class Accumulated(eqx.Module):
@@ -303,7 +309,7 @@ class _BandInputs(eqx.Module):
 class ConvergenceTime(AbstractOutput):
     """Track the convergence time: the first time after which θ stays within ``tolerance`` of
     ``reference`` until the end of the record (the one definition of lionjax:
-    :meth:`lionjax.LionSolution.convergence_time` evaluates it on a stored trajectory),
+    :meth:`lionjax.solutions.LionSolution.convergence_time` evaluates it on a stored trajectory),
     and its smooth surrogate; finalised to a :class:`ConvergenceResult`.
 
     Attributes:

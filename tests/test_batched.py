@@ -277,7 +277,7 @@ def test_per_record_bank_and_gain_equal_per_record_runs(recs):
     filter and gain: the same numbers as lj.lion / lj.least_squares record by record."""
     batch, _ = lj.stack_records(recs)
     poles = [(-4.0, -4.0, -4.0), (-8.0, -8.0, -8.0), (-5.0, -6.0, -7.0), (-12.0, -12.0, -12.0)]
-    bank = lj.stack_banks(poles)
+    bank = lj.studies.stack_banks(poles)
     assert bank.batch_shape == (4,)
     g = np.array([1e2, 1e3, 3e3, 1e4])
     rate = np.array([1.0, 2.0, 3.0, 4.0])

@@ -113,8 +113,13 @@ def test_bad_arguments():
 def test_blind_small():
     classes = ("none", *FIXED, "coulomb_friction+offset", "flexible_mode")
     out = blind.run(
-        per_class=1, seed0=500, classes=classes, duration=2.5, rate=(1000.0, 1000.0),
-        sources=("twin",), progress=False,
+        per_class=1,
+        seed0=500,
+        classes=classes,
+        duration=2.5,
+        rate=(1000.0, 1000.0),
+        sources=("twin",),
+        progress=False,
     )
     rows = out["records"]
     single = [r for r in rows if r["class"] in FIXED]

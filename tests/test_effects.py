@@ -1,4 +1,4 @@
-"""Candidate regressor effects (lionjax._effects) against independent references.
+"""Candidate regressor effects (lionjax._model_effects) against independent references.
 
 References: the analytic derivative of a sine (zero-phase velocity), and scipy ``solve_ivp`` of
 the augmented model written from the docstring equations, identified by ``numpy.linalg.lstsq`` on
@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import lionjax as lj
-from lionjax._effects import zero_phase_velocity
+from lionjax._model_effects import zero_phase_velocity
 
 DT = 1e-3
 T = 1201
@@ -168,7 +168,7 @@ def test_force_effect_needs_a_gain():
             return ("a",)
 
         def columns(self):
-            return (lj.Column("x", 1, 1.0),)
+            return (lj.extend.Column("x", 1, 1.0),)
 
         def signals(self, record):
             return {"x": (record.x, "foh")}

@@ -10,7 +10,7 @@ import pytest
 
 import lionjax.twin as lp
 from lionjax._errors import InputError
-from lionjax._excitation import (
+from lionjax.twin._excitation import (
     PAPER_OPERATING_POINTS,
     PAPER_SINE_SETS,
     PRBS,

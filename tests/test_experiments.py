@@ -1,4 +1,4 @@
-"""The paper's experiments (lionjax._experiments) against independent references.
+"""The paper's experiments (lionjax.paper._experiments) against independent references.
 
 One quick reproduction (``PaperConfig.quick()``, seed 0, all effects) is computed once per
 session and checked piece by piece:
@@ -27,19 +27,19 @@ SEED = 0
 
 @functools.cache
 def quick_config():
-    return lj.PaperConfig.quick()
+    return lj.paper.PaperConfig.quick()
 
 
 @pytest.fixture(scope="session")
 def result():
-    return lj.reproduce_paper(quick_config(), key=jax.random.key(SEED))
+    return lj.paper.reproduce_paper(quick_config(), key=jax.random.key(SEED))
 
 
 @pytest.fixture(scope="session")
 def records(result):
     cfg = quick_config()
     _, k_run = jax.random.split(jax.random.key(SEED))
-    return lj.paper_records(cfg, key=k_run, calibration_gain=result.calibration.gain)
+    return lj.paper.paper_records(cfg, key=k_run, calibration_gain=result.calibration.gain)
 
 
 def test_calibration_matches_polyfit(result):
@@ -47,7 +47,7 @@ def test_calibration_matches_polyfit(result):
     slope, intercept = np.polyfit(np.asarray(cal.measured_force), np.asarray(cal.set_force), 1)
     assert float(cal.gain) == pytest.approx(slope, rel=1e-9)
     assert float(cal.intercept) == pytest.approx(intercept, rel=1e-6, abs=1e-9)
-    assert np.asarray(cal.x).size == 5 * len(lj.PaperConfig().calibration_levels)
+    assert np.asarray(cal.x).size == 5 * len(lj.paper.PaperConfig().calibration_levels)
     assert sorted(set(np.round(np.asarray(cal.x) * 1e3, 6))) == [-30, -15, 0, 15, 30]
     assert abs(float(cal.gain) / 1.75 - 1) < 0.01
 
@@ -164,7 +164,7 @@ def test_verification(result):
     # only quantisation, force-noise and integration error remain
     ver_rec = lj.Record(v.x_device, v.force, 1e-3)
     scale = float(result.calibration.gain) / 1.75
-    true = lj.verify(
+    true = lj.paper.verify(
         jnp.array([16.2, 22.0, 37.1]), scale * jnp.array([2.02, 1.916, 1.289]), ver_rec
     )
     assert float(true.nrmse) < 2e-3
@@ -174,7 +174,7 @@ def test_verification(result):
 
 def test_effect_rows(result):
     names = [e.name for e in result.effects]
-    assert names == [c.name for c in lj.realistic_effects()]
+    assert names == [c.name for c in lj.paper.realistic_effects()]
     assert len(names) == 8
     base = float(result.verifications[result.table.settings.index("recommended")].nrmse)
     for e in result.effects:
@@ -196,35 +196,39 @@ def test_batched_effects_equal_single_device(result):
     _, k_run = jax.random.split(jax.random.key(SEED))
     cases = [
         c
-        for c in lj.realistic_effects()
+        for c in lj.paper.realistic_effects()
         if c.name
         in ("offset", "spring", "delay", "saturation", "calibration_error", "position_dependent")
     ]
     gain = result.calibration.gain
-    batched, vb = lj.twin_runs(
+    batched, vb = lj.paper.twin_runs(
         cfg, key=k_run, calibration_gain=gain, effects=[(c.effect,) for c in cases]
     )
-    alone, va = lj.twin_runs(cfg, key=k_run, calibration_gain=gain, effects=[(cases[0].effect,)])
+    alone, va = lj.paper.twin_runs(
+        cfg, key=k_run, calibration_gain=gain, effects=[(cases[0].effect,)]
+    )
     np.testing.assert_allclose(np.asarray(batched.x[0]), np.asarray(alone.x[0]), rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(vb.x[0]), np.asarray(va.x[0]), rtol=0, atol=1e-12)
 
 
 def test_bad_arguments():
     with pytest.raises(lj.InputError, match="repetitions"):
-        lj.PaperConfig(repetitions=0)
+        lj.paper.PaperConfig(repetitions=0)
     with pytest.raises(lj.InputError, match="operating_points"):
-        lj.PaperConfig(operating_points=(0.0,))
+        lj.paper.PaperConfig(operating_points=(0.0,))
     with pytest.raises(lj.InputError, match="position_scale"):
-        lj.LionSettings.paper(position_scale=-1.0)
+        lj.paper.LionSettings.paper(position_scale=-1.0)
     rec = lj.Record(jnp.zeros(5000), jnp.zeros(5000), 1e-3)
     with pytest.raises(lj.InputError, match="settings"):
-        lj.identify_records(rec, settings="paper")
+        lj.paper.identify_records(rec, settings="paper")
     with pytest.raises(lj.InputError, match="single record"):
-        lj.verify(jnp.ones(3), jnp.ones(3), lj.Record(jnp.zeros((2, 50)), jnp.zeros((2, 50)), 1e-3))
+        lj.paper.verify(
+            jnp.ones(3), jnp.ones(3), lj.Record(jnp.zeros((2, 50)), jnp.zeros((2, 50)), 1e-3)
+        )
 
 
 def test_figures(result, tmp_path):
-    figs = lj.paper_figures(result)
+    figs = lj.paper.paper_figures(result)
     assert set(figs) == {
         "fig3_calibration",
         "fig4_convergence",

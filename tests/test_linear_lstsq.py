@@ -51,7 +51,7 @@ def test_equation_error_at_the_answer_is_the_fit_residual(record):
     """ε₁ for θ fixed at the ε₁-only LS answer equals that fit's own residual (same record)."""
     bank = lj.default_bank()
     sol = lj.least_squares(lj.MassDamper(), record, bank=bank, rows=(0,))
-    e = np.asarray(lj.equation_error(lj.MassDamper(), record, sol.theta, bank=bank))
+    e = np.asarray(lj.extend.equation_error(lj.MassDamper(), record, sol.theta, bank=bank))
     assert e.shape == (record.n_samples, 1)
     assert np.sqrt(np.mean(e**2)) == pytest.approx(float(sol.rms), rel=1e-8)
 

@@ -22,7 +22,7 @@ from scipy.optimize import brentq
 
 import lionjax.twin as lp
 from lionjax._errors import InputError
-from lionjax._excitation import PRBS, SineSum
+from lionjax.twin._excitation import PRBS, SineSum
 
 jax.config.update("jax_enable_x64", True)
 

@@ -68,7 +68,7 @@ def test_files_written(out):
 
 def test_table_schema_and_numbers(out):
     rows = json.loads((out / "table.json").read_text())
-    cfg = lj.PaperConfig.quick()
+    cfg = lj.paper.PaperConfig.quick()
     R, I, K = cfg.shape
     assert len(rows) == 2 * R * (I * K + 1)
     for r in rows:
@@ -100,10 +100,10 @@ def test_table_schema_and_numbers(out):
 def test_table_row_vs_direct_least_squares(out):
     """One record re-simulated through the public API: Lion's row ≈ lj.least_squares (2 %)."""
     rows = json.loads((out / "table.json").read_text())
-    cfg = lj.PaperConfig.quick()
+    cfg = lj.paper.PaperConfig.quick()
     summary = json.loads((out / "summary.json").read_text())
     _, k_run = jax.random.split(jax.random.key(0))
-    recs = lj.paper_records(cfg, key=k_run, calibration_gain=summary["calibration"]["gain"])
+    recs = lj.paper.paper_records(cfg, key=k_run, calibration_gain=summary["calibration"]["gain"])
     rec = jax.tree.map(lambda z: z[1, 2, 0], recs)
     ls = lj.least_squares(lj.MassDamper(), rec)
     row = next(
@@ -114,7 +114,7 @@ def test_table_row_vs_direct_least_squares(out):
 
 def test_effects_and_report(out):
     effects = json.loads((out / "effects.json").read_text())
-    assert [e["name"] for e in effects] == [c.name for c in lj.realistic_effects()]
+    assert [e["name"] for e in effects] == [c.name for c in lj.paper.realistic_effects()]
     for e in effects:
         assert set(e) == EFFECT_KEYS
         assert len(e["a_err_pct"]) == 3

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import lionjax as lj
-import lionjax._study as study_mod
+import lionjax.studies._study as study_mod
 from lionjax.cli import main
 
 POLES = [(-8.0, -8.0, -8.0), (-12.0, -12.0, -12.0)]
@@ -16,7 +16,7 @@ POLES = [(-8.0, -8.0, -8.0), (-12.0, -12.0, -12.0)]
 
 @pytest.fixture(scope="module")
 def records():
-    return lj.study_records(2, n_samples=3000, seed=0)
+    return lj.studies.study_records(2, n_samples=3000, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -201,7 +201,7 @@ def test_map_pools_the_record_dims(result):
 def grid_records():
     from lionjax import twin
 
-    return lj.study_records(
+    return lj.studies.study_records(
         excitations={"in1": twin.PAPER_SINE_SETS[0], "in4": twin.PAPER_SINE_SETS[3]},
         operating_points=[-0.02, 0.02],
         noise_seeds=[3],
@@ -236,9 +236,9 @@ def test_study_records_grid(grid_records):
         x = np.asarray(rec.x)
         assert np.all(np.sign(x) == np.sign(lab["operating_point"])) and np.all(np.abs(x) > 0.01)
     with pytest.raises(lj.InputError, match="n=2"):
-        lj.study_records(2, noise_seeds=[1])
+        lj.studies.study_records(2, noise_seeds=[1])
     with pytest.raises(lj.InputError, match="operating_points"):
-        lj.study_records(operating_points="centre")
+        lj.studies.study_records(operating_points="centre")
 
 
 def test_study_over_labelled_records_vs_lion(grid_records, tmp_path):
@@ -296,13 +296,13 @@ def test_study_over_labelled_records_vs_lion(grid_records, tmp_path):
 
 
 def test_cli_study_tune_and_map(monkeypatch, tmp_path, capsys):
-    """--noise-seeds simulates labelled twin records; --tune calls lj.tune from the grid's
-    centre with the objective whose map is drawn (lj.tune itself: tests/test_tune.py)."""
+    """--noise-seeds simulates labelled twin records; --tune calls lj.studies.tune from the grid's
+    centre with the objective whose map is drawn (lj.studies.tune itself: tests/test_tune.py)."""
     calls = {}
 
     def fake_tune(model, records, **kw):
         calls.update(kw, n_records=len(records))
-        return lj.TuneSolution(
+        return lj.studies.TuneSolution(
             gain_class=kw["gain"],
             gain=12.0,
             pole=25.0,

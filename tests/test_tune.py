@@ -1,4 +1,4 @@
-"""lionjax.tune: gradients vs central finite differences; the tuned point vs the grid optimum of
+"""lionjax.studies.tune: gradients vs central finite differences; the tuned point vs the grid optimum of
 the same objective; the map of lj.study is the same function; the tuned settings vs lj.lion."""
 
 import jax
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import lionjax as lj
-from lionjax import _tune, twin
+from lionjax import twin
+from lionjax.studies import _tune
 
 # a 6 × 5 grid over (AutoGain rate g [1/s], triple filter pole p [rad/s]), log-spaced
 GAINS = np.geomspace(2.0, 200.0, 6)
@@ -21,7 +22,7 @@ def records():
     # the paper's device (eq. 13) around x = 0 (region 2), the paper's input 4, Falcon encoder
     # quantisation and 0.01 N force noise: two 2-s records (noise seeds 1, 2)
     plant = twin.FALCON_PAPER.with_effects(twin.EncoderQuantisation())
-    return lj.study_records(noise_seeds=[1, 2], plant=plant, n_samples=2000)
+    return lj.studies.study_records(noise_seeds=[1, 2], plant=plant, n_samples=2000)
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +33,7 @@ def objective_values(records):
     zs = Z_FD + steps
     g = np.concatenate([G.ravel(), np.exp(zs[:, 0])])
     p = np.concatenate([P.ravel(), np.exp(zs[:, 1])])
-    J = lj.tune_objective(lj.MassDamper(), records, g, p)
+    J = lj.studies.tune_objective(lj.MassDamper(), records, g, p)
     return J[: G.size].reshape(G.shape), J[G.size :]
 
 
@@ -57,7 +58,7 @@ def test_tune_lands_on_the_grid_optimum(records, objective_values):
     dp = np.log(POLES[1] / POLES[0])
     # start at two far corners of the grid: low gain with a wide or a narrow filter
     for g0, p0 in [(GAINS[0], POLES[-1]), (GAINS[0], POLES[0])]:
-        sol = lj.tune(lj.MassDamper(), records, init_gain=g0, init_pole=p0)
+        sol = lj.studies.tune(lj.MassDamper(), records, init_gain=g0, init_pole=p0)
         assert sol.success and sol.n_steps < 64
         assert abs(np.log(sol.gain / GAINS[i])) <= dg, (g0, p0, sol.gain)
         assert abs(np.log(sol.pole / POLES[j])) <= dp, (g0, p0, sol.pole)
@@ -65,7 +66,7 @@ def test_tune_lands_on_the_grid_optimum(records, objective_values):
         assert sol.objective <= J[i, j] + 0.01
         assert np.all(np.abs(sol.gradient) < 0.05)
     # J at the answer, recomputed by the grid function
-    Jt = lj.tune_objective(lj.MassDamper(), records, [sol.gain] * 2, [sol.pole] * 2)
+    Jt = lj.studies.tune_objective(lj.MassDamper(), records, [sol.gain] * 2, [sol.pole] * 2)
     np.testing.assert_allclose(Jt, sol.objective, rtol=1e-10)
     # the tuned settings, run by the reference estimator on each record
     for r, rec in enumerate(records):
@@ -85,7 +86,7 @@ def test_tune_lands_on_the_grid_optimum(records, objective_values):
 
 def test_study_map_is_the_tuned_function(records, objective_values):
     J, _ = objective_values
-    obj = lj.TuneObjective()
+    obj = lj.studies.TuneObjective()
     res = lj.study(
         lj.MassDamper(),
         records,
@@ -100,23 +101,23 @@ def test_study_map_is_the_tuned_function(records, objective_values):
     assert res.dims == ("noise_seed", "gain", "poles")
     np.testing.assert_allclose(obj.on_study(res), J, rtol=1e-9)
     with pytest.raises(lj.InputError, match="softness"):
-        lj.TuneObjective(softness=0.25).on_study(res)
+        lj.studies.TuneObjective(softness=0.25).on_study(res)
 
 
 def test_tune_bad_input(records):
     with pytest.raises(lj.InputError, match="init_gain"):
-        lj.tune(lj.MassDamper(), records, init_gain=-1.0)
+        lj.studies.tune(lj.MassDamper(), records, init_gain=-1.0)
     with pytest.raises(lj.InputError, match="gain_type"):
-        lj.tune(lj.MassDamper(), records, gain_type="adaptive")
+        lj.studies.tune(lj.MassDamper(), records, gain_type="adaptive")
     with pytest.raises(lj.InputError, match=r"gain=lionjax\.FixedGain"):
-        lj.tune(lj.MassDamper(), records, gain_type="fixed")
+        lj.studies.tune(lj.MassDamper(), records, gain_type="fixed")
     with pytest.raises(lj.InputError, match="Module class"):
-        lj.tune(lj.MassDamper(), records, gain="auto")
+        lj.studies.tune(lj.MassDamper(), records, gain="auto")
     with pytest.raises(lj.InputError, match="solver"):
-        lj.tune(lj.MassDamper(), records, solver="bfgs")
+        lj.studies.tune(lj.MassDamper(), records, solver="bfgs")
     with pytest.raises(lj.InputError, match="transient"):
-        lj.tune(lj.MassDamper(), records, objective=lj.TuneObjective(transient=1.9))
+        lj.studies.tune(lj.MassDamper(), records, objective=lj.studies.TuneObjective(transient=1.9))
     with pytest.raises(lj.InputError, match="kappa"):
-        lj.TuneObjective(kappa=-1.0)
+        lj.studies.TuneObjective(kappa=-1.0)
     with pytest.raises(lj.InputError, match="broadcast"):
-        lj.tune_objective(lj.MassDamper(), records, [1.0, 2.0], [3.0, 4.0, 5.0])
+        lj.studies.tune_objective(lj.MassDamper(), records, [1.0, 2.0], [3.0, 4.0, 5.0])

@@ -36,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _load(path, args):
     import lionjax as lj
 
-    columns = lj.parse_columns(args.columns) if args.columns else None
+    columns = lj.extend.parse_columns(args.columns) if args.columns else None
     return lj.load_record(
         path, columns=columns, force_scale=args.force_scale, resample=args.resample
     )
@@ -83,7 +83,7 @@ def run(args) -> int:
         write_json(args.json, out)
         print(f"wrote {args.json}")
     if args.plot:
-        from .._diagnose_plot import plot_diagnosis
+        from ..diagnosis._plot import plot_diagnosis
 
         plot_diagnosis(d, args.plot)
         print(f"wrote {args.plot}")

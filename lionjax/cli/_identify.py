@@ -125,7 +125,7 @@ def stepper(args):
 def load(args):
     import lionjax as lj
 
-    columns = lj.parse_columns(args.columns) if args.columns else None
+    columns = lj.extend.parse_columns(args.columns) if args.columns else None
     return lj.load_record(
         args.data, columns=columns, force_scale=args.force_scale, resample=args.resample
     )
@@ -248,7 +248,7 @@ def load_many(paths: list[Path], args) -> list:
     """Read and check every file before anything is computed; one error lists every bad file."""
     import lionjax as lj
 
-    columns = lj.parse_columns(args.columns) if args.columns else None
+    columns = lj.extend.parse_columns(args.columns) if args.columns else None
     records, errors = [], []
     for p in paths:
         try:

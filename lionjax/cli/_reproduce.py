@@ -69,7 +69,7 @@ def _progress(start: float):
 
 
 def write_outputs(result, out: Path, *, figures: bool = True, timings: dict | None = None) -> list:
-    """Write the files of ``lionjax reproduce`` for a :class:`lionjax.PaperResult`."""
+    """Write the files of ``lionjax reproduce`` for a :class:`lionjax.paper.PaperResult`."""
     written = []
     rows = result.table.rows()
     written.append(write_json(out / "table.json", rows))
@@ -86,7 +86,7 @@ def write_outputs(result, out: Path, *, figures: bool = True, timings: dict | No
     (out / "report.md").write_text(report(result, summary))
     written.append(out / "report.md")
     if figures:
-        from .._figures import paper_figures
+        from ..paper._figures import paper_figures
 
         for stem, fig in paper_figures(result).items():
             path = out / f"{stem}.png"

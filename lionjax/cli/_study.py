@@ -8,7 +8,7 @@ converged by the end), the final bias vs least squares and the noise amplificati
 over the last quarter of the record / |θ_LS|). --plot draws the designer's map: heat maps of the
 three over (gain, pole), records pooled by the median, never-converged cells marked "n.c.".
 
---tune also tunes the gain and a triple filter pole by gradient descent (lj.tune: BFGS on
+--tune also tunes the gain and a triple filter pole by gradient descent (lj.studies.tune: BFGS on
 J = mean over records of [T_out + κ·Σᵢ (σᵢ/(tol·|θ_LS,i|))²] seconds, T_out the smooth
 surrogate of the time outside the tolerance band), from the grid's centre or --tune-start,
 prints the tuned gain and pole and stars them on the map (with a fourth panel: J on the grid).
@@ -63,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--tune",
         action="store_true",
-        help="tune the gain and a triple filter pole by gradient descent (lj.tune)",
+        help="tune the gain and a triple filter pole by gradient descent (lj.studies.tune)",
     )
     p.add_argument(
         "--tune-start",
@@ -90,8 +90,8 @@ def _poles(text: str) -> list[list[float]]:
 
 
 def plot(res, path: str, gain_type: str = "fixed", objective=None, tuned=None) -> None:
-    """Write the designer's map (:func:`lionjax.study_figure`) to ``path``."""
-    from .._study_plot import study_figure
+    """Write the designer's map (:func:`lionjax.studies.study_figure`) to ``path``."""
+    from ..studies._plot import study_figure
 
     fig = study_figure(res, gain_type=gain_type, objective=objective, tuned=tuned)
     fig.savefig(path, dpi=110)
@@ -121,10 +121,12 @@ def _records(args):
         if args.noise_seeds:
             seeds = [int(v) for v in float_list(args.noise_seeds, "--noise-seeds")]
         return (
-            lj.study_records(operating_points=ops, noise_seeds=seeds, n_samples=args.samples),
+            lj.studies.study_records(
+                operating_points=ops, noise_seeds=seeds, n_samples=args.samples
+            ),
             None,
         )
-    records = lj.study_records(args.n_records, n_samples=args.samples)
+    records = lj.studies.study_records(args.n_records, n_samples=args.samples)
     return records, [f"twin{i}" for i in range(len(records))]
 
 
@@ -152,7 +154,7 @@ def run(args) -> int:
     kw = {}
     spec = None
     if args.tune:
-        spec = lj.TuneObjective(kappa=args.kappa, transient=args.tune_transient)
+        spec = lj.studies.TuneObjective(kappa=args.kappa, transient=args.tune_transient)
         kw = dict(tolerance=spec.tolerance, softness=spec.softness, transient=spec.transient)
         if args.transient is not None:
             raise InputError(
@@ -214,7 +216,7 @@ def run(args) -> int:
     J_map = None
     if args.tune:
         g0, p0 = _start(args, gains, poles)
-        tuned = lj.tune(
+        tuned = lj.studies.tune(
             lj.MassDamper(),
             records,
             objective=spec,

@@ -11,7 +11,6 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._errors import InputError
-from .._excitation import AbstractExcitation
 from .._record import Record
 from ._effects import (
     AbstractCoefficientEffect,
@@ -21,6 +20,7 @@ from ._effects import (
     AbstractMeasurement,
     InputDelay,
 )
+from ._excitation import AbstractExcitation
 from ._plant import CentringPD, Plant
 
 

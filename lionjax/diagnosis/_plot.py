@@ -1,4 +1,5 @@
-"""One-page figure of a :class:`~lionjax.Diagnosis` (layer 4; matplotlib, Agg, imported lazily)."""
+"""One-page figure of a :class:`~lionjax.diagnosis.Diagnosis` (layer 4; matplotlib, Agg,
+imported lazily)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import InputError
+from .._errors import InputError
+from .._plotting import figure
 
 
 def plot_diagnosis(diagnosis, path: str | Path):
@@ -16,20 +18,13 @@ def plot_diagnosis(diagnosis, path: str | Path):
     (restarts every H s); the filtered equation error ε₁ before and after; the residual's shares
     by band (the 'where' findings); the candidates ranked by score with their shrink.
     """
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-    except ImportError as e:  # pragma: no cover
-        raise ImportError("plotting needs matplotlib: pip install lionjax[plot]") from e
     path = Path(path)
     if path.parent and not path.parent.exists():
         raise InputError(f"--plot: folder {str(path.parent)!r} does not exist; create it first.")
     s = diagnosis.series
     t = s["t"]
     n = s["sim_base"].size
-    fig = plt.figure(figsize=(12, 9))
+    fig = figure(12, 9, layout=None)
     grid = fig.add_gridspec(2, 2)
     top = grid[0, 0].subgridspec(2, 1, height_ratios=(2, 1), hspace=0.05)
     ax = np.empty((2, 2), dtype=object)
@@ -84,5 +79,4 @@ def plot_diagnosis(diagnosis, path: str | Path):
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

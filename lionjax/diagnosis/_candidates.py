@@ -1,8 +1,8 @@
 """The candidate effects the diagnosis tries (docs/method.md, "Effects" and "Diagnosis").
 
 Each candidate is an :class:`AbstractCandidate`: a name, a parameter count for the parsimony
-penalty, and what it adds to a structure — linear effect columns (:mod:`lionjax._effects`) and/or
-one profiled input parameter (τ of a delay, F_max of a saturation).
+penalty, and what it adds to a structure — linear effect columns (:mod:`lionjax._model_effects`)
+and/or one profiled input parameter (τ of a delay, F_max of a saturation).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import ClassVar
 
 import equinox as eqx
 
-from .._effects import Coulomb, LinearPosition, Offset, Spring
+from .._model_effects import Coulomb, LinearPosition, Offset, Spring
 from .._models import AbstractEffect
 
 

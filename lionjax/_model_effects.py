@@ -5,8 +5,8 @@ Sign convention of the augmented model (fixed; effects act on the force, in N):
 
     ẍ + aẋ = b·(F_applied + F₀ − F_c·sgn(ẋ) − k·(x − x₀)),   F_applied = sat_Fmax(F(t − τ)).
 
-Every effect here is linear in its parameters and adds :class:`~lionjax.Column` s to the model
-through :class:`~lionjax.Augmented`; its parameters are b times the physical ones, and
+Every effect here is linear in its parameters and adds :class:`~lionjax.extend.Column` s to the
+model through :class:`~lionjax.Augmented`; its parameters are b times the physical ones, and
 :meth:`physical` divides by b (on a ``Piecewise`` base, one copy per region: bᵢ times the physical
 ones, names suffixed ``_i``; ``LinearPosition`` excepted, it modulates a and b). With
 ε₁ = V₃ + aV₂ − bQ₁ + … (docs/method.md, "Equation errors"), the columns are
@@ -21,7 +21,7 @@ ones, names suffixed ``_i``; ``LinearPosition`` excepted, it modulates a and b).
 sgñ v̂ = tanh(v̂/v_ε) is a smoothed sign of a zero-phase derivative-filter velocity v̂: x is
 passed forward and backward through the low-pass λₙ/Λ_v(s) = (ω/(s + ω))³ and differentiated by
 central differences. Delay and saturation are not linear in their parameter; the diagnosis
-profiles them (:mod:`lionjax._diagnose`).
+profiles them (:mod:`lionjax.diagnosis`).
 """
 
 from __future__ import annotations

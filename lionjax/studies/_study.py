@@ -29,14 +29,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike
 
-from ._batched import DEFAULT_EXECUTION, Execution, lion_batched, stack_records
-from ._errors import InputError
-from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain, FixedGain, default_bank
-from ._filters import FilterBank
-from ._models import AbstractModel
-from ._outputs import ConvergenceTime, LSStatistics, TailStatistics, Trajectory
-from ._record import Record
-from ._tables import write_csv, write_json
+from .._batched import DEFAULT_EXECUTION, Execution, lion_batched, stack_records
+from .._errors import InputError
+from .._estimators import AbstractGain, AbstractSampleStepper, AutoGain, FixedGain, default_bank
+from .._filters import FilterBank
+from .._models import AbstractModel
+from .._outputs import ConvergenceTime, LSStatistics, TailStatistics, Trajectory
+from .._record import Record
+from .._tables import write_csv, write_json
 
 #: Names a record axis of a study may have (``dataset`` for plain lists of records).
 RECORD_DIMS = ("dataset", "excitation", "operating_point", "noise_seed")
@@ -372,7 +372,7 @@ def study_records(
     Returns:
         a :class:`StudyRecords` (a sequence of :class:`~lionjax.Record`).
     """
-    from . import twin
+    from .. import twin
 
     grid = excitations is not None or operating_points is not None or noise_seeds is not None
     if not grid:
@@ -508,8 +508,8 @@ def stack_banks(pole_sets: ArrayLike, unit_dc_gain: bool = True) -> FilterBank:
 
 
 def gain_class(gain, what: str) -> type[AbstractGain] | AbstractGain | None:
-    """Check a ``gain`` argument of :func:`study` / :func:`lionjax.tune`: a gain Module class
-    (called with each grid value) or, for :func:`study`, one gain Module. The old strings
+    """Check a ``gain`` argument of :func:`study` / :func:`lionjax.studies.tune`: a gain Module
+    class (called with each grid value) or, for :func:`study`, one gain Module. The old strings
     ``"fixed"``/``"auto"`` are refused with their replacement."""
     if isinstance(gain, str):
         repl = {"fixed": "lionjax.FixedGain", "auto": "lionjax.AutoGain"}.get(gain)

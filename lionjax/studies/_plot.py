@@ -13,8 +13,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._errors import InputError
-from ._figures import _figure
+from .._errors import InputError
+from .._plotting import figure
 from ._study import StudyResult
 from ._tune import TuneSolution
 
@@ -48,7 +48,8 @@ def study_figure(
     reduce: str = "median",
     title: str | None = None,
 ):
-    """Heat maps over (gain, filter pole) of a :class:`~lionjax.StudyResult` (needs both dims).
+    """Heat maps over (gain, filter pole) of a :class:`~lionjax.studies.StudyResult` (needs both
+    dims).
 
     Panels: convergence time to within ``result.tolerance`` of LS [s] (n.c.: not converged by
     the end of the record, grey), final bias maxᵢ|θᵢ(T) − θ_LS,ᵢ|/|θ_LS,ᵢ| [%], noise
@@ -56,7 +57,7 @@ def study_figure(
     the other dims with ``reduce`` (log colour scales span at most two decades above the best
     cell; every cell is labelled with its value); and, if ``objective`` (a (gain, pole) array, e.g.
     ``TuneObjective.on_study(result)``) is given, the tuning objective J [s] with its grid
-    minimum boxed. ``tuned`` (a :class:`~lionjax.TuneSolution`, or a (gain, pole magnitude)
+    minimum boxed. ``tuned`` (a :class:`~lionjax.studies.TuneSolution`, or a (gain, pole magnitude)
     pair [gain, rad/s]) is starred on every panel when the pole sets are n-fold single poles.
 
     Returns:
@@ -104,7 +105,7 @@ def study_figure(
     ticks, mags, pole_label = _pole_axis(result.coords["poles"])
     gl = "AutoGain rate g [1/s], G = g·R⁻¹" if gain_type == "auto" else "gain g, G = g·I"
     star = None
-    star_label = "tuned (lj.tune)"
+    star_label = "tuned (lj.studies.tune)"
     if tuned is not None and mags is not None:
         g, p = (tuned.gain, tuned.pole) if isinstance(tuned, TuneSolution) else tuned
         star = (_position(float(g), gains), _position(float(p), mags))
@@ -113,7 +114,7 @@ def study_figure(
             star_label = f"tuned (g = {g:.3g}, p = {p:.3g}: outside the grid, drawn at its edge)"
     ncol = 2 if len(panels) == 4 else 3
     nrow = math.ceil(len(panels) / ncol)
-    fig = _figure(5.2 * ncol, 3.9 * nrow + (0.3 if title else 0.0))
+    fig = figure(5.2 * ncol, 3.9 * nrow + (0.3 if title else 0.0))
     if title:
         fig.suptitle(title)
     handles = []

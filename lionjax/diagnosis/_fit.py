@@ -1,7 +1,8 @@
 """Fitting and scoring one model structure on recorded data (no twin: layer 3 of the package).
 
-A *structure* is the mass–damper ẍ + aẋ = b·u plus linear effect columns (:mod:`lionjax._effects`)
-plus an input map u = sat_Fmax(F(t − τ)) that is nonlinear in τ and F_max (profiled on a grid).
+A *structure* is the mass–damper ẍ + aẋ = b·u plus linear effect columns
+(:mod:`lionjax._model_effects`) plus an input map u = sat_Fmax(F(t − τ)) that is nonlinear in τ
+and F_max (profiled on a grid).
 
 Least squares on the first equation error only. ε₁ = V₃ + aV₂ − bQ₁ + … is the filtered equation
 of motion; the core's :func:`lionjax.least_squares` also stacks ε₂ = dε₁/dt (the paper's second

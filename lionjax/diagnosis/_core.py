@@ -35,9 +35,9 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from .._effects import zero_phase_lowpass, zero_phase_velocity
 from .._errors import InputError
 from .._filters import FilterBank
+from .._model_effects import zero_phase_lowpass, zero_phase_velocity
 from .._models import Augmented, MassDamper
 from .._record import Record
 from ._candidates import DEFAULT_CANDIDATES, AbstractCandidate, Context

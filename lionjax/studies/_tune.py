@@ -44,13 +44,13 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
-from ._batched import DEFAULT_EXECUTION, Execution, lion_batched
-from ._errors import RESULTS, IdentificationError, InputError
-from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain
-from ._filters import FilterBank
-from ._models import AbstractModel
-from ._outputs import ConvergenceTime, LSStatistics, TailStatistics
-from ._record import Record
+from .._batched import DEFAULT_EXECUTION, Execution, lion_batched
+from .._errors import RESULTS, IdentificationError, InputError
+from .._estimators import AbstractGain, AbstractSampleStepper, AutoGain
+from .._filters import FilterBank
+from .._models import AbstractModel
+from .._outputs import ConvergenceTime, LSStatistics, TailStatistics
+from .._record import Record
 from ._study import StudyRecords, StudyResult, _as_batch, gain_class, refuse_gain_type
 
 
@@ -340,7 +340,7 @@ def _prepare(
     spec = TuneObjective() if objective is None else objective
     if not isinstance(spec, TuneObjective):
         raise InputError(
-            f"{what}: objective must be a lionjax.TuneObjective, got {type(spec).__name__}."
+            f"{what}: objective must be a lionjax.studies.TuneObjective, got {type(spec).__name__}."
         )
     batch, lengths, dims, coords = _as_batch(records)
     T = batch.x.shape[1]

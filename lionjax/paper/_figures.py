@@ -1,6 +1,6 @@
 """Figures of the paper reproduction (layer 4): Fig. 3–6 of Khadivar et al. and two summaries.
 
-Each function takes results of :mod:`lionjax._experiments` and returns a
+Each function takes results of :mod:`lionjax.paper` and returns a
 ``matplotlib.figure.Figure`` drawn on the Agg canvas (no pyplot, no GUI, no global state);
 save it with ``fig.savefig(path)``. matplotlib is imported inside the functions, so
 ``import lionjax`` never needs it (install the ``plot`` extra).
@@ -10,30 +10,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._experiments import (
-    PAPER_TRANSIENT,
-    Calibration,
-    EffectRow,
-    PaperResult,
-    PaperTable,
-    Verification,
-)
-
-
-def _figure(width: float, height: float):
-    try:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-    except ImportError as err:  # pragma: no cover
-        raise ImportError("lionjax figures need matplotlib: pip install 'lionjax[plot]'.") from err
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
+from .._plotting import figure
+from ._calibration import Calibration
+from ._effect_study import EffectRow
+from ._identification import PAPER_TRANSIENT, PaperTable
+from ._reproduce import PaperResult
+from ._verification import Verification
 
 
 def calibration_figure(cal: Calibration):
     """Fig. 3: set force Fs against the measured produced force Fd, and the fitted line."""
-    fig = _figure(6.0, 4.5)
+    fig = figure(6.0, 4.5)
     ax = fig.add_subplot()
     x = np.asarray(cal.x)
     fd = np.asarray(cal.measured_force)
@@ -65,7 +52,7 @@ def convergence_figure(result: PaperResult, region: int | None = None):
     """
     r = _region_index(result) if region is None else region
     idns = result.identifications
-    fig = _figure(4.2 * len(idns), 5.5)
+    fig = figure(4.2 * len(idns), 5.5)
     axes = fig.subplots(2, len(idns), sharex=True, squeeze=False)
     ta = float(result.table.truth_a[r])
     tb = float(result.table.truth_b[r])
@@ -100,7 +87,7 @@ def tracking_error_figure(result: PaperResult, region: int | None = None, input:
     r = _region_index(result) if region is None else region
     idns = result.identifications
     i = min(input, len(result.config.inputs)) - 1
-    fig = _figure(4.2 * len(idns), 5.0)
+    fig = figure(4.2 * len(idns), 5.0)
     axes = fig.subplots(2, len(idns), sharex=True, squeeze=False)
     xr = result.config.operating_points[r] * 1e3
     for j, idn in enumerate(idns):
@@ -121,7 +108,7 @@ def tracking_error_figure(result: PaperResult, region: int | None = None, input:
 
 def verification_figure(verifications: tuple[Verification, ...], names: tuple[str, ...]):
     """Fig. 6: the identified piecewise models against the twin under the verification input."""
-    fig = _figure(7.0, 6.0)
+    fig = figure(7.0, 6.0)
     ax, ax2, ax3 = fig.subplots(3, 1, sharex=True, height_ratios=(3, 1.4, 1.2))
     v0 = verifications[0]
     t = np.asarray(v0.t)
@@ -152,7 +139,7 @@ def verification_figure(verifications: tuple[Verification, ...], names: tuple[st
 
 def table_figure(table: PaperTable):
     """Table 3 at a glance: error vs the twin of every record's estimate, and the summaries."""
-    fig = _figure(9.0, 4.0)
+    fig = figure(9.0, 4.0)
     axes = fig.subplots(1, 2)
     S, R = np.asarray(table.summary_a).shape
     for ax, est, summ, truth, name in (
@@ -202,7 +189,7 @@ def table_figure(table: PaperTable):
 
 def effects_figure(rows: tuple[EffectRow, ...]):
     """The validation NRMSE with one unmodelled effect on, against the baseline (log scale)."""
-    fig = _figure(7.5, 0.45 * len(rows) + 1.8)
+    fig = figure(7.5, 0.45 * len(rows) + 1.8)
     ax = fig.add_subplot()
     names = [r.name for r in rows]
     vals = [float(r.nrmse) for r in rows]
@@ -226,7 +213,7 @@ def effects_figure(rows: tuple[EffectRow, ...]):
 
 
 def paper_figures(result: PaperResult) -> dict:
-    """All figures of :func:`lionjax.reproduce_paper`, by file stem."""
+    """All figures of :func:`lionjax.paper.reproduce_paper`, by file stem."""
     figs = {
         "fig3_calibration": calibration_figure(result.calibration),
         "fig4_convergence": convergence_figure(result),

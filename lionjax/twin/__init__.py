@@ -1,23 +1,12 @@
 """The device twin: ``lionjax.twin.Plant``, its effects, ``simulate``, excitations
 (docs/method.md, "Effects").
 
-A public namespace over the private ``lionjax._plant`` and ``lionjax._excitation`` modules. The
+A public namespace over the private ``lionjax._plant`` and ``lionjax.twin._excitation`` modules. The
 twin's effects live here (``lionjax.twin.CoulombFriction`` …) so they are never confused with the
 *regressor* effects the identification uses (``lionjax.Offset`` …).
 """
 
-from ._excitation import (
-    PAPER_OPERATING_POINTS as PAPER_OPERATING_POINTS,
-    PAPER_SINE_SETS as PAPER_SINE_SETS,
-    PRBS as PRBS,
-    VERIFICATION_DURATION as VERIFICATION_DURATION,
-    AbstractExcitation as AbstractExcitation,
-    Chirp as Chirp,
-    SineSum as SineSum,
-    VerificationInput as VerificationInput,
-    multisine as multisine,
-)
-from ._plant._effects import (
+from ._effects import (
     FALCON_CABLE_GAIN as FALCON_CABLE_GAIN,
     FALCON_COUNTS_PER_REV as FALCON_COUNTS_PER_REV,
     FALCON_DRUM_DIAMETER as FALCON_DRUM_DIAMETER,
@@ -43,9 +32,20 @@ from ._plant._effects import (
     SmoothCoulombFriction as SmoothCoulombFriction,
     SoftSaturation as SoftSaturation,
 )
-from ._plant._plant import (
+from ._excitation import (
+    PAPER_OPERATING_POINTS as PAPER_OPERATING_POINTS,
+    PAPER_SINE_SETS as PAPER_SINE_SETS,
+    PRBS as PRBS,
+    VERIFICATION_DURATION as VERIFICATION_DURATION,
+    AbstractExcitation as AbstractExcitation,
+    Chirp as Chirp,
+    SineSum as SineSum,
+    VerificationInput as VerificationInput,
+    multisine as multisine,
+)
+from ._plant import (
     FALCON_PAPER as FALCON_PAPER,
     CentringPD as CentringPD,
     Plant as Plant,
 )
-from ._plant._simulate import simulate as simulate
+from ._simulate import simulate as simulate

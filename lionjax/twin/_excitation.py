@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
-from ._checks import check_finite, check_positive, concrete, param
-from ._errors import InputError
+from .._checks import check_finite, check_positive, concrete, param
+from .._errors import InputError
 
 
 def _atleast_1d(value):

@@ -23,7 +23,7 @@ class Plant(eqx.Module):
         ẍ + aᵢ·ẋ = bᵢ·F_net,   region 1: x < bounds[0], …, region R: x > bounds[R−2],
 
     with aᵢ = Cᵢ/Mᵢ [1/s] and bᵢ = 1/Mᵢ [1/kg]. ``effects`` add to F_net, change the force on its
-    way in, modulate (a, b) or act on the sensors (see :mod:`lionjax._plant._effects`):
+    way in, modulate (a, b) or act on the sensors (see :mod:`lionjax.twin._effects`):
 
         ẍ + a(x)·ẋ = b(x)·(F_applied + F₀ − F_friction(ẋ) − k·(x − x₀) + F_mode),
         F_applied(t) = sat(F_cmd(t − τ) / g).

@@ -1,4 +1,9 @@
-"""Sim-to-real gap diagnosis (layer 3 of docs/method.md): works on recorded data alone."""
+"""Sim-to-real gap diagnosis: ``lionjax.diagnosis`` (layer 3 of docs/method.md).
+
+:func:`diagnose` works on recorded data alone: it names the unmodelled effect that explains the
+model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figure.
+``lionjax.diagnose`` is the same function as :func:`lionjax.diagnosis.diagnose`.
+"""
 
 from ._candidates import (
     DEFAULT_CANDIDATES as DEFAULT_CANDIDATES,
@@ -11,3 +16,4 @@ from ._candidates import (
     SpringCandidate as SpringCandidate,
 )
 from ._core import Diagnosis as Diagnosis, EffectScore as EffectScore, diagnose as diagnose
+from ._plot import plot_diagnosis as plot_diagnosis

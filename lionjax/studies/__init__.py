@@ -1,0 +1,24 @@
+"""Studies of how gains and filter poles shape convergence: ``lionjax.studies``.
+
+:func:`study` runs Lion's law over a grid of gains × filter poles on many records at once (one
+batched call), :func:`tune` searches the grid for the fastest setting that meets an accuracy
+target, :func:`study_figure` draws either. ``lionjax.study`` is the same function as
+:func:`lionjax.studies.study`.
+"""
+
+from ._plot import (
+    study_figure as study_figure,
+)
+from ._study import (
+    StudyRecords as StudyRecords,
+    StudyResult as StudyResult,
+    stack_banks as stack_banks,
+    study as study,
+    study_records as study_records,
+)
+from ._tune import (
+    TuneObjective as TuneObjective,
+    TuneSolution as TuneSolution,
+    tune as tune,
+    tune_objective as tune_objective,
+)
