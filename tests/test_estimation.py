@@ -341,7 +341,7 @@ def test_grad_of_ls_matches_finite_differences():
         (lambda: lj.FixedGain(np.array([[1.0, 2.0], [0.0, 1.0]])), "symmetric"),
         (lambda: lj.FixedGain(np.array([[1.0, 0.0], [0.0, -1.0]])), "positive definite"),
         (lambda: lj.FixedGain(-3.0), "positive"),
-        (lambda: lj.FixedGain(np.ones(3)), "square"),
+        (lambda: lj.FixedGain(np.ones((2, 3))), "square"),
         (lambda: lj.Piecewise((0.01, -0.01)), "strictly increasing"),
         (lambda: lj.Piecewise(()), "non-empty"),
         (lambda: lj.MassDamper(x_hold="cubic"), "x_hold"),

@@ -89,11 +89,12 @@ def _poles(text: str) -> list[list[float]]:
     return sets
 
 
-def plot(res, path: str, gain_type: str = "fixed", objective=None, tuned=None) -> None:
-    """Write the designer's map (:func:`lionjax.studies.study_figure`) to ``path``."""
+def plot(res, path: str, gain, objective=None, tuned=None) -> None:
+    """Write the designer's map (:func:`lionjax.studies.study_figure`) to ``path``; ``gain``: the
+    gain Module class the study ran."""
     from ..studies._plot import study_figure
 
-    fig = study_figure(res, gain_type=gain_type, objective=objective, tuned=tuned)
+    fig = study_figure(res, gain=gain, objective=objective, tuned=tuned)
     fig.savefig(path, dpi=110)
 
 
@@ -252,6 +253,6 @@ def run(args) -> int:
         res.to_csv(args.csv)
         print(f"wrote {args.csv}")
     if args.plot:
-        plot(res, args.plot, args.gain_type, objective=J_map, tuned=tuned)
+        plot(res, args.plot, gain, objective=J_map, tuned=tuned)
         print(f"wrote {args.plot}")
     return 0

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._errors import InputError
+from .._estimators import AbstractGain, AutoGain, FixedGain
 from .._plotting import figure
 from ._study import StudyResult
 from ._tune import TuneSolution
@@ -42,14 +43,14 @@ def _pole_axis(poles: list[list[float]]) -> tuple[list[str], list[float] | None,
 def study_figure(
     result: StudyResult,
     *,
-    gain_type: str = "fixed",
+    gain: type[AbstractGain] = FixedGain,
     objective: np.ndarray | None = None,
     tuned=None,
     reduce: str = "median",
     title: str | None = None,
 ):
     """Heat maps over (gain, filter pole) of a :class:`~lionjax.studies.StudyResult` (needs both
-    dims).
+    dims); ``gain`` is the gain Module class the study ran (labels the gain axis).
 
     Panels: convergence time to within ``result.tolerance`` of LS [s] (n.c.: not converged by
     the end of the record, grey), final bias maxᵢ|θᵢ(T) − θ_LS,ᵢ|/|θ_LS,ᵢ| [%], noise
@@ -68,6 +69,11 @@ def study_figure(
 
     if not isinstance(result, StudyResult):
         raise InputError(f"study_figure: expected a StudyResult, got {type(result).__name__}.")
+    if not (isinstance(gain, type) and issubclass(gain, AbstractGain)):
+        raise InputError(
+            f"study_figure: gain must be the gain Module class the study ran (lionjax.FixedGain "
+            f"or lionjax.AutoGain), got {gain!r}."
+        )
     if "gain" not in result.dims or "poles" not in result.dims:
         raise InputError(
             f"study_figure: the study needs a gain and a poles axis for the map, got dims "
@@ -103,7 +109,7 @@ def study_figure(
         panels.append((obj, "tuning objective J (mean over records)", "s", True))
     gains = result.coords["gain"]
     ticks, mags, pole_label = _pole_axis(result.coords["poles"])
-    gl = "AutoGain rate g [1/s], G = g·R⁻¹" if gain_type == "auto" else "gain g, G = g·I"
+    gl = "AutoGain rate g [1/s], G = g·R⁻¹" if issubclass(gain, AutoGain) else "gain g, G = g·I"
     star = None
     star_label = "tuned (lj.studies.tune)"
     if tuned is not None and mags is not None:

@@ -1,0 +1,48 @@
+"""The package's public shape: namespaces by concept, a small top level, no private equinox
+attributes and no references to documents outside the repository."""
+
+import importlib
+import inspect
+import pathlib
+import re
+
+import lionjax as lj
+
+THIS = pathlib.Path(__file__).resolve()
+ROOT = THIS.parents[1]
+
+
+def test_namespaces_import_and_top_level_is_small():
+    for name in ("twin", "studies", "diagnosis", "paper", "datasets", "solutions", "extend"):
+        mod = importlib.import_module(f"lionjax.{name}")
+        assert getattr(lj, name) is mod
+    assert len(lj.__all__) <= 45 and len(set(lj.__all__)) == len(lj.__all__)
+    for name in lj.__all__:
+        assert hasattr(lj, name), name
+    # every public top-level attribute is either in __all__ or a namespace
+    modules = {n for n, v in vars(lj).items() if inspect.ismodule(v)}
+    public = {n for n in vars(lj) if not n.startswith("_")}
+    assert public - modules == set(lj.__all__)
+    # the everyday entry points are the namespaces' functions
+    assert lj.study is lj.studies.study and lj.diagnose is lj.diagnosis.diagnose
+
+
+def test_batched_signature_is_strategy_objects():
+    params = inspect.signature(lj.lion_batched).parameters
+    assert len(params) <= 12
+    bools = [n for n, p in params.items() if isinstance(p.default, bool)]
+    assert bools == ["throw"]
+
+
+def test_no_private_equinox_attributes_and_no_outside_documents():
+    pattern = re.compile(r"\._value\b|_index_to_message|GUIDE")
+    hits = []
+    for folder in ("lionjax", "notebooks", "benchmarks", "tests"):
+        for path in (ROOT / folder).rglob("*"):
+            if path.suffix in (".py", ".ipynb", ".md") and path.is_file() and path != THIS:
+                for i, line in enumerate(path.read_text().splitlines(), 1):
+                    if pattern.search(line):
+                        hits.append(f"{path.relative_to(ROOT)}:{i}: {line.strip()}")
+    readme = (ROOT / "README.md").read_text()
+    hits += [f"README.md: {m}" for m in re.findall(r".*GUIDE.*", readme)]
+    assert not hits, "\n".join(hits)
