@@ -311,7 +311,7 @@ def test_euler_stepper_runs_batched(recs):
     bad = lj.lion_batched(
         lj.MassDamper(), batch, gain=lj.FixedGain(1e9), stepper=lj.EulerStep(), throw=False
     )
-    unstable = lj._errors.result_codes(lj.RESULTS.unstable_step).item()
+    unstable = lj.solutions.result_codes(lj.RESULTS.unstable_step).item()
     assert np.all(np.asarray(bad.result._value) == unstable)
 
 

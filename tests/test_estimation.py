@@ -98,7 +98,7 @@ def test_ls_covariance_matches_closed_form():
     rec = single_region_record(noise=(1e-5, 0.05), T=8000)
     bank = lj.default_bank()
     sol = lj.least_squares(lj.MassDamper(), rec, bank=bank, initial="discard")
-    w = np.asarray(lj._solution.transient_mask(rec, bank)) > 0
+    w = np.asarray(lj._solution_tools.transient_mask(rec, bank)) > 0
     regs = lj.MassDamper().regressors(rec, bank)
     Phi = np.asarray(regs.W)[w].reshape(-1, 2)
     y = np.asarray(regs.W0)[w].reshape(-1)

@@ -325,7 +325,7 @@ def test_cli_study_tune_and_map(monkeypatch, tmp_path, capsys):
             spec=kw["objective"],
         )
 
-    monkeypatch.setattr(lj, "tune", fake_tune)
+    monkeypatch.setattr(lj.studies, "tune", fake_tune)
     out = tmp_path / "t"
     code = main(
         [
