@@ -48,7 +48,7 @@ from ._batched import (
     lion_batched,
     stack_records,
 )
-from ._errors import RESULTS, InputError, result_codes
+from ._errors import RESULTS, InputError, result_codes, result_message
 from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain, ExactStep, default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel, Piecewise
@@ -503,7 +503,7 @@ def identify_batch(
         result[run] = codes
         for i, code in zip(run, codes, strict=True):
             if code != 0:
-                messages[i] = RESULTS._index_to_message[int(code)]
+                messages[i] = result_message(int(code))
             if code == unidentifiable:
                 messages[i] += f" (condition number {condition[i]:.3g}, bound {max_condition:.3g})"
     failed = result != 0

@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._batched import DEFAULT_EXECUTION, Execution, lion_batched, stack_records
-from .._errors import InputError
+from .._errors import InputError, result_codes
 from .._estimators import AbstractGain, AbstractSampleStepper, AutoGain, FixedGain, default_bank
 from .._filters import FilterBank
 from .._models import AbstractModel
@@ -753,7 +753,7 @@ def study(
             surr[sel] = np.asarray(sol.time_outside)[:n]
             tstd[sel] = np.asarray(sol.tail_std)[:n]
             J[sel] = np.asarray(sol.J)[:n]
-            res[sel] = np.asarray(sol.result._value)[:n]
+            res[sel] = result_codes(sol.result)[:n]
             if save_every is not None:
                 tr = np.moveaxis(np.asarray(sol.trajectory), 1, 0)  # (B, K, p)
                 if traj is None:
