@@ -38,7 +38,7 @@ from ._estimators import default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel
 from ._record import Record
-from ._solution_tools import check_duration, finish, transient_mask
+from ._solution_tools import by_name, check_duration, finish, transient_mask
 
 
 class LSSolution(eqx.Module):
@@ -68,7 +68,7 @@ class LSSolution(eqx.Module):
     result: RESULTS
 
     def params(self) -> dict[str, Array]:
-        return {n: self.theta[..., i] for i, n in enumerate(self.names)}
+        return by_name(self.names, self.theta)
 
 
 def _explain(sol: LSSolution) -> str:
