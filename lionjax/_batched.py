@@ -78,7 +78,7 @@ from ._outputs import (
 )
 from ._phi import fast_series_terms, materialise, phi_sym2
 from ._record import Record
-from ._solution_tools import finish
+from ._solution_tools import by_name, finish
 
 # ----------------------------------------------------------------------------------------------
 # Devices
@@ -259,7 +259,7 @@ class BatchedSolution(eqx.Module):
 
     def params(self) -> dict[str, Array]:
         """Final estimates by name, each ``(B,)``."""
-        return {n: self.theta[..., i] for i, n in enumerate(self.names)}
+        return by_name(self.names, self.theta)
 
     def output(self, kind: type[AbstractOutput]) -> eqx.Module:
         """The finalised accumulator of type ``kind`` (e.g. ``sol.output(lj.LSStatistics)``
@@ -342,7 +342,7 @@ class LSBatchedSolution(eqx.Module):
     result: RESULTS
 
     def params(self) -> dict[str, Array]:
-        return {n: self.theta[..., i] for i, n in enumerate(self.names)}
+        return by_name(self.names, self.theta)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -45,7 +45,7 @@ from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
 from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2
 from ._record import Record
-from ._solution_tools import check_duration, convergence_time, finish, transient_mask
+from ._solution_tools import by_name, check_duration, convergence_time, finish, transient_mask
 
 # ----------------------------------------------------------------------------------------------
 # Gains
@@ -441,7 +441,7 @@ class LionSolution(eqx.Module):
 
     def params(self) -> dict[str, Array]:
         """Final estimate by name."""
-        return {n: self.theta_final[..., i] for i, n in enumerate(self.names)}
+        return by_name(self.names, self.theta_final)
 
     def convergence_time(
         self, reference: Float[ArrayLike, " p"], tolerance: float = 0.02

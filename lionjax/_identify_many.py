@@ -33,7 +33,6 @@ from __future__ import annotations
 import abc
 import dataclasses
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -48,20 +47,20 @@ from ._batched import (
     lion_batched,
     stack_records,
 )
-from ._errors import RESULTS, InputError, result_codes
+from ._errors import RESULTS, InputError, result_codes, result_message
 from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain, ExactStep, default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel, Piecewise
 from ._outputs import ConvergenceTime, LSStatistics
 from ._record import Record
-from ._solution_tools import default_transient
-from ._tables import write_csv, write_json
+from ._solution_tools import by_name, default_transient
+from ._tables import Table
 
 #: ``result`` of a record that was not run (shorter than the filter transient).
 NOT_RUN = -1
 
 
-class BatchIdentification(eqx.Module):
+class BatchIdentification(Table, eqx.Module):
     """Results of :func:`identify_batch`: one row per record (B records, p parameters).
 
     Attributes:
@@ -112,14 +111,14 @@ class BatchIdentification(eqx.Module):
 
     def params(self) -> dict[str, np.ndarray]:
         """Estimates by name, each ``(B,)``."""
-        return {n: self.theta[:, i] for i, n in enumerate(self.names)}
+        return by_name(self.names, self.theta)
 
     def failures(self) -> list[tuple[str, str]]:
         """``(label, reason)`` of every failed row, in order."""
         rows = zip(self.labels, self.messages, self.result, strict=True)
         return [(label, m) for label, m, r in rows if r != 0]
 
-    def to_records(self) -> list[dict[str, Any]]:
+    def to_rows(self) -> list[dict[str, Any]]:
         """One dict per record, in order: ``record``, ``n_samples``, ``dt``, the estimates by
         name, then ``<name>_std`` (when computed), ``<name>_ls``, ``final_J`` and
         ``convergence_time`` (Lion), ``condition``, ``rms`` (LS), ``result``, ``status``
@@ -152,11 +151,12 @@ class BatchIdentification(eqx.Module):
             rows.append(row)
         return rows
 
-    def to_json(self, path: str | Path) -> Path:
-        """Write ``{"method", "model", "names", "equals", "settings", "tolerance", "n_records",
-        "n_failed", "rows": to_records()}``; non-finite numbers (NaN of a failed row, ``inf``
-        not converged) are written as null."""
-        payload = {
+    def payload(self) -> dict[str, Any]:
+        """The JSON document of :meth:`to_json`: ``{"method", "model", "names", "equals",
+        "settings", "tolerance", "n_records", "n_failed", "rows": to_rows()}``; non-finite
+        numbers (NaN of a failed row, ``inf`` not converged) are written as null. :meth:`to_csv`
+        writes :meth:`to_rows`, one row per record (NaN and inf written as such)."""
+        return {
             "method": self.method,
             "model": self.model,
             "names": list(self.names),
@@ -165,13 +165,8 @@ class BatchIdentification(eqx.Module):
             "tolerance": self.tolerance,
             "n_records": len(self.labels),
             "n_failed": int(np.sum(self.result != 0)),
-            "rows": self.to_records(),
+            "rows": self.to_rows(),
         }
-        return write_json(path, payload)
-
-    def to_csv(self, path: str | Path) -> Path:
-        """Write :meth:`to_records` as CSV, one row per record (NaN and inf written as such)."""
-        return write_csv(path, self.to_records())
 
 
 class _Rows(eqx.Module):
@@ -503,7 +498,7 @@ def identify_batch(
         result[run] = codes
         for i, code in zip(run, codes, strict=True):
             if code != 0:
-                messages[i] = RESULTS._index_to_message[int(code)]
+                messages[i] = result_message(int(code))
             if code == unidentifiable:
                 messages[i] += f" (condition number {condition[i]:.3g}, bound {max_condition:.3g})"
     failed = result != 0

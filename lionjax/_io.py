@@ -33,6 +33,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._record import JITTER_TOLERANCE, MIN_SAMPLES, Record, resample as _resample
+from ._tables import check_folder
 
 logger = logging.getLogger(__name__)
 
@@ -584,8 +585,7 @@ def save_record(path: PathLike, record: Record) -> Path:
             f"{p}: unknown file type {p.suffix!r} for save_record; use one of "
             f"{', '.join(SUFFIXES)}."
         )
-    if not p.parent.is_dir():
-        raise InputError(f"{p}: the folder {p.parent} does not exist; create it first.")
+    check_folder(p, str(p))
     if not isinstance(record, Record):
         raise InputError(f"record: expected a lionjax Record, got {type(record).__name__}.")
     if record.x.ndim != 1:

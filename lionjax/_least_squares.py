@@ -38,7 +38,7 @@ from ._estimators import default_bank
 from ._filters import FilterBank
 from ._models import AbstractModel
 from ._record import Record
-from ._solution_tools import check_duration, finish, transient_mask
+from ._solution_tools import by_name, check_duration, finish, transient_mask
 
 
 class LSSolution(eqx.Module):
@@ -68,7 +68,7 @@ class LSSolution(eqx.Module):
     result: RESULTS
 
     def params(self) -> dict[str, Array]:
-        return {n: self.theta[..., i] for i, n in enumerate(self.names)}
+        return by_name(self.names, self.theta)
 
 
 def _explain(sol: LSSolution) -> str:
@@ -107,27 +107,66 @@ def linear_lstsq(Phi: Float[Array, "N q"], y: Float[Array, " N"]) -> LinearFit:
 
     Columns are normalised to unit length, Φₙ = UΣVᵀ (thin SVD), cₙ = −VΣ⁻¹Uᵀy, c = cₙ/‖Φ·ⱼ‖.
     Singular values below σ_max·N·ε (float ε) are treated as zero (the minimum-norm answer on
-    that direction; the condition number then reports it). Jit- and vmap-safe.
+    that direction; the condition number then reports it). Jit- and vmap-safe. The streamed
+    statistics (:class:`lionjax.LSStatistics`) solve through the same spectral step from ΦᵀΦ
+    (:func:`gram_lstsq`).
     """
     norms = jnp.sqrt(jnp.sum(Phi * Phi, axis=0))
     tiny = jnp.finfo(Phi.dtype).tiny
     scale = jnp.where(norms > tiny, norms, 1.0)
     Phin = Phi / scale
     U, sv, Vt = jnp.linalg.svd(Phin, full_matrices=False)
-    cut = sv[0] * Phi.shape[0] * jnp.finfo(Phi.dtype).eps
+
+    def rss(cn):
+        res = Phin @ cn + y
+        return jnp.sum(res * res)
+
+    return _spectral_fit(Vt.T, sv, U.T @ y, scale, Phi.shape[0], rss)
+
+
+def gram_lstsq(
+    gram: Float[Array, "q q"], cross: Float[Array, " q"], yy: Float[Array, ""], n_rows
+) -> LinearFit:
+    """:func:`linear_lstsq` from the normal-equation statistics A = ΦᵀΦ, b = Φᵀy, yᵀy of
+    ``n_rows`` rows (what a streamed pass keeps instead of Φ).
+
+    The column-normalised Gram Aₙ = ΦₙᵀΦₙ = VΣ²Vᵀ, so its eigen-decomposition gives the same V and
+    Σ as the thin SVD of Φₙ, and Uᵀy = Σ⁻¹Vᵀ(Φₙᵀy); the answer is then built by the same spectral
+    step as :func:`linear_lstsq`. Negative eigenvalues (rounding on a flat record) count as zero
+    singular values: condition ``inf``. RSS = cₙᵀAₙcₙ + 2cₙᵀbₙ + yᵀy (cancels: a few 1e-4
+    relative on noise-free data), clipped at 0. Jit-safe; vmap it over a batch.
+    """
+    tiny = jnp.finfo(gram.dtype).tiny
+    scale = jnp.sqrt(jnp.clip(jnp.diagonal(gram), tiny, None))
+    An = gram / scale[:, None] / scale[None, :]
+    bn = cross / scale
+    ev, V = jnp.linalg.eigh(An)
+    ev, V = ev[::-1], V[:, ::-1]  # descending, as the SVD's
+    sv = jnp.sqrt(jnp.clip(ev, 0.0, None))
+    Uty = jnp.where(sv > 0, (V.T @ bn) / jnp.where(sv > 0, sv, 1.0), 0.0)
+
+    def rss(cn):
+        return jnp.clip(cn @ An @ cn + 2 * cn @ bn + yy, 0.0, None)
+
+    return _spectral_fit(V, sv, Uty, scale, n_rows, rss)
+
+
+def _spectral_fit(V, sv, Uty, scale, n_rows, rss) -> LinearFit:
+    """The one solve step, from Φₙ = UΣVᵀ: V (columns, σ descending), Σ, Uᵀy, the column
+    norms, the row count (for the cut σ_max·N·ε) and the RSS of a normalised answer cₙ."""
+    cut = sv[0] * n_rows * jnp.finfo(sv.dtype).eps
     keep = sv > cut
     inv = jnp.where(keep, 1.0 / jnp.where(keep, sv, 1.0), 0.0)
-    cn = -(Vt.T * inv) @ (U.T @ y)
-    res = Phin @ cn + y
+    cn = -(V * inv) @ Uty
     inv_sv2 = jnp.where(sv > 0, 1.0 / jnp.where(sv > 0, sv, 1.0) ** 2, jnp.inf)
-    gram_inv_n = (Vt.T * inv_sv2) @ Vt
+    gram_inv_n = (V * inv_sv2) @ V.T
     condition = jnp.where(sv[-1] > 0, sv[0] / sv[-1], jnp.inf)
     return LinearFit(
         coef=cn / scale,
         gram_inverse=gram_inv_n / scale[:, None] / scale[None, :],
-        rss=jnp.sum(res * res),
+        rss=rss(cn),
         condition=condition,
-        weakest=Vt[-1],
+        weakest=V[:, -1],
     )
 
 

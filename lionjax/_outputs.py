@@ -38,6 +38,7 @@ from jaxtyping import Array, ArrayLike, Float, PyTree
 
 from ._errors import InputError
 from ._filters import FilterBank
+from ._least_squares import gram_lstsq
 from ._solution_tools import (
     band_scale,
     default_transient,
@@ -236,9 +237,9 @@ class LSStatistics(AbstractOutput):
         return _ls_result(jnp.stack(state.sums, -1), ctx.p)
 
 
-def _solve_ls(stats: Array, p: int):
-    """θ_LS, the condition number of the column-normalised ΦᵀΦ, A = ΦᵀΦ and (ΦᵀΦ)⁻¹ from the
-    streamed statistics. A zero or indefinite normalised ΦᵀΦ (a flat record) has condition inf."""
+def _ls_result(stats: Array, p: int) -> LSResult:
+    """The :class:`LSResult` of statistics ``(B, m)`` (ΦᵀΦ upper, Φᵀy, yᵀy, count), solved by
+    :func:`lionjax.linear_lstsq`'s spectral step on ΦᵀΦ (two rows, ε₁ and ε₂, per sample)."""
     npp = p * (p + 1) // 2
     A = jnp.zeros(stats.shape[:-1] + (p, p), stats.dtype)
     idx = 0
@@ -246,34 +247,16 @@ def _solve_ls(stats: Array, p: int):
         for j in range(i, p):
             A = A.at[..., i, j].set(stats[..., idx]).at[..., j, i].set(stats[..., idx])
             idx += 1
-    b = stats[..., npp : npp + p]
-    tiny = jnp.finfo(A.dtype).tiny
-    d = jnp.sqrt(jnp.clip(jnp.diagonal(A, axis1=-2, axis2=-1), tiny, None))
-    An = A / d[..., :, None] / d[..., None, :]
-    ev = jnp.linalg.eigvalsh(An)
-    cond = jnp.where(
-        ev[..., 0] > 0, jnp.sqrt(ev[..., -1] / jnp.clip(ev[..., 0], tiny, None)), jnp.inf
-    )
-    An_inv = jnp.linalg.inv(An)
-    theta = -jnp.einsum("...ij,...j->...i", An_inv, b / d) / d
-    return theta, cond, A, An_inv / d[..., :, None] / d[..., None, :]
-
-
-def _ls_result(stats: Array, p: int) -> LSResult:
-    """The :class:`LSResult` of statistics ``(B, m)`` (ΦᵀΦ upper, Φᵀy, yᵀy, count)."""
-    th, cond, A, A_inv = _solve_ls(stats, p)
     n_used = stats[:, -1]
-    # RSS = θᵀAθ + 2θᵀb + yᵀy (cancels: a few 1e-4 relative on noise-free data)
-    rss = jnp.einsum("bp,bpq,bq->b", th, A, th) + 2 * jnp.sum(th * stats[:, -p - 2 : -2], -1)
-    rss = jnp.clip(rss + stats[:, -2], 0.0, None)
-    sigma2 = rss / jnp.clip(2 * n_used - p, 1.0, None)
-    cov = sigma2[:, None, None] * A_inv
+    fit = jax.vmap(gram_lstsq)(A, stats[:, npp : npp + p], stats[:, -2], 2 * n_used)
+    sigma2 = fit.rss / jnp.clip(2 * n_used - p, 1.0, None)
+    cov = sigma2[:, None, None] * fit.gram_inverse
     return LSResult(
-        theta=th,
+        theta=fit.coef,
         covariance=cov,
         std=jnp.sqrt(jnp.clip(jnp.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)),
-        condition=cond,
-        rms=jnp.sqrt(rss / jnp.clip(2 * n_used, 1.0, None)),
+        condition=fit.condition,
+        rms=jnp.sqrt(fit.rss / jnp.clip(2 * n_used, 1.0, None)),
         n_used=n_used,
         moments=A / jnp.clip(n_used, 1.0, None)[:, None, None],
     )

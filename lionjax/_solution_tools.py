@@ -15,6 +15,12 @@ from ._filters import FilterBank
 from ._record import Record
 
 
+def by_name(names: Sequence[str], theta) -> dict:
+    """Estimates by parameter name: ``{name: theta[..., i]}`` (the ``params()`` of every
+    solution type)."""
+    return {n: theta[..., i] for i, n in enumerate(names)}
+
+
 def default_transient(bank: FilterBank) -> Array:
     """3·λₙ₋₁/λₙ [s]: three times the mean delay Σ 1/|pᵢ| of the filter's impulse response.
 

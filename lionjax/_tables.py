@@ -1,5 +1,7 @@
-"""Plain-data helpers shared by the labelled result tables (StudyResult, BatchIdentification)
-and the command line: one conversion to JSON values, one JSON writer, one CSV writer."""
+"""The one serialisation of lionjax's results: one conversion to JSON values (:func:`jsonable`),
+one JSON writer, one CSV writer, and the protocol of the result tables (:class:`Table`:
+``to_rows()`` and ``payload()``; StudyResult, BatchIdentification, the paper's table) whose
+``to_json``/``to_csv`` write through them. The command line writes with the same functions."""
 
 from __future__ import annotations
 
@@ -9,6 +11,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from ._errors import InputError
 
 
 def jsonable(obj):
@@ -24,6 +28,16 @@ def jsonable(obj):
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     return obj
+
+
+def check_folder(path: str | Path | None, what: str) -> None:
+    """Raise :class:`InputError` when the folder of the output file ``path`` is missing (call
+    it before the work that produces the file; ``None``: nothing to check). ``what`` names the
+    argument or file in the message."""
+    if path is not None and not Path(path).parent.is_dir():
+        raise InputError(
+            f"{what}: folder {str(Path(path).parent)!r} does not exist; create it first."
+        )
 
 
 def write_json(path: str | Path, payload) -> Path:
@@ -48,3 +62,27 @@ def write_csv(path: str | Path, rows: list[dict]) -> Path:
                 }
             )
     return path
+
+
+class Table:
+    """The serialisation protocol of a result table (a mixin; no fields).
+
+    A table says what it holds — :meth:`to_rows` (one dict per row, the CSV) and :meth:`payload`
+    (the JSON document; default the rows themselves) — and inherits the writers.
+    """
+
+    def to_rows(self) -> list[dict]:
+        """One dict per row, in order (the CSV's rows)."""
+        raise NotImplementedError
+
+    def payload(self):
+        """The JSON document (before :func:`jsonable`); default :meth:`to_rows`."""
+        return self.to_rows()
+
+    def to_json(self, path: str | Path) -> Path:
+        """Write :meth:`payload` as indented JSON (non-finite numbers as null); returns the path."""
+        return write_json(path, self.payload())
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write :meth:`to_rows` as CSV (list cells joined with ';', NaN and inf as such)."""
+        return write_csv(path, self.to_rows())

@@ -92,7 +92,7 @@ def test_summary_vs_least_squares_and_truth(result, records):
     np.testing.assert_allclose(summ, truth, rtol=1e-2)
     np.testing.assert_allclose(ls_med, truth, rtol=1e-2)
     # rows(): the summary rows hold the same numbers
-    rows = [q for q in table.rows() if q["settings"] == "recommended" and q["input"] == "all"]
+    rows = [q for q in table.to_rows() if q["settings"] == "recommended" and q["input"] == "all"]
     assert [q["region"] for q in rows] == [1, 2, 3]
     np.testing.assert_allclose([q["a"] for q in rows], summ[:, 0], rtol=1e-12)
     np.testing.assert_allclose(
@@ -181,7 +181,7 @@ def test_effect_rows(result):
         assert float(e.nrmse_baseline) == pytest.approx(base, rel=1e-12)
         assert float(e.growth) == pytest.approx(float(e.nrmse) / base, rel=1e-12)
         assert np.all(np.isfinite(np.asarray(e.a)))
-        d = e.as_dict()
+        d = e.to_row()
         assert set(d) >= {"name", "a_err_pct", "b_err_pct", "nrmse", "growth"}
     by = {e.name: e for e in result.effects}
     # effects that must visibly hurt the validation

@@ -22,6 +22,38 @@ def test_linear_lstsq_matches_numpy():
     assert float(fit.condition) == pytest.approx(np.linalg.cond(n), rel=1e-10)
 
 
+def test_gram_lstsq_matches_numpy_and_linear_lstsq():
+    """The streamed path's solve (from ΦᵀΦ, Φᵀy, yᵀy) equals numpy's lstsq and linear_lstsq."""
+    from lionjax._least_squares import gram_lstsq
+
+    rng = np.random.default_rng(1)
+    Phi = rng.normal(size=(800, 3)) * np.array([1e-2, 1.0, 1e2])
+    y = Phi @ np.array([3.0, -1.0, 0.02]) + 0.1 * rng.normal(size=800)
+    fit = gram_lstsq(jnp.asarray(Phi.T @ Phi), jnp.asarray(Phi.T @ y), jnp.asarray(y @ y), 800)
+    ref = np.linalg.lstsq(Phi, -y, rcond=None)[0]
+    np.testing.assert_allclose(np.asarray(fit.coef), ref, rtol=1e-9)
+    r = Phi @ ref + y
+    assert float(fit.rss) == pytest.approx(r @ r, rel=1e-8)
+    np.testing.assert_allclose(np.asarray(fit.gram_inverse), np.linalg.inv(Phi.T @ Phi), rtol=1e-8)
+    svd = lj.linear_lstsq(jnp.asarray(Phi), jnp.asarray(y))
+    assert float(fit.condition) == pytest.approx(float(svd.condition), rel=1e-8)
+    np.testing.assert_allclose(np.abs(fit.weakest), np.abs(svd.weakest), rtol=1e-8)
+
+
+def test_gram_lstsq_flat_or_indefinite_has_infinite_condition():
+    """A zero Gram (a flat record) or a rounding-negative one: condition inf, not NaN; the
+    coefficients on the unexcited direction are the minimum-norm 0."""
+    from lionjax._least_squares import gram_lstsq
+
+    zero = gram_lstsq(jnp.zeros((2, 2)), jnp.zeros(2), jnp.asarray(0.0), 100)
+    assert np.isinf(float(zero.condition))
+    np.testing.assert_array_equal(np.asarray(zero.coef), 0.0)
+    indefinite = jnp.asarray([[1.0, 1.0 + 1e-12], [1.0 + 1e-12, 1.0]])
+    fit = gram_lstsq(indefinite, jnp.asarray([1.0, 1.0]), jnp.asarray(2.0), 100)
+    assert np.isinf(float(fit.condition))
+    assert np.all(np.isfinite(np.asarray(fit.coef)))
+
+
 @pytest.fixture(scope="module")
 def record():
     plant = tw.Plant(22.0, 1.916, (), [tw.PositionNoise(1e-6)])

@@ -76,7 +76,7 @@ def test_study_theta0_and_fixed_gain_axes(records):
 
 
 def test_study_outputs(result, tmp_path):
-    rows = result.to_records()
+    rows = result.to_rows()
     assert len(rows) == 8
     assert set(rows[0]) >= {"dataset", "gain", "poles", "a", "b", "a_ls", "convergence_time"}
     assert rows[3]["poles"] == list(POLES[1]) and rows[3]["gain"] == 10.0
@@ -286,7 +286,7 @@ def test_study_over_labelled_records_vs_lion(grid_records, tmp_path):
         surr = 1e-3 * np.sum(1.0 / (1.0 + np.exp(-(0.5 * np.log(rr) - np.log(tol)) / soft)))
         np.testing.assert_allclose(res.time_outside[idx], surr, rtol=1e-8)
         np.testing.assert_allclose(res.trajectory[idx], th[100::100][:19], rtol=1e-9)
-    rows = res.to_records()
+    rows = res.to_rows()
     assert rows[0]["excitation"] == "in1" and "noise_amplification" in rows[0]
     res.to_json(tmp_path / "g.json")
     payload = json.loads((tmp_path / "g.json").read_text())

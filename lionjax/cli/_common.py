@@ -1,13 +1,11 @@
-"""Argument parsing shared by the subcommands: floats lists, filter, gain, JSON output."""
+"""Shared by the subcommands: number lists and the text table. Files are checked and written by
+:mod:`lionjax._tables` (the one JSON/CSV writer)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
-from .._tables import write_json as _write_json
 
 
 def float_list(text: str, argument: str) -> list[float]:
@@ -23,13 +21,6 @@ def float_list(text: str, argument: str) -> list[float]:
             ) from None
         out.append(v.real if v.imag == 0 else v)
     return out
-
-
-def write_json(path: str | Path, payload) -> Path:
-    path = Path(path)
-    if path.parent and not path.parent.exists():
-        raise InputError(f"--json: folder {str(path.parent)!r} does not exist; create it first.")
-    return _write_json(path, payload)
 
 
 def format_table(headers: list[str], rows: list[list], title: str | None = None) -> str:

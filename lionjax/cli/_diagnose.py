@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import format_table, write_json
+from .._tables import check_folder, write_json
+from ._common import format_table
 
 NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: which unmodelled effect, where, how much it explains"
@@ -45,6 +46,7 @@ def _load(path, args):
 def run(args) -> int:
     import lionjax as lj
 
+    check_folder(args.json, "--json")
     train = _load(args.data, args)
     valid = _load(args.validate, args) if args.validate else None
     d = lj.diagnose(train, valid, filter_hz=args.filter_hz, window_s=args.window)

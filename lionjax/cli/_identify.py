@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._common import float_list, format_table, write_json
+from .._tables import check_folder, write_json
+from ._common import float_list, format_table
 
 NAME = "identify"
 HELP = (
@@ -211,6 +212,7 @@ def run(args) -> int:
             "--csv writes the table of several records (several files or a folder); for one "
             "file use --json, or pass the folder that holds it."
         )
+    check_folder(args.json, "--json")
     args.data = args.data[0]  # one file: the single-record path below, unchanged
     record = load(args)
     out = identify(record, args)
@@ -267,18 +269,11 @@ def load_many(paths: list[Path], args) -> list:
     return records
 
 
-def _check_out(path: str | None, option: str) -> None:
-    if path and not Path(path).parent.is_dir():
-        raise InputError(
-            f"{option}: folder {str(Path(path).parent)!r} does not exist; create it first."
-        )
-
-
 def run_many(args) -> int:
     import lionjax as lj
 
-    _check_out(args.json, "--json")
-    _check_out(args.csv, "--csv")
+    check_folder(args.json, "--json")
+    check_folder(args.csv, "--csv")
     model, bank, gain = settings(args)  # bad options fail before any file is read
     paths = data_files(args.data)
     records = load_many(paths, args)
@@ -321,7 +316,7 @@ def print_many(res) -> None:
         headers += [f"{n}_LS" for n in names] + ["t_conv [s]"]
     headers += ["condition"] + (["rms"] if res.rms is not None else []) + ["status"]
     rows = []
-    for r in res.to_records():
+    for r in res.to_rows():
         row = [r["record"], r["n_samples"], r["dt"], *(r[n] for n in names)]
         if res.method == "lion":
             t = r["convergence_time"]  # inf: not within the band by the end of the record

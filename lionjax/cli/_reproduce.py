@@ -18,35 +18,18 @@ the identification with one unmodelled twin effect at a time. Writes into --out:
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib.util
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
-from .._tables import jsonable
-from ._common import write_json
+from .._progress import stamped
+from .._tables import jsonable, write_json
 
 NAME = "reproduce"
 HELP = "reproduce the paper's experiments on the twin: table, figures, report, effect rows"
-
-TABLE_COLUMNS = (
-    "region",
-    "operating_point_mm",
-    "settings",
-    "input",
-    "repetition",
-    "a",
-    "b",
-    "var_mm2",
-    "a_err_pct",
-    "b_err_pct",
-    "a_true",
-    "b_true",
-)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,25 +44,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
 
 
-def _progress(start: float):
-    def say(msg: str) -> None:
-        print(f"[{time.perf_counter() - start:6.1f} s] {msg}", file=sys.stderr, flush=True)
-
-    return say
-
-
 def write_outputs(result, out: Path, *, figures: bool = True, timings: dict | None = None) -> list:
     """Write the files of ``lionjax reproduce`` for a :class:`lionjax.paper.PaperResult`."""
     written = []
-    rows = result.table.rows()
-    written.append(write_json(out / "table.json", rows))
-    with open(out / "table.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=TABLE_COLUMNS)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: r[k] for k in TABLE_COLUMNS})
-    written.append(out / "table.csv")
-    effects = [e.as_dict() for e in result.effects]
+    written.append(result.table.to_json(out / "table.json"))
+    written.append(result.table.to_csv(out / "table.csv"))
+    effects = [e.to_row() for e in result.effects]
     written.append(write_json(out / "effects.json", effects))
     summary = _summary(result, timings or {})
     written.append(write_json(out / "summary.json", summary))
@@ -170,7 +140,7 @@ def report(result, summary: dict) -> str:
         "| region | x [mm] | settings | input | a [1/s] | b [1/kg] | var_mm2 | a err % | b err % |"
     )
     L.append("|---|---|---|---|---|---|---|---|---|")
-    rows = t.rows()
+    rows = t.to_rows()
     for s in t.settings:
         for r in range(len(cfg.operating_points)):
             sel = [q for q in rows if q["settings"] == s and q["region"] == r + 1]
@@ -200,7 +170,7 @@ def report(result, summary: dict) -> str:
         L.append("| effect | size | a err % (regions 1/2/3) | b err % | NRMSE | growth |")
         L.append("|---|---|---|---|---|---|")
         for e in result.effects:
-            d = e.as_dict()
+            d = e.to_row()
             ae = "/".join(f"{v:+.1f}" for v in d["a_err_pct"])
             be = "/".join(f"{v:+.1f}" for v in d["b_err_pct"])
             L.append(
@@ -226,14 +196,14 @@ def report(result, summary: dict) -> str:
 def run(args) -> int:
     import jax
 
-    from .. import _experiments as ex
+    from .. import paper as ex
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out: {str(out)!r} exists and is not a folder; pass a folder path.")
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    say = _progress(start)
+    say = stamped(start)
     figures = not args.no_figures
     if figures and importlib.util.find_spec("matplotlib") is None:
         say(
@@ -261,7 +231,7 @@ def run(args) -> int:
         timings={"experiments": t_run, "total": total},
     ) + [p for p in written if str(p).endswith(".png")]
     say(f"done in {total:.1f} s; wrote {len(written)} files to {out}")
-    for r in result.table.rows():
+    for r in result.table.to_rows():
         if r["input"] == "all":
             print(
                 f"region {r['region']} {r['settings']:>11}: a = {r['a']:.4g} 1/s "

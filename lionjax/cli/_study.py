@@ -19,14 +19,12 @@ is the function the tuning minimises.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
-from .._tables import jsonable
+from .._tables import write_json
 from ._common import float_list, format_table
 
 NAME = "study"
@@ -190,7 +188,7 @@ def run(args) -> int:
             100 * r["bias"],
             100 * r["noise_amplification"],
         ]
-        for r in res.to_records()
+        for r in res.to_rows()
     ]
     n_rec = int(np.prod([len(res.coords[d]) for d in rec_dims])) if rec_dims else 1
     print(
@@ -242,12 +240,10 @@ def run(args) -> int:
                 f"(J = {J_map[i, j]:.4g} s)"
             )
     if args.json:
-        res.to_json(args.json)
+        payload = res.payload()
         if tuned is not None:
-            path = Path(args.json)
-            payload = json.loads(path.read_text())
-            payload["tune"] = jsonable(tuned.to_dict())
-            path.write_text(json.dumps(payload, indent=2) + "\n")
+            payload["tune"] = tuned.to_dict()
+        write_json(args.json, payload)
         print(f"wrote {args.json}")
     if args.csv:
         res.to_csv(args.csv)

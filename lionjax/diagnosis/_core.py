@@ -40,6 +40,7 @@ from .._filters import FilterBank
 from .._model_effects import zero_phase_lowpass, zero_phase_velocity
 from .._models import Augmented, MassDamper
 from .._record import Record
+from .._tables import jsonable
 from ._candidates import DEFAULT_CANDIDATES, AbstractCandidate, Context
 from ._fit import (
     Regressors,
@@ -359,20 +360,9 @@ class Diagnosis:
     series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON payload (plain Python types; non-finite numbers become ``None``)."""
-
-        def clean(o):
-            if isinstance(o, dict):
-                return {str(k): clean(v) for k, v in o.items()}
-            if isinstance(o, list | tuple):
-                return [clean(v) for v in o]
-            if isinstance(o, np.generic):
-                o = o.item()
-            if isinstance(o, float):
-                return o if math.isfinite(o) else None
-            return o
-
-        return clean(
+        """The JSON payload (plain Python types; non-finite numbers become ``None``; converted by
+        :func:`lionjax._tables.jsonable`, the one conversion the writers use)."""
+        return jsonable(
             {
                 "baseline": self.baseline,
                 "where": self.where,

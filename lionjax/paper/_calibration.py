@@ -14,6 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .. import twin
+from .._least_squares import linear_lstsq
 from ._config import PaperConfig
 
 
@@ -69,7 +70,7 @@ def calibrate_force(config: PaperConfig | None = None, *, key: PRNGKeyArray) -> 
     keys = jax.random.split(key, x.shape[0])
     measured = jax.vmap(lambda xi, F, k: sensor.measure(xi, F, k)[1])(x, produced, keys)
     A = jnp.stack([measured, jnp.ones_like(measured)], axis=-1)
-    coef, *_ = jnp.linalg.lstsq(A, set_force)
+    coef = linear_lstsq(A, -set_force).coef  # min ‖A·c − F_set‖ (linear_lstsq: Φc ≈ −y)
     res = set_force - A @ coef
     return Calibration(
         x=x,

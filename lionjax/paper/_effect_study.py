@@ -14,6 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .. import twin
+from .._progress import reporter
 from .._record import Record
 from ._config import LionSettings, PaperConfig
 from ._identification import Identification, identify_records
@@ -84,7 +85,8 @@ class EffectRow(eqx.Module):
     nrmse_baseline: Float[Array, ""]
     growth: Float[Array, ""]
 
-    def as_dict(self) -> dict:
+    def to_row(self) -> dict:
+        """One row of ``effects.json`` (plain Python values)."""
         return {
             "name": self.name,
             "description": self.description,
@@ -138,7 +140,7 @@ def effect_study(
     config = PaperConfig() if config is None else config
     cases = realistic_effects() if cases is None else tuple(cases)
     settings = LionSettings.recommended()
-    say = progress or (lambda s: None)
+    say = reporter(progress)
     truth_a = np.asarray(config.plant.a, float)
     truth_b = np.asarray(config.plant.b, float)
 

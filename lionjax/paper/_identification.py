@@ -31,6 +31,7 @@ from .._estimators import lion
 from .._filters import FilterBank
 from .._models import MassDamper
 from .._record import Record
+from .._tables import Table
 from ._config import LionSettings, PaperConfig
 
 
@@ -143,7 +144,7 @@ def identify_records(
     )
 
 
-class PaperTable(eqx.Module):
+class PaperTable(Table, eqx.Module):
     """Table 3 reproduced: per record and summary estimates, for each settings.
 
     Arrays of shape ``(n_settings, R, I, K)`` unless stated; settings in the order of ``settings``.
@@ -169,8 +170,8 @@ class PaperTable(eqx.Module):
     truth_b: Float[Array, " R"]
     operating_points: Float[Array, " R"]
 
-    def rows(self) -> list[dict]:
-        """The table as JSON-ready rows (schema of ``table.json``; see the CLI ``reproduce``).
+    def to_rows(self) -> list[dict]:
+        """The table as JSON-ready rows (``table.json`` and ``table.csv`` of the CLI ``reproduce``).
 
         Each row: ``region`` (1-based), ``operating_point_mm``, ``settings``, ``input``
         (1-based or ``"all"``), ``repetition`` (1-based or ``"all"``), ``a`` [1/s], ``b``

@@ -8,6 +8,7 @@ import equinox as eqx
 import jax
 from jaxtyping import PRNGKeyArray
 
+from .._progress import reporter
 from ._calibration import Calibration, calibrate_force
 from ._config import LionSettings, PaperConfig
 from ._effect_study import EffectCase, EffectRow, effect_study
@@ -59,7 +60,7 @@ def reproduce_paper(
         progress: called with a short message before each step (e.g. print to stderr).
     """
     config = PaperConfig() if config is None else config
-    say = progress or (lambda s: None)
+    say = reporter(progress)
     k_cal, k_run = jax.random.split(key)
     say(
         f"calibration: {len(config.calibration_points)} points × "

@@ -18,9 +18,7 @@ leading dims of the :class:`StudyResult`.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Iterator, Mapping, Sequence
-from pathlib import Path
 from typing import Any, Literal
 
 import equinox as eqx
@@ -30,13 +28,14 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._batched import DEFAULT_EXECUTION, Execution, lion_batched, stack_records
-from .._errors import InputError
+from .._errors import InputError, result_codes
 from .._estimators import AbstractGain, AbstractSampleStepper, AutoGain, FixedGain, default_bank
 from .._filters import FilterBank
 from .._models import AbstractModel
 from .._outputs import ConvergenceTime, LSStatistics, TailStatistics, Trajectory
+from .._progress import run_chunks
 from .._record import Record
-from .._tables import write_csv, write_json
+from .._tables import Table
 
 #: Names a record axis of a study may have (``dataset`` for plain lists of records).
 RECORD_DIMS = ("dataset", "excitation", "operating_point", "noise_seed")
@@ -107,7 +106,7 @@ class StudyRecords(eqx.Module):
         ]
 
 
-class StudyResult(eqx.Module):
+class StudyResult(Table, eqx.Module):
     """Labelled results of :func:`study` over a grid (shape ``len(coords[d]) for d in dims``).
 
     Attributes:
@@ -226,7 +225,7 @@ class StudyResult(eqx.Module):
             )
         return fn(pooled, axis=0)
 
-    def to_records(self) -> list[dict[str, Any]]:
+    def to_rows(self) -> list[dict[str, Any]]:
         """One dict per grid point (C order): its coordinates, then the values by name.
 
         Keys: the dims; each parameter (θ_final) and ``<name>_ls``; ``convergence_time`` [s]
@@ -254,13 +253,12 @@ class StudyResult(eqx.Module):
             rows.append(row)
         return rows
 
-    def to_json(self, path: str | Path) -> Path:
-        """Write ``{"dims", "coords", "tolerance", "softness", "transient", "complete",
-        "rows": to_records()}``, plus ``"trajectory": {"t", "theta"}`` (``theta`` nested
-        ``(*grid, K, p)``) when the study saved one.
-
-        Non-finite numbers (``inf`` not settled, NaN not computed) are written as null.
-        """
+    def payload(self) -> dict[str, Any]:
+        """The JSON document of :meth:`to_json`: ``{"dims", "coords", "names", "tolerance",
+        "softness", "transient", "complete", "rows": to_rows()}``, plus
+        ``"trajectory": {"t", "theta"}`` (``theta`` nested ``(*grid, K, p)``) when the study saved
+        one. Non-finite numbers (``inf`` not settled, NaN not computed) are written as null;
+        :meth:`to_csv` writes :meth:`to_rows` (pole sets and θ₀ joined with ';')."""
         payload: dict[str, Any] = {
             "dims": list(self.dims),
             "coords": {d: self.coords[d] for d in self.dims},
@@ -269,18 +267,14 @@ class StudyResult(eqx.Module):
             "softness": self.softness,
             "transient": self.transient,
             "complete": self.complete,
-            "rows": self.to_records(),
+            "rows": self.to_rows(),
         }
         if self.trajectory is not None:
             payload["trajectory"] = {
                 "t": np.asarray(self.t_saved).tolist(),
                 "theta": np.asarray(self.trajectory).tolist(),
             }
-        return write_json(path, payload)
-
-    def to_csv(self, path: str | Path) -> Path:
-        """Write :meth:`to_records` as CSV (pole sets and θ₀ joined with ';')."""
-        return write_csv(path, self.to_records())
+        return payload
 
 
 def _as_batch(records) -> tuple[Record, np.ndarray, tuple[str, ...], dict[str, list] | None]:
@@ -485,14 +479,6 @@ def study_records(
             )
         )
     return StudyRecords(tuple(out), tuple(dims), coords)
-
-
-def _progress(done: int, total: int, width: int = 30) -> None:
-    n = int(round(width * done / total))
-    sys.stderr.write(f"\rstudy [{'#' * n}{'.' * (width - n)}] {done}/{total} chunks")
-    if done == total:
-        sys.stderr.write("\n")
-    sys.stderr.flush()
 
 
 def stack_banks(pole_sets: ArrayLike, unit_dc_gain: bool = True) -> FilterBank:
@@ -739,39 +725,27 @@ def study(
             **kw,
         )
 
-    complete = True
-    done = 0
-    try:
-        for sel in jobs:
-            n = sel.size
-            # pad a short chunk to the chunk size (repeat its last point): one compilation
-            padded = np.concatenate([sel, np.repeat(sel[-1:], chunk - n)])
-            sol = run_chunk(padded)
-            theta[sel] = np.asarray(sol.theta)[:n]
-            theta_ls[sel] = np.asarray(sol.theta_ls)[:n]
-            t_conv[sel] = np.asarray(sol.t_converged)[:n]
-            surr[sel] = np.asarray(sol.time_outside)[:n]
-            tstd[sel] = np.asarray(sol.tail_std)[:n]
-            J[sel] = np.asarray(sol.J)[:n]
-            res[sel] = np.asarray(sol.result._value)[:n]
-            if save_every is not None:
-                tr = np.moveaxis(np.asarray(sol.trajectory), 1, 0)  # (B, K, p)
-                if traj is None:
-                    traj = np.full((N,) + tr.shape[1:], np.nan)
-                    t_saved = float(dt_all[0]) * save_every * np.arange(1, tr.shape[1] + 1)
-                traj[sel] = tr[:n]
-            done += 1
-            if progress:
-                _progress(done, n_chunks)
-    except KeyboardInterrupt:
-        complete = False
-        if progress:
-            sys.stderr.write("\n")
-        sys.stderr.write(
-            f"warning: study interrupted after {done}/{n_chunks} chunks; returning the grid "
-            "points done (NaN elsewhere, complete=False).\n"
-        )
-        sys.stderr.flush()
+    def run_job(sel: np.ndarray) -> None:
+        nonlocal traj, t_saved
+        n = sel.size
+        # pad a short chunk to the chunk size (repeat its last point): one compilation
+        padded = np.concatenate([sel, np.repeat(sel[-1:], chunk - n)])
+        sol = run_chunk(padded)
+        theta[sel] = np.asarray(sol.theta)[:n]
+        theta_ls[sel] = np.asarray(sol.theta_ls)[:n]
+        t_conv[sel] = np.asarray(sol.t_converged)[:n]
+        surr[sel] = np.asarray(sol.time_outside)[:n]
+        tstd[sel] = np.asarray(sol.tail_std)[:n]
+        J[sel] = np.asarray(sol.J)[:n]
+        res[sel] = result_codes(sol.result)[:n]
+        if save_every is not None:
+            tr = np.moveaxis(np.asarray(sol.trajectory), 1, 0)  # (B, K, p)
+            if traj is None:
+                traj = np.full((N,) + tr.shape[1:], np.nan)
+                t_saved = float(dt_all[0]) * save_every * np.arange(1, tr.shape[1] + 1)
+            traj[sel] = tr[:n]
+
+    complete = run_chunks(jobs, run_job, label="study", total=n_chunks, progress=progress)
 
     return StudyResult(
         dims=tuple(dims),

@@ -45,7 +45,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
 from .._batched import DEFAULT_EXECUTION, Execution, lion_batched
-from .._errors import RESULTS, IdentificationError, InputError
+from .._errors import IdentificationError, InputError, result_code, result_message
 from .._estimators import AbstractGain, AbstractSampleStepper, AutoGain
 from .._filters import FilterBank
 from .._models import AbstractModel
@@ -268,7 +268,7 @@ def _point(z: Float[Array, " 2"], setup: _Setup):
         "t_converged": sol.t_converged,
         "time_outside": sol.time_outside,
         "tail_std": sol.tail_std,
-        "result": sol.result._value.astype(dtype),
+        "result": result_code(sol.result).astype(dtype),
     }
     return J[0], aux
 
@@ -520,14 +520,14 @@ def tune(
         J = float(J)
         grad = jnp.full((2,), jnp.nan, dtype)
     success = bool(sol.result == optx.RESULTS.successful)
-    message = "" if success else optx.RESULTS._index_to_message[int(sol.result._value)]
+    message = "" if success else result_message(result_code(sol.result), optx.RESULTS)
     codes = np.asarray(aux["result"]).astype(int)
     if success and (np.any(codes != 0) or not math.isfinite(J)):
         success = False
         bad = [labels[i] for i in np.flatnonzero(codes != 0)]
         message = (
             f"the estimator failed at the tuned settings for records {bad} "
-            f"({RESULTS._index_to_message[int(codes[codes != 0][0])] if bad else 'J not finite'})"
+            f"({result_message(int(codes[codes != 0][0])) if bad else 'J not finite'})"
         )
     out = TuneSolution(
         gain_class=setup.gain_class,
