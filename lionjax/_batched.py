@@ -159,7 +159,7 @@ def _mesh() -> Mesh | None:
 # Execution
 
 #: Kernel implementations :class:`Execution` accepts (``"auto"``: the best for the backend).
-KERNELS = ("auto", "xla")
+KERNELS = ("auto", "xla", "pallas")
 _BLOCK = 64  # samples per slab read from the (B, T) records (transposed in cache, per block)
 
 
@@ -179,7 +179,10 @@ class Execution(eqx.Module):
             only records already placed by :func:`shard_records` are sharded (else they would
             be copied on every call; one device's ``split`` loops use the cores instead).
         kernel: the kernel implementation, one of :data:`KERNELS`: ``"auto"`` (default, the
-            best available for the backend: today ``"xla"``) or ``"xla"`` (the fused XLA loop).
+            best available for the backend: ``"pallas"`` on a GPU, else ``"xla"``), ``"xla"``
+            (the fused XLA loop) or ``"pallas"`` (the whole time loop in one Pallas kernel, one
+            record per lane: :mod:`lionjax._pallas`; off a GPU it runs in Pallas' interpret
+            mode — slow, for testing).
         phi: how E(hS) = (I − e^{−hS})(hS)⁻¹ is evaluated: ``"series"`` (default: its series
             alone, 8 terms in float32, 14 in float64, while tr(hS) ≤ 1/2 — truncation below the
             unit roundoff — and the records where some sample exceeds the bound, or θ is not
@@ -217,8 +220,16 @@ class Execution(eqx.Module):
             )
 
     def kernel_function(self):
-        """The kernel implementation this resolves to (``"auto"`` → ``"xla"`` today)."""
-        return {"auto": _split_kernel, "xla": _split_kernel}[self.kernel]
+        """The kernel implementation this resolves to (``"auto"``: ``"pallas"`` on a GPU,
+        ``"xla"`` elsewhere)."""
+        kernel = self.kernel
+        if kernel == "auto":
+            kernel = "pallas" if jax.default_backend() == "gpu" else "xla"
+        if kernel == "pallas":
+            from ._pallas import pallas_kernel
+
+            return pallas_kernel
+        return _split_kernel
 
 
 #: The default :class:`Execution` (every knob at its default).
@@ -478,6 +489,171 @@ def _split(v: list, p: int):
     return v[:p], v[p : 2 * p], v[2 * p], v[2 * p + 1]
 
 
+def _nested(a, scalars: bool):
+    """An input as the per-sample code indexes it: nested lists over every axis but the batch
+    (``scalars`` False: per-record values, batch last) or over every axis (``scalars`` True:
+    values shared by the batch). Lists (already unstacked, e.g. by the Pallas kernel from its
+    refs) and None pass through."""
+    if a is None or isinstance(a, list) or not hasattr(a, "ndim"):
+        return a
+    if a.ndim == (0 if scalars else 1):
+        return a
+    return [_nested(a[i], scalars) for i in range(a.shape[0])]
+
+
+class _Core:
+    """The per-sample work of the kernel, shared by the fused XLA loop (:func:`_kernel`) and the
+    Pallas kernel (:mod:`lionjax._pallas`): the initial carry, one step k → k+1, and θ(T), J.
+
+    ``shared``/``per`` as :class:`_Inputs` (one of each field set), their ``maps``, ``G``,
+    ``z0``, ``theta0`` arrays or nested lists (:func:`_nested`); ``pairs``: carry θ as complex
+    pairs (the XLA:CPU fusion trick, :func:`lionjax._phi.materialise`) or as p real arrays (the
+    Pallas kernel: GPU kernels have no complex numbers)."""
+
+    def __init__(self, plan: _Plan, shared: _Inputs, per: _Inputs, dtype, pairs: bool = True):
+        self.plan, self.dtype, self.pairs = plan, dtype, pairs
+        n, p = plan.n, len(plan.columns)
+        self.n, self.p, self.S = n, p, len(plan.signals)
+
+        def get(name):
+            v = getattr(per, name)
+            return _nested(v, False) if v is not None else _nested(getattr(shared, name), True)
+
+        self.maps = [{k: getattr(m, k) for k in _MODES} for m in get("maps")]
+        self.h = get("h")
+        self.one = shared.one
+        self.foh = [hold == "foh" for _, hold in plan.signals]
+        self.outputs, self.inputs = shared.outputs, per.outputs
+        self.stepper = shared.stepper
+        self.G = get("G") if plan.estimate else None
+        self.length = per.length if plan.masked else None
+        self.z0 = _nested(per.z0, False)
+        self.theta0 = _nested(per.theta0, False) if plan.estimate else None
+
+    def lin(self, s, mode, row, z, uk, uk1):
+        M = self.maps[s][mode][row]
+        n = self.n
+        terms = [
+            M[c] * (z[c] if c < n else uk if c == n else uk1)
+            for c in range(n + 2)
+            if _structural(mode, self.foh[s], n, row, c)
+        ]
+        return sum(terms[1:], terms[0])
+
+    def regressors(self, mode, z, uk, uk1):
+        """W rows (W1, W2) and W₀ = (y1, y2) from the maps, elementwise."""
+        cache: dict = {}
+        plan = self.plan
+
+        def V(s, j):  # j = 1…4
+            if (s, j) not in cache:
+                cache[s, j] = self.lin(s, mode, j - 1, z[s], uk[s], uk1[s])
+            return cache[s, j]
+
+        W1 = [sign * V(s, order + 1) for s, order, sign in plan.columns]
+        W2 = [sign * V(s, order + 2) for s, order, sign in plan.columns]
+        return W1, W2, V(plan.x_index, 3), V(plan.x_index, 4)
+
+    # θ is carried as complex pairs (θ₀ + iθ₁, …): the update of a pair is one fusion
+
+    def to_pairs(self, th):
+        if not self.pairs:
+            return list(th)
+        th = list(th) + ([jnp.zeros_like(th[0])] if self.p % 2 else [])
+        return [jax.lax.complex(a, b) for a, b in zip(th[::2], th[1::2], strict=True)]
+
+    def from_pairs(self, tc):
+        if not self.pairs:
+            return list(tc)
+        return [f(v) for v in tc for f in (jnp.real, jnp.imag)][: self.p]
+
+    def init(self, zero) -> _State:
+        """The carry before the first step; ``zero`` a (Bs,) array of zeros of the dtype."""
+        plan, p = self.plan, self.p
+        th0 = [self.theta0[i] for i in range(p)] if plan.estimate else None
+        return _State(
+            z=[[self.z0[s][i] for i in range(self.n)] for s in range(self.S)],
+            theta=self.to_pairs(th0) if plan.estimate else None,
+            valid=(
+                jnp.ones(zero.shape, bool)
+                if plan.estimate and self.stepper.reports_stability
+                else None
+            ),
+            outputs=tuple(
+                o.init(inp, p, th0, zero) for o, inp in zip(self.outputs, self.inputs, strict=True)
+            ),
+        )
+
+    def step(self, c: _State, k, uk, uk1, partial):
+        """Sample k → k+1 (``partial``: this slab's sums, added to the totals per slab)."""
+        plan, n, p, S = self.plan, self.n, self.p, self.S
+        lin, one = self.lin, self.one
+        z = c.z
+        zn = [[lin(s, "next", i, z[s], uk[s], uk1[s]) for i in range(n)] for s in range(S)]
+        act = None
+        if plan.masked:
+            act = (k + 1) < self.length
+            zn = [
+                [jnp.where(act, a, b) for a, b in zip(zs, zo, strict=True)]
+                for zs, zo in zip(zn, z, strict=True)
+            ]
+
+        def end():  # regressors at sample k+1, materialised once (LS statistics)
+            W1, W2, y1, y2 = self.regressors("end", z, uk, uk1)
+            return _split(materialise(W1 + W2 + [y1, y2], one), p)
+
+        theta, valid, theta_new = c.theta, c.valid, None
+        if plan.estimate:
+            W1, W2, y1, y2 = self.regressors("mid" if plan.midpoint else "start", z, uk, uk1)
+            d, ok = self.stepper.increment(
+                self.from_pairs(c.theta),
+                W1,
+                W2,
+                y1,
+                y2,
+                self.G,
+                self.h,
+                series=plan.series_terms,
+                one=one,
+            )
+            tc = [t - v for t, v in zip(c.theta, self.to_pairs(d), strict=True)]
+            if act is not None:
+                tc = [jnp.where(act, a, b) for a, b in zip(tc, c.theta, strict=True)]
+                ok = None if ok is None else ok | ~act
+            theta = tc
+            if valid is not None:
+                valid = valid & ok
+            theta_new = lambda: self.from_pairs(tc)
+        sample = Sample(k, act, self.h, self.dtype, end, theta_new)
+        outs, part = [], []
+        for o, st, sm, inp in zip(self.outputs, c.outputs, partial, self.inputs, strict=True):
+            new = o.update(Accumulated(st.carry, sm), sample, inp)
+            outs.append(Accumulated(new.carry, st.sums))
+            part.append(new.sums)
+        return _State(zn, theta, valid, tuple(outs)), tuple(part)
+
+    @staticmethod
+    def zero_sums(c: _State) -> tuple:
+        return tuple(jax.tree.map(jnp.zeros_like, st.sums) for st in c.outputs)
+
+    @staticmethod
+    def add_sums(c: _State, part) -> _State:
+        outs = tuple(
+            Accumulated(st.carry, jax.tree.map(lambda a, b: a + b, st.sums, sm))
+            for st, sm in zip(c.outputs, part, strict=True)
+        )
+        return _State(c.z, c.theta, c.valid, outs)
+
+    def final(self, c: _State, u_end):
+        """(θ(T) as p arrays, J = ½εᵀε at each record's last sample); ``u_end``: the S signals
+        at that sample."""
+        W1, W2, y1, y2 = self.regressors("start", c.z, u_end, u_end)
+        th = self.from_pairs(c.theta)
+        e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
+        e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
+        return th, 0.5 * (e1 * e1 + e2 * e2)
+
+
 def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
     """Run the records ``rows`` (default all) of the batch. ``X``: tuple of S raw signals, each
     ``(B, T)`` (the records' own layout: each slab of ``plan.block`` samples is read and
@@ -485,101 +661,10 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
     with the batch last (already restricted to ``rows``), ``shared`` the values common to the
     batch (scalars in the kernel), including the accumulators, whose ``init``/``update`` are
     called for the rows. Returns an :class:`_Out`, batch last."""
-    S = len(X)
     r0, r1 = (0, X[0].shape[0]) if rows is None else rows
     Bs, T = r1 - r0, X[0].shape[1]
     dtype = X[0].dtype
-    n, p = plan.n, len(plan.columns)
-    get = lambda name: (
-        getattr(per, name) if getattr(per, name) is not None else getattr(shared, name)
-    )
-    maps = [
-        {
-            k: [[M[i, j] for j in range(M.shape[1])] for i in range(M.shape[0])]
-            for k, M in ((k, getattr(m, k)) for k in _MODES)
-        }
-        for m in get("maps")
-    ]
-    h = get("h")
-    one = shared.one
-    foh = [hold == "foh" for _, hold in plan.signals]
-    zero = jnp.zeros((Bs,), dtype)
-    outputs, inputs = shared.outputs, per.outputs
-    stepper = shared.stepper
-
-    def lin(s, mode, row, z, uk, uk1):
-        M = maps[s][mode][row]
-        terms = [
-            M[c] * (z[c] if c < n else uk if c == n else uk1)
-            for c in range(n + 2)
-            if _structural(mode, foh[s], n, row, c)
-        ]
-        return sum(terms[1:], terms[0])
-
-    def regressors(mode, z, uk, uk1):
-        """W rows (W1, W2) and W₀ = (y1, y2) from the maps, elementwise."""
-        cache: dict = {}
-
-        def V(s, j):  # j = 1…4
-            if (s, j) not in cache:
-                cache[s, j] = lin(s, mode, j - 1, z[s], uk[s], uk1[s])
-            return cache[s, j]
-
-        W1 = [sign * V(s, order + 1) for s, order, sign in plan.columns]
-        W2 = [sign * V(s, order + 2) for s, order, sign in plan.columns]
-        return W1, W2, V(plan.x_index, 3), V(plan.x_index, 4)
-
-    if plan.estimate:
-        Gm = get("G")
-        Gl = [[Gm[i, j] for j in range(p)] for i in range(p)]
-    length = per.length if plan.masked else None
-
-    # θ is carried as complex pairs (θ₀ + iθ₁, …): the update of a pair is one fusion
-
-    def to_pairs(th):
-        th = list(th) + ([jnp.zeros_like(th[0])] if p % 2 else [])
-        return [jax.lax.complex(a, b) for a, b in zip(th[::2], th[1::2], strict=True)]
-
-    def from_pairs(tc):
-        return [f(v) for v in tc for f in (jnp.real, jnp.imag)][:p]
-
-    def step(c: _State, k, uk, uk1, partial):
-        """Sample k → k+1 (``partial``: this slab's sums, added to the totals per slab)."""
-        z = c.z
-        zn = [[lin(s, "next", i, z[s], uk[s], uk1[s]) for i in range(n)] for s in range(S)]
-        act = None
-        if plan.masked:
-            act = (k + 1) < length
-            zn = [
-                [jnp.where(act, a, b) for a, b in zip(zs, zo, strict=True)]
-                for zs, zo in zip(zn, z, strict=True)
-            ]
-
-        def end():  # regressors at sample k+1, materialised once (LS statistics)
-            W1, W2, y1, y2 = regressors("end", z, uk, uk1)
-            return _split(materialise(W1 + W2 + [y1, y2], one), p)
-
-        theta, valid, theta_new = c.theta, c.valid, None
-        if plan.estimate:
-            W1, W2, y1, y2 = regressors("mid" if plan.midpoint else "start", z, uk, uk1)
-            d, ok = stepper.increment(
-                from_pairs(c.theta), W1, W2, y1, y2, Gl, h, series=plan.series_terms, one=one
-            )
-            tc = [t - v for t, v in zip(c.theta, to_pairs(d), strict=True)]
-            if act is not None:
-                tc = [jnp.where(act, a, b) for a, b in zip(tc, c.theta, strict=True)]
-                ok = None if ok is None else ok | ~act
-            theta = tc
-            if valid is not None:
-                valid = valid & ok
-            theta_new = lambda: from_pairs(tc)
-        sample = Sample(k, act, h, dtype, end, theta_new)
-        outs, part = [], []
-        for o, st, sm, inp in zip(outputs, c.outputs, partial, inputs, strict=True):
-            new = o.update(Accumulated(st.carry, sm), sample, inp)
-            outs.append(Accumulated(new.carry, st.sums))
-            part.append(new.sums)
-        return _State(zn, theta, valid, tuple(outs)), tuple(part)
+    core = _Core(plan, shared, per, dtype)
 
     def run_slab(c: _State, k0, slab) -> _State:
         """``slab``: S arrays (L + 1, Bs), the samples k0 … k0 + L: L steps from sample k0."""
@@ -587,15 +672,10 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
 
         def body(j, ca):
             row = lambda i: [sl[i] for sl in slab]
-            return step(ca[0], jnp.asarray(k0 + j, jnp.int32), row(j), row(j + 1), ca[1])
+            return core.step(ca[0], jnp.asarray(k0 + j, jnp.int32), row(j), row(j + 1), ca[1])
 
-        zeros = tuple(jax.tree.map(jnp.zeros_like, st.sums) for st in c.outputs)
-        c, part = jax.lax.fori_loop(0, L, body, (c, zeros))
-        outs = tuple(
-            Accumulated(st.carry, jax.tree.map(lambda a, b: a + b, st.sums, sm))
-            for st, sm in zip(c.outputs, part, strict=True)
-        )
-        return _State(c.z, c.theta, c.valid, outs)
+        c, part = jax.lax.fori_loop(0, L, body, (c, core.zero_sums(c)))
+        return core.add_sums(c, part)
 
     C = plan.block
     nb, rem = divmod(T - 1, C)
@@ -607,13 +687,7 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
             return c
         return jax.lax.scan(lambda cc, i: (run_slab(cc, i * C, read(i)), None), c, idx)[0]
 
-    th0 = [per.theta0[i] for i in range(p)] if plan.estimate else None
-    c = _State(
-        z=[[per.z0[s, i] for i in range(n)] for s in range(S)],
-        theta=to_pairs(th0) if plan.estimate else None,
-        valid=jnp.ones((Bs,), bool) if plan.estimate and stepper.reports_stability else None,
-        outputs=tuple(o.init(inp, p, th0, zero) for o, inp in zip(outputs, inputs, strict=True)),
-    )
+    c = core.init(jnp.zeros((Bs,), dtype))
     snapshots = None
     if plan.save_blocks:
         g = plan.save_blocks
@@ -621,7 +695,7 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
 
         def group(cc, j):
             cc = blocks(cc, j * g + jnp.arange(g))
-            return cc, jnp.stack(from_pairs(cc.theta))
+            return cc, jnp.stack(core.from_pairs(cc.theta))
 
         c, snapshots = jax.lax.scan(group, c, jnp.arange(ng))
         c = blocks(c, jnp.arange(ng * g, nb))
@@ -632,14 +706,10 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
 
     theta_out = J = None
     if plan.estimate:
-        last = (length - 1) if plan.masked else jnp.full((Bs,), T - 1, jnp.int32)
+        last = (per.length - 1) if plan.masked else jnp.full((Bs,), T - 1, jnp.int32)
         u_end = [Xs[r0 + jnp.arange(Bs), last] for Xs in X]
-        W1, W2, y1, y2 = regressors("start", c.z, u_end, u_end)
-        th = from_pairs(c.theta)
-        e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
-        e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
+        th, J = core.final(c, u_end)
         theta_out = jnp.stack(th)
-        J = 0.5 * (e1 * e1 + e2 * e2)
     return _Out(theta_out, J, c.valid, c.outputs, snapshots)
 
 
