@@ -78,6 +78,7 @@ from ._outputs import (
 )
 from ._phi import fast_series_terms, materialise, phi_sym2
 from ._record import Record
+from ._scan import affine_scan, discretise, filter_states, matmul, matvec
 from ._solution import finish
 
 # ----------------------------------------------------------------------------------------------
@@ -435,7 +436,7 @@ def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
     Precomputing them keeps the per-sample work of the kernel to one dot product per output
     (the θ step never recomputes the filter update).
     """
-    Phi, G0, G1 = bank.discretise(dt)
+    Phi, G0, G1 = discretise(bank, dt)  # products at full precision (TF32 on a GPU otherwise)
     n = bank.order
     dtype = Phi.dtype
     G1 = G1 if foh else jnp.zeros_like(G1)
@@ -445,7 +446,7 @@ def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
     lam_rev = bank.coeffs[::-1].astype(dtype)  # coefficient of zᵢ in V_{n+1} is λ_{n−i}
 
     def outputs(state, u_row):
-        V = jnp.concatenate([state, (u_row - lam_rev @ state)[None]], 0)
+        V = jnp.concatenate([state, (u_row - jnp.sum(lam_rev[:, None] * state, 0))[None]], 0)
         return V * bank.coeffs[-1] if bank.unit_dc_gain else V
 
     unit = lambda a, b: jnp.concatenate([jnp.zeros((n,), dtype), jnp.array([a, b], dtype)])
@@ -1027,6 +1028,17 @@ def lion_batched(
 
 @eqx.filter_jit
 def _lion_batched(model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one):
+    # every matrix product traced here (the filter's expm, the gain's R⁻¹, the LS solve) at full
+    # precision: float32 dots run at TF32 on GPUs otherwise (explicit in the jaxpr; tested)
+    with jax.default_matmul_precision("highest"):
+        return _lion_batched_body(
+            model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one
+        )
+
+
+def _lion_batched_body(
+    model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one
+):
     st = _Stream(model, records, bank, lengths, execution, one)
     ctx = st.ctx
     B = records.x.shape[0]
@@ -1168,9 +1180,10 @@ def least_squares_batched(
 
 @eqx.filter_jit
 def _least_squares_batched(model, records, bank, lengths, ls, execution, one, max_condition):
-    st = _Stream(model, records, bank, lengths, execution, one)
-    (state,) = st.statistics((ls,))
-    r = ls.finalise(state, st.ctx, None)
+    with jax.default_matmul_precision("highest"):  # as _lion_batched
+        st = _Stream(model, records, bank, lengths, execution, one)
+        (state,) = st.statistics((ls,))
+        r = ls.finalise(state, st.ctx, None)
     finite = jnp.all(jnp.isfinite(r.theta), -1)
     return LSBatchedSolution(
         theta=r.theta,
@@ -1241,39 +1254,63 @@ def lion_parallel(
 ) -> ParallelSolution:
     """Lion's exact-step estimator for one record, parallel in time (``lax.associative_scan``).
 
-    θₖ₊₁ = Aₖθₖ + cₖ, Aₖ = I − h·GWₖᵀE(hSₖ)Wₖ, cₖ = −h·GWₖᵀE(hSₖ)W₀ₖ (Wₖ the midpoint
-    regressors, as :class:`lionjax.ExactStep`), so θₖ = (Aₖ₋₁…A₀)θ₀ + … is a prefix product of
-    affine maps, composed pairwise: (A₂, c₂)∘(A₁, c₁) = (A₂A₁, A₂c₁ + c₂). Depth O(log T) —
-    for long records on accelerators; on a CPU the sequential :func:`lion_batched` is faster.
-    Stores the regressors (memory O(T·p²)). ``G`` is the gain matrix (p×p), e.g. from
-    ``lionjax.lion(...).gain``. vmap it for many records.
+    Both recurrences are parallel: the filter bank (z_{k+1} = Φz_k + Γu, time-invariant:
+    :func:`lionjax._scan.filter_states`) and the estimate, θₖ₊₁ = Aₖθₖ + cₖ,
+    Aₖ = I − h·GWₖᵀE(hSₖ)Wₖ, cₖ = −h·GWₖᵀE(hSₖ)W₀ₖ (Wₖ the midpoint regressors, as
+    :class:`lionjax.ExactStep`), a prefix product of affine maps composed pairwise:
+    (A₂, c₂)∘(A₁, c₁) = (A₂A₁, A₂c₁ + c₂). Depth O(log T) — for long records on accelerators;
+    on a CPU the sequential :func:`lion_batched` is faster. Stores the regressors (memory
+    O(T·p²)). The regressors are built as :func:`lion_batched` builds them (the model's signals,
+    holds and columns); every small matrix product is elementwise (:mod:`lionjax._scan`), so
+    float32 runs at float32 precision on every backend. ``G`` is the gain matrix (p×p), e.g.
+    from ``lionjax.lion(...).gain``. vmap it for many records.
     """
+    with jax.default_matmul_precision("highest"):  # the filter's expm (the rest is elementwise)
+        return _lion_parallel(model, record, G, bank, theta0, midpoint)
+
+
+def _lion_parallel(model, record, G, bank, theta0, midpoint):
     bank = default_bank() if bank is None else bank
-    regs = model.regressors(record, bank)
-    W, W0 = regs.W, regs.W0
-    T, _, p = W.shape
-    dtype = W.dtype
+    if bank.batch_shape:
+        raise InputError(
+            "lion_parallel: one record, one filter (coeffs (n,)); vmap lion_parallel over "
+            f"records and banks for many, got coeffs of shape {bank.coeffs.shape}."
+        )
+    dtype = jnp.asarray(record.x).dtype
+    plan = _plan_for(model, record, bank, masked=False, block=1)
+    sigs = model.signals(record)
+    n = bank.order
+    h = jnp.asarray(record.dt, dtype)
+
+    def outputs(name, hold):  # V₁ … V_{n+1} at every sample, (T, n + 1)
+        u = jnp.asarray(sigs[name][0]).astype(dtype)
+        z = filter_states(bank, u, record.dt, hold, dtype)
+        lam_rev = bank.coeffs[::-1].astype(dtype)
+        V = jnp.concatenate([z, (u - jnp.sum(z * lam_rev, -1))[:, None]], -1)
+        return V * bank.coeffs[-1].astype(dtype) if bank.unit_dc_gain else V
+
+    V = [outputs(name, hold) for name, hold in plan.signals]
+    W = jnp.stack(
+        [
+            jnp.stack([sign * V[s][:, order + r] for s, order, sign in plan.columns], -1)
+            for r in (0, 1)
+        ],
+        1,
+    )  # (T, 2, p)
+    W0 = V[plan.x_index][:, 2:4]  # (T, 2)
+    p = W.shape[-1]
     if midpoint:
         Ws, W0s = 0.5 * (W[:-1] + W[1:]), 0.5 * (W0[:-1] + W0[1:])
     else:
         Ws, W0s = W[:-1], W0[:-1]
     G = jnp.asarray(G, dtype)
-    h = record.dt.astype(dtype)
-    GW = jnp.einsum("pq,tiq->tpi", G, Ws)  # (T-1, p, 2)
-    S = jnp.einsum("tip,tpj->tij", Ws, GW)
+    GW = matmul(G, jnp.swapaxes(Ws, -1, -2))  # (T-1, p, 2)
+    S = matmul(Ws, GW)  # (T-1, 2, 2)
     ep, eq, er = phi_sym2(h * S[:, 0, 0], h * 0.5 * (S[:, 0, 1] + S[:, 1, 0]), h * S[:, 1, 1])
     E = jnp.stack([jnp.stack([ep, eq], -1), jnp.stack([eq, er], -1)], -2)
-    K = h * jnp.einsum("tpi,tij->tpj", GW, E)  # (T-1, p, 2)
-    A = jnp.eye(p, dtype=dtype) - jnp.einsum("tpj,tjq->tpq", K, Ws)
-    c = -jnp.einsum("tpj,tj->tp", K, W0s)
-
-    def compose(first, second):
-        A1, c1 = first
-        A2, c2 = second
-        return A2 @ A1, jnp.einsum("...pq,...q->...p", A2, c1) + c2
-
-    Acum, ccum = jax.lax.associative_scan(compose, (A, c))
+    K = h * matmul(GW, E)  # (T-1, p, 2)
+    A = jnp.eye(p, dtype=dtype) - matmul(K, Ws)
+    c = -matvec(K, W0s)
     th0 = jnp.zeros((p,), dtype) if theta0 is None else jnp.asarray(theta0, dtype)
-    thetas = jnp.einsum("tpq,q->tp", Acum, th0) + ccum
-    thetas = jnp.concatenate([th0[None], thetas])
-    return ParallelSolution(theta=thetas, theta_final=thetas[-1], names=regs.names)
+    thetas = jnp.concatenate([th0[None], affine_scan(A, c, th0)])
+    return ParallelSolution(theta=thetas, theta_final=thetas[-1], names=tuple(model.names))
