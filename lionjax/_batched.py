@@ -1279,7 +1279,6 @@ def _lion_parallel(model, record, G, bank, theta0, midpoint):
     dtype = jnp.asarray(record.x).dtype
     plan = _plan_for(model, record, bank, masked=False, block=1)
     sigs = model.signals(record)
-    n = bank.order
     h = jnp.asarray(record.dt, dtype)
 
     def outputs(name, hold):  # V₁ … V_{n+1} at every sample, (T, n + 1)

@@ -143,7 +143,8 @@ def pallas_kernel(plan, X, shared, per, parts=1, *, rows: int | None = None, int
             u_end_rows = loaded[-1]
             sh_loaded = iter([_load(r, True, nd) for r, nd in zip(sr, sh_ndim, strict=True)])
             sh_v = jax.tree.unflatten(
-                sh_def, [next(sh_loaded) if is_arr else a for a, is_arr in zip(sh_all, sh_is)]
+                sh_def,
+                [next(sh_loaded) if is_arr else a for a, is_arr in zip(sh_all, sh_is, strict=True)],
             )
             core = _Core(plan, sh_v, per_v, dtype, pairs=False)
             read = lambda k: [x[k, :] for x in xr]

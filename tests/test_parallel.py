@@ -59,12 +59,12 @@ def test_filter_scan_equals_sequential(signals, dtype, tol, hold):
 # lion_parallel against the sequential lion_batched, B > 1 (vmap), T = 10⁴
 
 
-@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-9), (np.float32, 2e-3)])
+@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-9), (np.float32, 1e-4)])
 def test_lion_parallel_equals_lion_batched(signals, dtype, tol):
     """θ at every 100th sample and θ(T) of vmap(lion_parallel) against lion_batched (the fused
-    sequential loop, tested against lj.lion) for B = 3 records of 10⁴ samples. float32: 2e-3
-    relative to the largest |θ| (the sequential and the tree-ordered products round
-    differently over 10⁴ steps; TF32 would be ~1e-1)."""
+    sequential loop, tested against lj.lion) for B = 3 records of 10⁴ samples, relative to the
+    largest |θ|. float32: 1e-4 (measured 2e-6 between the two float32 paths, each within 4e-6
+    of float64; TF32 products were ~1e-1)."""
     x, F = (jnp.asarray(a, dtype) for a in signals)
     batch = lj.Record(x, F, jnp.asarray(DT, dtype), jnp.asarray(0.0, dtype))
     seq = lj.lion_batched(
@@ -136,13 +136,15 @@ def test_lion_parallel_products_full_precision(small32):
 @pytest.mark.parametrize("kernel", ["xla", "pallas"])
 def test_lion_batched_products_full_precision(small32, kernel):
     _assert_highest(
-        lambda r: lj.lion_batched(
-            lj.MassDamper(),
-            r,
-            gain=lj.AutoGain(),
-            outputs=(lj.LSStatistics(transient=0.03),),
-            execution=lj.Execution(kernel=kernel, shard=False),
-            throw=False,
-        ).theta,
+        lambda r: (
+            lj.lion_batched(
+                lj.MassDamper(),
+                r,
+                gain=lj.AutoGain(),
+                outputs=(lj.LSStatistics(transient=0.03),),
+                execution=lj.Execution(kernel=kernel, shard=False),
+                throw=False,
+            ).theta
+        ),
         small32,
     )
