@@ -493,13 +493,25 @@ def _split(v: list, p: int):
 def _nested(a, scalars: bool):
     """An input as the per-sample code indexes it: nested lists over every axis but the batch
     (``scalars`` False: per-record values, batch last) or over every axis (``scalars`` True:
-    values shared by the batch). Lists (already unstacked, e.g. by the Pallas kernel from its
-    refs) and None pass through."""
-    if a is None or isinstance(a, list) or not hasattr(a, "ndim"):
-        return a
-    if a.ndim == (0 if scalars else 1):
-        return a
-    return [_nested(a[i], scalars) for i in range(a.shape[0])]
+    values shared by the batch), each entry indexed at once (``a[i, j]``). Applied to every
+    array of a pytree; lists (already unstacked, e.g. by the Pallas kernel from its refs) and
+    None pass through."""
+
+    def one(v):
+        if isinstance(v, list) or not hasattr(v, "ndim"):
+            return v
+        stop = v.ndim if scalars else v.ndim - 1
+        if stop <= 0:
+            return v
+
+        def rec(idx):
+            if len(idx) == stop:
+                return v[idx]
+            return [rec(idx + (i,)) for i in range(v.shape[len(idx)])]
+
+        return rec(())
+
+    return jax.tree.map(one, a, is_leaf=lambda v: isinstance(v, list))
 
 
 class _Core:

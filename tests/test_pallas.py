@@ -4,7 +4,7 @@ test_batched.py checks against the independent references.
 Two configurations, each compiled once for each kernel (module fixtures):
 
 - float64, everything per record: one filter and one dt per record, AutoGain with a rate per
-  record, ``lengths`` (padded records), LS statistics, convergence time, tail statistics and a
+  record, the normalised law (μ = 0.5), θ₀, ``lengths`` (padded records), LS statistics, convergence time, tail statistics and a
   decimated trajectory; B = 6 over programs of 4 records (two programs, two padded lanes);
 - float32, everything shared: one filter, one scalar dt, a scalar FixedGain (values read as
   scalars in the kernel), LS statistics, convergence time and a trajectory.
@@ -57,6 +57,7 @@ def _run_per_record(kernel):
         batch,
         bank=bank,
         gain=lj.AutoGain(jnp.linspace(20.0, 60.0, B)),
+        stepper=lj.ExactStep(normalisation=0.5),
         theta0=jnp.array([0.8 * 22.0, 1.2 * 1.916]),  # inside the band: t_converged finite
         lengths=lengths,
         outputs=(
