@@ -185,6 +185,132 @@ def build_numba(dtype):
 
 
 # ----------------------------------------------------------------------------------------------
+# CUDA (GPU only): an independent CuPy RawKernel of the same law, one thread per dataset, the
+# records in (T, B) layout (coalesced: each sample of 32 consecutive datasets is one transaction;
+# the transpose is done once and not timed — the reference gets its preferred layout), the same
+# scalar code as numba. Written without a GPU at hand: UNMEASURED until run on one.
+
+CUDA_SRC = r"""
+typedef {ctype} R;
+#define EXP {exp}
+#define EXPM1 {expm1}
+#define SQRT {sqrt}
+extern "C" __global__ void lion_cuda(const R* __restrict__ xt, const R* __restrict__ Ft,
+                                     const int B, const int T, const R* __restrict__ P,
+                                     R* __restrict__ theta_out)
+{{
+    const int bi = blockIdx.x * blockDim.x + threadIdx.x;
+    if (bi >= B) return;
+    // P: Phi (9, row-major), G0 (3), G1 (3), lam (3), cdc, Gm (4, row-major), h
+    const R p00 = P[0], p01 = P[1], p02 = P[2], p10 = P[3], p11 = P[4], p12 = P[5];
+    const R p20 = P[6], p21 = P[7], p22 = P[8];
+    const R a0 = P[9], a1 = P[10], a2 = P[11], c0 = P[12], c1 = P[13], c2 = P[14];
+    const R l0 = P[15], l1 = P[16], l2 = P[17], cdc = P[18];
+    const R G00 = P[19], G01 = P[20], G10 = P[21], G11 = P[22], h = P[23];
+    R ux = xt[bi], uf = Ft[bi];
+    R zx0 = ux / l2, zx1 = (R)0, zx2 = (R)0;
+    R zf0 = uf / l2, zf1 = (R)0, zf2 = (R)0;
+    R th0 = (R)0, th1 = (R)0;
+    for (int k = 0; k < T - 1; ++k) {{
+        const R ux1 = xt[(size_t)(k + 1) * B + bi];
+        const R uf1 = Ft[(size_t)(k + 1) * B + bi];
+        const R dux = ux1 - ux;
+        const R nx0 = p00 * zx0 + p01 * zx1 + p02 * zx2 + a0 * ux + c0 * dux;
+        const R nx1 = p10 * zx0 + p11 * zx1 + p12 * zx2 + a1 * ux + c1 * dux;
+        const R nx2 = p20 * zx0 + p21 * zx1 + p22 * zx2 + a2 * ux + c2 * dux;
+        const R nf0 = p00 * zf0 + p01 * zf1 + p02 * zf2 + a0 * uf;
+        const R nf1 = p10 * zf0 + p11 * zf1 + p12 * zf2 + a1 * uf;
+        const R nf2 = p20 * zf0 + p21 * zf1 + p22 * zf2 + a2 * uf;
+        const R mx0 = (R)0.5 * (zx0 + nx0), mx1 = (R)0.5 * (zx1 + nx1);
+        const R mx2 = (R)0.5 * (zx2 + nx2);
+        const R mf0 = (R)0.5 * (zf0 + nf0), mf1 = (R)0.5 * (zf1 + nf1);
+        const R mux = (R)0.5 * (ux + ux1);
+        const R w11 = cdc * mx1, w21 = cdc * mx2, w12 = -cdc * mf0, w22 = -cdc * mf1;
+        const R y1 = cdc * mx2;
+        const R y2 = cdc * (mux - (l2 * mx0 + l1 * mx1 + l0 * mx2));
+        const R g11 = G00 * w11 + G01 * w12, g21 = G10 * w11 + G11 * w12;
+        const R g12 = G00 * w21 + G01 * w22, g22 = G10 * w21 + G11 * w22;
+        const R zp = h * (w11 * g11 + w12 * g21);
+        const R zq = h * (w11 * g12 + w12 * g22);
+        const R zr = h * (w21 * g12 + w22 * g22);
+        const R e1 = w11 * th0 + w12 * th1 + y1;
+        const R e2 = w21 * th0 + w22 * th1 + y2;
+        const R m = (R)0.5 * (zp + zr), hd = (R)0.5 * (zp - zr);
+        const R tr = zp + zr, det = zp * zr - zq * zq;
+        R d = (R)0, ep, eq, er;
+        int nt = 0;
+        if (tr <= (R){bound}) {{
+            nt = {nfast};
+        }} else {{
+            d = SQRT(hd * hd + zq * zq);
+            if (m + d <= (R)1) nt = {nslow};
+        }}
+        if (nt > 0) {{
+            R a = (R)1, b = (R)0;
+            for (int kk = nt; kk > 1; --kk) {{
+                const R rk = (R)1 / (R)kk;
+                const R an = (R)1 + (b * det) * rk;
+                b = -(a + b * tr) * rk;
+                a = an;
+            }}
+            ep = a + b * zp; eq = b * zq; er = a + b * zr;
+        }} else {{
+            R ebar, g;
+            if (d < (R){thr} * m) {{
+                const R e = EXP(-m), im = (R)1 / m;
+                const R E0 = ((R)1 - e) * im, E1 = (e - E0) * im;
+                const R E2 = (-e - (R)2 * E1) * im, E3 = (e - (R)3 * E2) * im;
+                ebar = E0 + (R)0.5 * E2 * d * d; g = E1 + E3 * d * d / (R)6;
+            }} else {{
+                const R lp = m + d, lm = m - d;
+                const R epp = -EXPM1(-lp) / lp;
+                const R emm = lm < (R)1e-6 ? (R)1 - (R)0.5 * lm : -EXPM1(-lm) / lm;
+                ebar = (R)0.5 * (epp + emm); g = (epp - emm) / ((R)2 * d);
+            }}
+            ep = ebar + g * hd; eq = g * zq; er = ebar - g * hd;
+        }}
+        const R f1 = h * (ep * e1 + eq * e2), f2 = h * (eq * e1 + er * e2);
+        th0 = th0 - (g11 * f1 + g12 * f2);
+        th1 = th1 - (g21 * f1 + g22 * f2);
+        zx0 = nx0; zx1 = nx1; zx2 = nx2; zf0 = nf0; zf1 = nf1; zf2 = nf2;
+        ux = ux1; uf = uf1;
+    }}
+    theta_out[2 * bi] = th0;
+    theta_out[2 * bi + 1] = th1;
+}}
+"""
+
+
+def build_cuda(dtype):
+    """The CuPy RawKernel of :data:`CUDA_SRC` for ``dtype`` and a runner
+    ``run(xt, Ft, params, theta)`` (device arrays; ``xt``/``Ft`` (T, B)). ImportError without
+    CuPy."""
+    import cupy as cp
+
+    f32 = dtype == "float32"
+    src = CUDA_SRC.format(
+        ctype="float" if f32 else "double",
+        exp="expf" if f32 else "exp",
+        expm1="expm1f" if f32 else "expm1",
+        sqrt="sqrtf" if f32 else "sqrt",
+        **phi_tiers(dtype),
+    )
+    kern = cp.RawKernel(src, "lion_cuda", options=("--std=c++14",))  # fast-math off (default)
+
+    def run(xt, Ft, params, theta):
+        T, B = xt.shape
+        threads = 128
+        kern(
+            ((B + threads - 1) // threads,),
+            (threads,),
+            (xt, Ft, np.int32(B), np.int32(T), params, theta),
+        )
+        cp.cuda.get_current_stream().synchronize()
+
+    return run
+
+
+# ----------------------------------------------------------------------------------------------
 # numpy: vectorised over the batch, Python loop over time (same math; both φ branches only when
 # some element needs the eigen branch)
 
@@ -283,6 +409,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--naive-batch", type=int, default=256, help="batch of the naive vmap")
     ap.add_argument("--small-repeats", type=int, default=2, help="repeats of the slow paths")
     ap.add_argument("--skip", default="", help="comma list of implementations to skip")
+    ap.add_argument(
+        "--long-samples",
+        type=int,
+        default=1_000_000,
+        help="samples of the one long record timed parallel in time vs sequential (GPU only)",
+    )
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
 
@@ -339,6 +471,7 @@ def main(argv=None) -> dict:
         out[name] = {"msps": msps, "seconds": seconds, **extra}
         print(f"{name:>10}: {msps:9.4g} M sample-updates/s  ({seconds * 1e3:.1f} ms)", flush=True)
 
+    gpu = jax.default_backend() == "gpu"
     # --- lionjax: the records placed once over the host devices (lj.shard_records, timed
     # separately as placement_s), then lion_batched with its defaults
     gain = lj.FixedGain(jnp.asarray(Gd))
@@ -363,6 +496,7 @@ def main(argv=None) -> dict:
         peak_rss_growth_mb=rss_mb() - m0,
         roofline_fraction=N / secs / 1e6 / ROOFLINE_MSPS,
         devices=len(jax.local_devices()),
+        kernel="xla",  # Execution(kernel="auto") resolves to XLA on every backend today
     )
     # --- lionjax on one device, records as they come (no placement): the batch split into
     # one loop per core inside one program
@@ -425,6 +559,42 @@ def main(argv=None) -> dict:
                 version=numba.__version__,
             )
             check("numba", th.copy())
+
+    # --- GPU only: the fused XLA loop for comparison with the Pallas kernel ("auto" on a GPU),
+    # and the independent CUDA reference (CuPy RawKernel, one thread per dataset)
+    if gpu and "xla" not in skip:
+        xla = lj.Execution(kernel="xla")
+        runx = lambda: lj.lion_batched(
+            model, recs, gain=gain, execution=xla, throw=False
+        ).theta.block_until_ready()
+        thx = np.asarray(runx())
+        secs = best_time(runx, args.repeats)
+        timed["lionjax_xla"] = runx
+        record("lionjax_xla", secs, N, law="exact", kernel="xla")
+        check("lionjax_xla", thx)
+    if gpu and "cuda" not in skip:
+        try:
+            import cupy as cp
+
+            cuda_run = build_cuda(args.dtype)
+        except ImportError:
+            print("   cuda_ref: CuPy not installed; skipped")
+            cuda_run = None
+        if cuda_run is not None:
+            xt = cp.asarray(np.ascontiguousarray(x.T))  # (T, B), placed once, not timed
+            Ft = cp.asarray(np.ascontiguousarray(F.T))
+            params = cp.asarray(
+                np.concatenate([Phi.ravel(), Gam0, Gam1, lam, [cdc], Gd.ravel(), [h]]).astype(dtype)
+            )
+            thc = cp.zeros((B, 2), dtype)
+            fn = lambda: cuda_run(xt, Ft, params, thc)
+            t0 = time.perf_counter()
+            fn()
+            first = time.perf_counter() - t0
+            secs = best_time(fn, args.repeats)
+            timed["cuda_ref"] = fn
+            record("cuda_ref", secs, N, law="exact", compile_s=max(first - secs, 0.0))
+            check("cuda_ref", cp.asnumpy(thc))
 
     # --- numpy
     if "numpy" not in skip:
@@ -594,10 +764,29 @@ def main(argv=None) -> dict:
         out["ls_stream"]["max_rel_diff_vs_least_squares"] = err
         print(f"{'':>10}  streamed LS vs lionjax.least_squares: max relative difference {err:.2e}")
 
+    # --- GPU only: one long record, parallel in time (lion_parallel: associative scans of the
+    # filter and of θ) against the sequential loop (lion_batched with B = 1)
+    if gpu and "parallel" not in skip:
+        Tl = args.long_samples
+        xl, Fl = make_data(1, Tl, dt, seed=1)
+        rl = lj.Record(jnp.asarray(xl[0], dtype), jnp.asarray(Fl[0], dtype), jnp.asarray(dt, dtype))
+        rb = jax.tree.map(lambda a: a[None] if a.ndim else a, rl)
+        Gj = jnp.asarray(Gd)
+        fp = lambda: lj.lion_parallel(model, rl, Gj).theta_final.block_until_ready()
+        fs = lambda: lj.lion_batched(model, rb, gain=gain, throw=False).theta.block_until_ready()
+        thp, ths = np.asarray(fp()), np.asarray(fs())[0]
+        sp, ss = best_time(fp, args.repeats), best_time(fs, args.repeats)
+        record("parallel_in_time", sp, Tl, samples=Tl)
+        record("sequential_one_record", ss, Tl, samples=Tl)
+        err = float(np.max(np.abs(thp - ths) / np.maximum(np.abs(ths), 1e-12)))
+        out["parallel_in_time"]["max_rel_diff_vs_sequential"] = err
+        out["parallel_in_time"]["speedup_vs_sequential"] = ss / sp
+        print(f"{'':>10}  parallel/sequential speed-up {ss / sp:.1f}x, max rel diff {err:.2e}")
+
     lj_msps = out["lionjax"]["msps"]
     ratios = {
         k: lj_msps / out[k]["msps"]
-        for k in ("numba", "numpy", "vmap_scan", "diffrax", "scipy")
+        for k in ("numba", "numpy", "vmap_scan", "diffrax", "scipy", "cuda_ref")
         if k in out
     }
     out["ratios"] = {f"lionjax/{k}": v for k, v in ratios.items()}

@@ -78,6 +78,7 @@ from ._outputs import (
 )
 from ._phi import fast_series_terms, materialise, phi_sym2
 from ._record import Record
+from ._scan import affine_scan, discretise, filter_states, matmul, matvec
 from ._solution_tools import by_name, finish
 
 # ----------------------------------------------------------------------------------------------
@@ -159,7 +160,7 @@ def _mesh() -> Mesh | None:
 # Execution
 
 #: Kernel implementations :class:`Execution` accepts (``"auto"``: the best for the backend).
-KERNELS = ("auto", "xla")
+KERNELS = ("auto", "xla", "pallas")
 _BLOCK = 64  # samples per slab read from the (B, T) records (transposed in cache, per block)
 
 
@@ -179,7 +180,11 @@ class Execution(eqx.Module):
             only records already placed by :func:`shard_records` are sharded (else they would
             be copied on every call; one device's ``split`` loops use the cores instead).
         kernel: the kernel implementation, one of :data:`KERNELS`: ``"auto"`` (default, the
-            best available for the backend: today ``"xla"``) or ``"xla"`` (the fused XLA loop).
+            kernel validated on the backend: ``"xla"`` today everywhere — the Pallas kernel has
+            been tested only in interpret mode on CPU, not yet on a GPU), ``"xla"`` (the fused
+            XLA loop) or ``"pallas"`` (the whole time loop in one Pallas kernel, one record per
+            lane: :mod:`lionjax._pallas`; off a GPU it runs in Pallas' interpret mode — slow,
+            for testing).
         phi: how E(hS) = (I − e^{−hS})(hS)⁻¹ is evaluated: ``"series"`` (default: its series
             alone, 8 terms in float32, 14 in float64, while tr(hS) ≤ 1/2 — truncation below the
             unit roundoff — and the records where some sample exceeds the bound, or θ is not
@@ -217,8 +222,14 @@ class Execution(eqx.Module):
             )
 
     def kernel_function(self):
-        """The kernel implementation this resolves to (``"auto"`` → ``"xla"`` today)."""
-        return {"auto": _split_kernel, "xla": _split_kernel}[self.kernel]
+        """The kernel implementation this resolves to (``"auto"``: ``"xla"`` until the Pallas
+        kernel has been measured and validated on a GPU)."""
+        kernel = "xla" if self.kernel == "auto" else self.kernel
+        if kernel == "pallas":
+            from ._pallas import pallas_kernel
+
+            return pallas_kernel
+        return _split_kernel
 
 
 #: The default :class:`Execution` (every knob at its default).
@@ -424,7 +435,7 @@ def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
     Precomputing them keeps the per-sample work of the kernel to one dot product per output
     (the θ step never recomputes the filter update).
     """
-    Phi, G0, G1 = bank.discretise(dt)
+    Phi, G0, G1 = discretise(bank, dt)  # products at full precision (TF32 on a GPU otherwise)
     n = bank.order
     dtype = Phi.dtype
     G1 = G1 if foh else jnp.zeros_like(G1)
@@ -434,7 +445,7 @@ def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
     lam_rev = bank.coeffs[::-1].astype(dtype)  # coefficient of zᵢ in V_{n+1} is λ_{n−i}
 
     def outputs(state, u_row):
-        V = jnp.concatenate([state, (u_row - lam_rev @ state)[None]], 0)
+        V = jnp.concatenate([state, (u_row - jnp.sum(lam_rev[:, None] * state, 0))[None]], 0)
         return V * bank.coeffs[-1] if bank.unit_dc_gain else V
 
     unit = lambda a, b: jnp.concatenate([jnp.zeros((n,), dtype), jnp.array([a, b], dtype)])
@@ -478,6 +489,183 @@ def _split(v: list, p: int):
     return v[:p], v[p : 2 * p], v[2 * p], v[2 * p + 1]
 
 
+def _nested(a, scalars: bool):
+    """An input as the per-sample code indexes it: nested lists over every axis but the batch
+    (``scalars`` False: per-record values, batch last) or over every axis (``scalars`` True:
+    values shared by the batch), each entry indexed at once (``a[i, j]``). Applied to every
+    array of a pytree; lists (already unstacked, e.g. by the Pallas kernel from its refs) and
+    None pass through."""
+
+    def one(v):
+        if isinstance(v, list) or not hasattr(v, "ndim"):
+            return v
+        stop = v.ndim if scalars else v.ndim - 1
+        if stop <= 0:
+            return v
+
+        def rec(idx):
+            if len(idx) == stop:
+                return v[idx]
+            return [rec(idx + (i,)) for i in range(v.shape[len(idx)])]
+
+        return rec(())
+
+    return jax.tree.map(one, a, is_leaf=lambda v: isinstance(v, list))
+
+
+class _Core:
+    """The per-sample work of the kernel, shared by the fused XLA loop (:func:`_kernel`) and the
+    Pallas kernel (:mod:`lionjax._pallas`): the initial carry, one step k → k+1, and θ(T), J.
+
+    ``shared``/``per`` as :class:`_Inputs` (one of each field set), their ``maps``, ``G``,
+    ``z0``, ``theta0`` arrays or nested lists (:func:`_nested`); ``pairs``: carry θ as complex
+    pairs (the XLA:CPU fusion trick, :func:`lionjax._phi.materialise`) or as p real arrays (the
+    Pallas kernel: GPU kernels have no complex numbers)."""
+
+    def __init__(self, plan: _Plan, shared: _Inputs, per: _Inputs, dtype, pairs: bool = True):
+        self.plan, self.dtype, self.pairs = plan, dtype, pairs
+        n, p = plan.n, len(plan.columns)
+        self.n, self.p, self.S = n, p, len(plan.signals)
+
+        def get(name):
+            v = getattr(per, name)
+            return _nested(v, False) if v is not None else _nested(getattr(shared, name), True)
+
+        self.maps = [{k: getattr(m, k) for k in _MODES} for m in get("maps")]
+        self.h = get("h")
+        self.one = shared.one
+        self.foh = [hold == "foh" for _, hold in plan.signals]
+        self.outputs, self.inputs = shared.outputs, per.outputs
+        self.stepper = shared.stepper
+        self.G = get("G") if plan.estimate else None
+        self.length = per.length if plan.masked else None
+        self.z0 = _nested(per.z0, False)
+        self.theta0 = _nested(per.theta0, False) if plan.estimate else None
+
+    def lin(self, s, mode, row, z, uk, uk1):
+        M = self.maps[s][mode][row]
+        n = self.n
+        terms = [
+            M[c] * (z[c] if c < n else uk if c == n else uk1)
+            for c in range(n + 2)
+            if _structural(mode, self.foh[s], n, row, c)
+        ]
+        return sum(terms[1:], terms[0])
+
+    def regressors(self, mode, z, uk, uk1):
+        """W rows (W1, W2) and W₀ = (y1, y2) from the maps, elementwise."""
+        cache: dict = {}
+        plan = self.plan
+
+        def V(s, j):  # j = 1…4
+            if (s, j) not in cache:
+                cache[s, j] = self.lin(s, mode, j - 1, z[s], uk[s], uk1[s])
+            return cache[s, j]
+
+        W1 = [sign * V(s, order + 1) for s, order, sign in plan.columns]
+        W2 = [sign * V(s, order + 2) for s, order, sign in plan.columns]
+        return W1, W2, V(plan.x_index, 3), V(plan.x_index, 4)
+
+    # θ is carried as complex pairs (θ₀ + iθ₁, …): the update of a pair is one fusion
+
+    def to_pairs(self, th):
+        if not self.pairs:
+            return list(th)
+        th = list(th) + ([jnp.zeros_like(th[0])] if self.p % 2 else [])
+        return [jax.lax.complex(a, b) for a, b in zip(th[::2], th[1::2], strict=True)]
+
+    def from_pairs(self, tc):
+        if not self.pairs:
+            return list(tc)
+        return [f(v) for v in tc for f in (jnp.real, jnp.imag)][: self.p]
+
+    def init(self, zero) -> _State:
+        """The carry before the first step; ``zero`` a (Bs,) array of zeros of the dtype."""
+        plan, p = self.plan, self.p
+        th0 = [self.theta0[i] for i in range(p)] if plan.estimate else None
+        return _State(
+            z=[[self.z0[s][i] for i in range(self.n)] for s in range(self.S)],
+            theta=self.to_pairs(th0) if plan.estimate else None,
+            valid=(
+                jnp.ones(zero.shape, bool)
+                if plan.estimate and self.stepper.reports_stability
+                else None
+            ),
+            outputs=tuple(
+                o.init(inp, p, th0, zero) for o, inp in zip(self.outputs, self.inputs, strict=True)
+            ),
+        )
+
+    def step(self, c: _State, k, uk, uk1, partial):
+        """Sample k → k+1 (``partial``: this slab's sums, added to the totals per slab)."""
+        plan, n, p, S = self.plan, self.n, self.p, self.S
+        lin, one = self.lin, self.one
+        z = c.z
+        zn = [[lin(s, "next", i, z[s], uk[s], uk1[s]) for i in range(n)] for s in range(S)]
+        act = None
+        if plan.masked:
+            act = (k + 1) < self.length
+            zn = [
+                [jnp.where(act, a, b) for a, b in zip(zs, zo, strict=True)]
+                for zs, zo in zip(zn, z, strict=True)
+            ]
+
+        def end():  # regressors at sample k+1, materialised once (LS statistics)
+            W1, W2, y1, y2 = self.regressors("end", z, uk, uk1)
+            return _split(materialise(W1 + W2 + [y1, y2], one), p)
+
+        theta, valid, theta_new = c.theta, c.valid, None
+        if plan.estimate:
+            W1, W2, y1, y2 = self.regressors("mid" if plan.midpoint else "start", z, uk, uk1)
+            d, ok = self.stepper.increment(
+                self.from_pairs(c.theta),
+                W1,
+                W2,
+                y1,
+                y2,
+                self.G,
+                self.h,
+                series=plan.series_terms,
+                one=one,
+            )
+            tc = [t - v for t, v in zip(c.theta, self.to_pairs(d), strict=True)]
+            if act is not None:
+                tc = [jnp.where(act, a, b) for a, b in zip(tc, c.theta, strict=True)]
+                ok = None if ok is None else ok | ~act
+            theta = tc
+            if valid is not None:
+                valid = valid & ok
+            theta_new = lambda: self.from_pairs(tc)
+        sample = Sample(k, act, self.h, self.dtype, end, theta_new)
+        outs, part = [], []
+        for o, st, sm, inp in zip(self.outputs, c.outputs, partial, self.inputs, strict=True):
+            new = o.update(Accumulated(st.carry, sm), sample, inp)
+            outs.append(Accumulated(new.carry, st.sums))
+            part.append(new.sums)
+        return _State(zn, theta, valid, tuple(outs)), tuple(part)
+
+    @staticmethod
+    def zero_sums(c: _State) -> tuple:
+        return tuple(jax.tree.map(jnp.zeros_like, st.sums) for st in c.outputs)
+
+    @staticmethod
+    def add_sums(c: _State, part) -> _State:
+        outs = tuple(
+            Accumulated(st.carry, jax.tree.map(lambda a, b: a + b, st.sums, sm))
+            for st, sm in zip(c.outputs, part, strict=True)
+        )
+        return _State(c.z, c.theta, c.valid, outs)
+
+    def final(self, c: _State, u_end):
+        """(θ(T) as p arrays, J = ½εᵀε at each record's last sample); ``u_end``: the S signals
+        at that sample."""
+        W1, W2, y1, y2 = self.regressors("start", c.z, u_end, u_end)
+        th = self.from_pairs(c.theta)
+        e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
+        e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
+        return th, 0.5 * (e1 * e1 + e2 * e2)
+
+
 def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
     """Run the records ``rows`` (default all) of the batch. ``X``: tuple of S raw signals, each
     ``(B, T)`` (the records' own layout: each slab of ``plan.block`` samples is read and
@@ -485,101 +673,10 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
     with the batch last (already restricted to ``rows``), ``shared`` the values common to the
     batch (scalars in the kernel), including the accumulators, whose ``init``/``update`` are
     called for the rows. Returns an :class:`_Out`, batch last."""
-    S = len(X)
     r0, r1 = (0, X[0].shape[0]) if rows is None else rows
     Bs, T = r1 - r0, X[0].shape[1]
     dtype = X[0].dtype
-    n, p = plan.n, len(plan.columns)
-    get = lambda name: (
-        getattr(per, name) if getattr(per, name) is not None else getattr(shared, name)
-    )
-    maps = [
-        {
-            k: [[M[i, j] for j in range(M.shape[1])] for i in range(M.shape[0])]
-            for k, M in ((k, getattr(m, k)) for k in _MODES)
-        }
-        for m in get("maps")
-    ]
-    h = get("h")
-    one = shared.one
-    foh = [hold == "foh" for _, hold in plan.signals]
-    zero = jnp.zeros((Bs,), dtype)
-    outputs, inputs = shared.outputs, per.outputs
-    stepper = shared.stepper
-
-    def lin(s, mode, row, z, uk, uk1):
-        M = maps[s][mode][row]
-        terms = [
-            M[c] * (z[c] if c < n else uk if c == n else uk1)
-            for c in range(n + 2)
-            if _structural(mode, foh[s], n, row, c)
-        ]
-        return sum(terms[1:], terms[0])
-
-    def regressors(mode, z, uk, uk1):
-        """W rows (W1, W2) and W₀ = (y1, y2) from the maps, elementwise."""
-        cache: dict = {}
-
-        def V(s, j):  # j = 1…4
-            if (s, j) not in cache:
-                cache[s, j] = lin(s, mode, j - 1, z[s], uk[s], uk1[s])
-            return cache[s, j]
-
-        W1 = [sign * V(s, order + 1) for s, order, sign in plan.columns]
-        W2 = [sign * V(s, order + 2) for s, order, sign in plan.columns]
-        return W1, W2, V(plan.x_index, 3), V(plan.x_index, 4)
-
-    if plan.estimate:
-        Gm = get("G")
-        Gl = [[Gm[i, j] for j in range(p)] for i in range(p)]
-    length = per.length if plan.masked else None
-
-    # θ is carried as complex pairs (θ₀ + iθ₁, …): the update of a pair is one fusion
-
-    def to_pairs(th):
-        th = list(th) + ([jnp.zeros_like(th[0])] if p % 2 else [])
-        return [jax.lax.complex(a, b) for a, b in zip(th[::2], th[1::2], strict=True)]
-
-    def from_pairs(tc):
-        return [f(v) for v in tc for f in (jnp.real, jnp.imag)][:p]
-
-    def step(c: _State, k, uk, uk1, partial):
-        """Sample k → k+1 (``partial``: this slab's sums, added to the totals per slab)."""
-        z = c.z
-        zn = [[lin(s, "next", i, z[s], uk[s], uk1[s]) for i in range(n)] for s in range(S)]
-        act = None
-        if plan.masked:
-            act = (k + 1) < length
-            zn = [
-                [jnp.where(act, a, b) for a, b in zip(zs, zo, strict=True)]
-                for zs, zo in zip(zn, z, strict=True)
-            ]
-
-        def end():  # regressors at sample k+1, materialised once (LS statistics)
-            W1, W2, y1, y2 = regressors("end", z, uk, uk1)
-            return _split(materialise(W1 + W2 + [y1, y2], one), p)
-
-        theta, valid, theta_new = c.theta, c.valid, None
-        if plan.estimate:
-            W1, W2, y1, y2 = regressors("mid" if plan.midpoint else "start", z, uk, uk1)
-            d, ok = stepper.increment(
-                from_pairs(c.theta), W1, W2, y1, y2, Gl, h, series=plan.series_terms, one=one
-            )
-            tc = [t - v for t, v in zip(c.theta, to_pairs(d), strict=True)]
-            if act is not None:
-                tc = [jnp.where(act, a, b) for a, b in zip(tc, c.theta, strict=True)]
-                ok = None if ok is None else ok | ~act
-            theta = tc
-            if valid is not None:
-                valid = valid & ok
-            theta_new = lambda: from_pairs(tc)
-        sample = Sample(k, act, h, dtype, end, theta_new)
-        outs, part = [], []
-        for o, st, sm, inp in zip(outputs, c.outputs, partial, inputs, strict=True):
-            new = o.update(Accumulated(st.carry, sm), sample, inp)
-            outs.append(Accumulated(new.carry, st.sums))
-            part.append(new.sums)
-        return _State(zn, theta, valid, tuple(outs)), tuple(part)
+    core = _Core(plan, shared, per, dtype)
 
     def run_slab(c: _State, k0, slab) -> _State:
         """``slab``: S arrays (L + 1, Bs), the samples k0 … k0 + L: L steps from sample k0."""
@@ -587,15 +684,10 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
 
         def body(j, ca):
             row = lambda i: [sl[i] for sl in slab]
-            return step(ca[0], jnp.asarray(k0 + j, jnp.int32), row(j), row(j + 1), ca[1])
+            return core.step(ca[0], jnp.asarray(k0 + j, jnp.int32), row(j), row(j + 1), ca[1])
 
-        zeros = tuple(jax.tree.map(jnp.zeros_like, st.sums) for st in c.outputs)
-        c, part = jax.lax.fori_loop(0, L, body, (c, zeros))
-        outs = tuple(
-            Accumulated(st.carry, jax.tree.map(lambda a, b: a + b, st.sums, sm))
-            for st, sm in zip(c.outputs, part, strict=True)
-        )
-        return _State(c.z, c.theta, c.valid, outs)
+        c, part = jax.lax.fori_loop(0, L, body, (c, core.zero_sums(c)))
+        return core.add_sums(c, part)
 
     C = plan.block
     nb, rem = divmod(T - 1, C)
@@ -607,13 +699,7 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
             return c
         return jax.lax.scan(lambda cc, i: (run_slab(cc, i * C, read(i)), None), c, idx)[0]
 
-    th0 = [per.theta0[i] for i in range(p)] if plan.estimate else None
-    c = _State(
-        z=[[per.z0[s, i] for i in range(n)] for s in range(S)],
-        theta=to_pairs(th0) if plan.estimate else None,
-        valid=jnp.ones((Bs,), bool) if plan.estimate and stepper.reports_stability else None,
-        outputs=tuple(o.init(inp, p, th0, zero) for o, inp in zip(outputs, inputs, strict=True)),
-    )
+    c = core.init(jnp.zeros((Bs,), dtype))
     snapshots = None
     if plan.save_blocks:
         g = plan.save_blocks
@@ -621,7 +707,7 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
 
         def group(cc, j):
             cc = blocks(cc, j * g + jnp.arange(g))
-            return cc, jnp.stack(from_pairs(cc.theta))
+            return cc, jnp.stack(core.from_pairs(cc.theta))
 
         c, snapshots = jax.lax.scan(group, c, jnp.arange(ng))
         c = blocks(c, jnp.arange(ng * g, nb))
@@ -632,14 +718,10 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
 
     theta_out = J = None
     if plan.estimate:
-        last = (length - 1) if plan.masked else jnp.full((Bs,), T - 1, jnp.int32)
+        last = (per.length - 1) if plan.masked else jnp.full((Bs,), T - 1, jnp.int32)
         u_end = [Xs[r0 + jnp.arange(Bs), last] for Xs in X]
-        W1, W2, y1, y2 = regressors("start", c.z, u_end, u_end)
-        th = from_pairs(c.theta)
-        e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
-        e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
+        th, J = core.final(c, u_end)
         theta_out = jnp.stack(th)
-        J = 0.5 * (e1 * e1 + e2 * e2)
     return _Out(theta_out, J, c.valid, c.outputs, snapshots)
 
 
@@ -958,6 +1040,17 @@ def lion_batched(
 
 @eqx.filter_jit
 def _lion_batched(model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one):
+    # every matrix product traced here (the filter's expm, the gain's R⁻¹, the LS solve) at full
+    # precision: float32 dots run at TF32 on GPUs otherwise (explicit in the jaxpr; tested)
+    with jax.default_matmul_precision("highest"):
+        return _lion_batched_body(
+            model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one
+        )
+
+
+def _lion_batched_body(
+    model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one
+):
     st = _Stream(model, records, bank, lengths, execution, one)
     ctx = st.ctx
     B = records.x.shape[0]
@@ -1099,9 +1192,10 @@ def least_squares_batched(
 
 @eqx.filter_jit
 def _least_squares_batched(model, records, bank, lengths, ls, execution, one, max_condition):
-    st = _Stream(model, records, bank, lengths, execution, one)
-    (state,) = st.statistics((ls,))
-    r = ls.finalise(state, st.ctx, None)
+    with jax.default_matmul_precision("highest"):  # as _lion_batched
+        st = _Stream(model, records, bank, lengths, execution, one)
+        (state,) = st.statistics((ls,))
+        r = ls.finalise(state, st.ctx, None)
     finite = jnp.all(jnp.isfinite(r.theta), -1)
     return LSBatchedSolution(
         theta=r.theta,
@@ -1172,39 +1266,62 @@ def lion_parallel(
 ) -> ParallelSolution:
     """Lion's exact-step estimator for one record, parallel in time (``lax.associative_scan``).
 
-    θₖ₊₁ = Aₖθₖ + cₖ, Aₖ = I − h·GWₖᵀE(hSₖ)Wₖ, cₖ = −h·GWₖᵀE(hSₖ)W₀ₖ (Wₖ the midpoint
-    regressors, as :class:`lionjax.ExactStep`), so θₖ = (Aₖ₋₁…A₀)θ₀ + … is a prefix product of
-    affine maps, composed pairwise: (A₂, c₂)∘(A₁, c₁) = (A₂A₁, A₂c₁ + c₂). Depth O(log T) —
-    for long records on accelerators; on a CPU the sequential :func:`lion_batched` is faster.
-    Stores the regressors (memory O(T·p²)). ``G`` is the gain matrix (p×p), e.g. from
-    ``lionjax.lion(...).gain``. vmap it for many records.
+    Both recurrences are parallel: the filter bank (z_{k+1} = Φz_k + Γu, time-invariant:
+    :func:`lionjax._scan.filter_states`) and the estimate, θₖ₊₁ = Aₖθₖ + cₖ,
+    Aₖ = I − h·GWₖᵀE(hSₖ)Wₖ, cₖ = −h·GWₖᵀE(hSₖ)W₀ₖ (Wₖ the midpoint regressors, as
+    :class:`lionjax.ExactStep`), a prefix product of affine maps composed pairwise:
+    (A₂, c₂)∘(A₁, c₁) = (A₂A₁, A₂c₁ + c₂). Depth O(log T) — for long records on accelerators;
+    on a CPU the sequential :func:`lion_batched` is faster. Stores the regressors (memory
+    O(T·p²)). The regressors are built as :func:`lion_batched` builds them (the model's signals,
+    holds and columns); every small matrix product is elementwise (:mod:`lionjax._scan`), so
+    float32 runs at float32 precision on every backend. ``G`` is the gain matrix (p×p), e.g.
+    from ``lionjax.lion(...).gain``. vmap it for many records.
     """
+    with jax.default_matmul_precision("highest"):  # the filter's expm (the rest is elementwise)
+        return _lion_parallel(model, record, G, bank, theta0, midpoint)
+
+
+def _lion_parallel(model, record, G, bank, theta0, midpoint):
     bank = default_bank() if bank is None else bank
-    regs = model.regressors(record, bank)
-    W, W0 = regs.W, regs.W0
-    T, _, p = W.shape
-    dtype = W.dtype
+    if bank.batch_shape:
+        raise InputError(
+            "lion_parallel: one record, one filter (coeffs (n,)); vmap lion_parallel over "
+            f"records and banks for many, got coeffs of shape {bank.coeffs.shape}."
+        )
+    dtype = jnp.asarray(record.x).dtype
+    plan = _plan_for(model, record, bank, masked=False, block=1)
+    sigs = model.signals(record)
+    h = jnp.asarray(record.dt, dtype)
+
+    def outputs(name, hold):  # V₁ … V_{n+1} at every sample, (T, n + 1)
+        u = jnp.asarray(sigs[name][0]).astype(dtype)
+        z = filter_states(bank, u, record.dt, hold, dtype)
+        lam_rev = bank.coeffs[::-1].astype(dtype)
+        V = jnp.concatenate([z, (u - jnp.sum(z * lam_rev, -1))[:, None]], -1)
+        return V * bank.coeffs[-1].astype(dtype) if bank.unit_dc_gain else V
+
+    V = [outputs(name, hold) for name, hold in plan.signals]
+    W = jnp.stack(
+        [
+            jnp.stack([sign * V[s][:, order + r] for s, order, sign in plan.columns], -1)
+            for r in (0, 1)
+        ],
+        1,
+    )  # (T, 2, p)
+    W0 = V[plan.x_index][:, 2:4]  # (T, 2)
+    p = W.shape[-1]
     if midpoint:
         Ws, W0s = 0.5 * (W[:-1] + W[1:]), 0.5 * (W0[:-1] + W0[1:])
     else:
         Ws, W0s = W[:-1], W0[:-1]
     G = jnp.asarray(G, dtype)
-    h = record.dt.astype(dtype)
-    GW = jnp.einsum("pq,tiq->tpi", G, Ws)  # (T-1, p, 2)
-    S = jnp.einsum("tip,tpj->tij", Ws, GW)
+    GW = matmul(G, jnp.swapaxes(Ws, -1, -2))  # (T-1, p, 2)
+    S = matmul(Ws, GW)  # (T-1, 2, 2)
     ep, eq, er = phi_sym2(h * S[:, 0, 0], h * 0.5 * (S[:, 0, 1] + S[:, 1, 0]), h * S[:, 1, 1])
     E = jnp.stack([jnp.stack([ep, eq], -1), jnp.stack([eq, er], -1)], -2)
-    K = h * jnp.einsum("tpi,tij->tpj", GW, E)  # (T-1, p, 2)
-    A = jnp.eye(p, dtype=dtype) - jnp.einsum("tpj,tjq->tpq", K, Ws)
-    c = -jnp.einsum("tpj,tj->tp", K, W0s)
-
-    def compose(first, second):
-        A1, c1 = first
-        A2, c2 = second
-        return A2 @ A1, jnp.einsum("...pq,...q->...p", A2, c1) + c2
-
-    Acum, ccum = jax.lax.associative_scan(compose, (A, c))
+    K = h * matmul(GW, E)  # (T-1, p, 2)
+    A = jnp.eye(p, dtype=dtype) - matmul(K, Ws)
+    c = -matvec(K, W0s)
     th0 = jnp.zeros((p,), dtype) if theta0 is None else jnp.asarray(theta0, dtype)
-    thetas = jnp.einsum("tpq,q->tp", Acum, th0) + ccum
-    thetas = jnp.concatenate([th0[None], thetas])
-    return ParallelSolution(theta=thetas, theta_final=thetas[-1], names=regs.names)
+    thetas = jnp.concatenate([th0[None], affine_scan(A, c, th0)])
+    return ParallelSolution(theta=thetas, theta_final=thetas[-1], names=tuple(model.names))

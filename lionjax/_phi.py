@@ -10,6 +10,8 @@ kernel of :func:`lionjax.lion_batched` (elementwise over the batch).
 
 from __future__ import annotations
 
+import contextlib
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
@@ -117,6 +119,23 @@ def _series(tr, det, terms: int):
     return a, b
 
 
+_REAL_DIVISIONS = [False]
+
+
+@contextlib.contextmanager
+def real_divisions():
+    """While tracing inside this context, :func:`materialise` divides each value by the divisor
+    as a real number (no complex pairs): for kernels without complex arithmetic (the Pallas
+    kernel of :mod:`lionjax._pallas`; GPU kernels have no fusion problem to work around). The
+    guard is kept: a divisor of 0 still turns the element non-finite."""
+    old = _REAL_DIVISIONS[0]
+    _REAL_DIVISIONS[0] = True
+    try:
+        yield
+    finally:
+        _REAL_DIVISIONS[0] = old
+
+
 def materialise(values: list, divisor) -> list:
     """The same ``values`` (arrays), computed once per element by XLA:CPU.
 
@@ -129,6 +148,8 @@ def materialise(values: list, divisor) -> list:
     """
     if divisor is None:
         return values
+    if _REAL_DIVISIONS[0]:
+        return [v / divisor for v in values]
     vals = list(values) + ([jnp.zeros_like(values[-1])] if len(values) % 2 else [])
     den = jax.lax.complex(divisor, jnp.zeros_like(divisor))
     out = []
