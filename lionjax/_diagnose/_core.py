@@ -35,7 +35,6 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from .._effects import zero_phase_lowpass, zero_phase_velocity
 from .._errors import InputError
 from .._filters import FilterBank
 from .._models import Augmented, MassDamper
@@ -48,6 +47,7 @@ from ._fit import (
     impulse_gains,
     residual,
     simulate_windows,
+    zero_phase,
 )
 
 # ----------------------------------------------------------------------------- settings
@@ -100,7 +100,7 @@ def settings(
         )
     vh = min(2.5 * fh, 0.15 * fs)
     x = np.asarray(train.x, np.float64)
-    v = np.asarray(zero_phase_velocity(train.x, dt, 2 * math.pi * vh))
+    v = zero_phase(train.x, dt, 2 * math.pi * vh)[1]
     med = float(np.median(np.abs(v)))
     if not (np.all(np.isfinite(v)) and med > 0):
         raise InputError(
@@ -182,10 +182,22 @@ class _Fitter:
         self.H = None
         dt = st.dt
         wv = 2 * math.pi * st.velocity_hz
-        self.v_valid = zero_phase_velocity(valid.x, dt, wv)
-        self.x_valid_smooth = zero_phase_lowpass(valid.x, dt, wv)
-        self.rtr = Regressors(train, self.bank)
-        self.rva = Regressors(valid, self.bank)
+        self.x_valid_smooth, self.v_valid = zero_phase(valid.x, dt, wv)
+        v_train = self.v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
+        self.rtr = Regressors(train, self.bank, self._known(train, v_train))
+        self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
+
+    def _known(self, rec: Record, v: np.ndarray) -> dict:
+        """Raw signals of the library's effects, computed once (names as the effects use)."""
+        x = np.asarray(rec.x, np.float64)
+        xi = (x - self.st.x_center) / self.st.x_scale
+        return {
+            "one": (np.ones_like(x), "zoh"),
+            "x_spring": (x, "foh"),
+            "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
+            "g_pos": (0.5 * self.st.x_scale * xi**2, "foh"),
+            "xi": xi,
+        }
 
     def _model(self, cands):
         return Augmented(MassDamper(), _effects_of(cands, self.ctx))
@@ -271,7 +283,7 @@ class _Fitter:
         p["xc"] = jnp.asarray(self.st.x_center)
         H = self.window(float(phys["a"]))
         e = simulate_windows(p, u, self.valid.x, self.x_valid_smooth, self.v_valid, self.st.dt, H)
-        return np.asarray(e)[: (self.valid.n_samples // H) * H]
+        return e[: (self.valid.n_samples // H) * H]
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -531,7 +543,7 @@ def diagnose(
     # noise floor of ε₁ on the validation record
     sx = _robust_diff_std(np.asarray(valid.x))
     sF = _robust_diff_std(np.asarray(valid.F))
-    gx, gF = (float(g) for g in impulse_gains(fitter.bank, st.dt, a))
+    gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     n_eff = _n_eff(base.residual)
     Fabs_max = float(np.max(np.abs(np.asarray(train.F))))
