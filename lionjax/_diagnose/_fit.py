@@ -43,6 +43,8 @@ from .._record import Record
 P_MAX = 14
 #: Length of every profile grid (τ, F_max); shorter grids are padded by repeating a value.
 GRID = 32
+#: Padded lengths above this filter a profile grid 4 points at a time (memory).
+BIG = 1 << 20
 #: Signals whose value is (a function of x) × F: the input map u replaces F in them.
 F_DEP = {"F": None, "xiF": "xi"}
 #: At most this many F-dependent signals in one structure.
@@ -405,6 +407,8 @@ class Regressors:
 
     def _args(self, model):
         key = ("layout", _model_key(model))
+        if self.Tp > BIG:  # a long record: rebuild rather than hold a dense design per structure
+            return self.layout(model)
         if key not in self.cache:
             self.cache[key] = self.layout(model)
         return self.cache[key]
@@ -428,11 +432,12 @@ def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
         G0 = A.T @ A
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Ras = []
-        for i in range(0, len(inputs), GRID):
-            t, f = taus[i : i + GRID], fmaxs[i : i + GRID]
+        gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
+        for i in range(0, len(inputs), gb):
+            t, f = taus[i : i + gb], fmaxs[i : i + gb]
             m = t.size
-            t = np.concatenate([t, np.zeros(GRID - m)])
-            f = np.concatenate([f, np.full(GRID - m, np.inf)])
+            t = np.concatenate([t, np.zeros(gb - m)])
+            f = np.concatenate([f, np.full(gb - m, np.inf)])
             V = _grid_columns(
                 regs.dsc,
                 regs.Fp,
