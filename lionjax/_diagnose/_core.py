@@ -101,11 +101,21 @@ def settings(
     vh = min(2.5 * fh, 0.15 * fs)
     x = np.asarray(train.x, np.float64)
     v = zero_phase(train.x, dt, 2 * math.pi * vh)[1]
-    med = float(np.median(np.abs(v)))
-    if not (np.all(np.isfinite(v)) and med > 0):
+    # speed scale: a record that sticks most of the time (friction, quantised encoder) has v̂
+    # ≈ 0 on more than half of its samples
+    # (the median is then the smoothing's tail, ~1e-8 m/s): take it over the moving samples
+    va = np.abs(v)
+    ok = bool(np.all(np.isfinite(va)))
+    med = float(np.median(va)) if ok else math.nan
+    top = float(np.quantile(va, 0.99)) if ok else math.nan
+    moving = va > 0.01 * top if ok else va > 0
+    if ok and not med > 0.01 * top and np.any(moving):
+        med = float(np.median(va[moving]))
+    if not (ok and med > 0 and np.mean(moving) >= 0.02):
         raise InputError(
             "diagnose: the train record does not move enough to locate velocity reversals "
-            f"(median |v̂| = {med!r} m/s from a {vh:.4g} Hz zero-phase derivative filter); "
+            f"(median |v̂| while moving = {med!r} m/s on {np.mean(moving):.1%} of the samples, "
+            f"from a {vh:.4g} Hz zero-phase derivative filter; at least 2 % moving needed); "
             "record a motion that covers the range of interest."
         )
     v_eps = 0.02 * med

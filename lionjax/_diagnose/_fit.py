@@ -52,8 +52,9 @@ K_MAX = 2
 
 
 def padded_length(n: int) -> int:
-    """Bucketed length: the next power of two ≥ n + P_MAX + 2 (at least 256)."""
-    return max(256, 1 << int(math.ceil(math.log2(n + P_MAX + 2))))
+    """Bucketed length: the next power of two ≥ n + P_MAX + 2, at least 4096 (short records
+    share one bucket: a bucket costs compilations, a short record's padding costs little)."""
+    return max(4096, 1 << int(math.ceil(math.log2(n + P_MAX + 2))))
 
 
 def edge_pad(u, Tp: int) -> np.ndarray:
