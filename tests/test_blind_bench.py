@@ -2,7 +2,7 @@
 
 The independent simulator against closed forms (clean mass–damper, offset, saturation, delay,
 dead zone, stick) and one two-case run of ``diagnosis_blind.run``. That run uses a stub in place
-of ``lj.diagnose``: compiling the real diagnosis for a new record length takes 15–45 s, beyond
+of ``lj.diagnose``: compiling the real diagnosis for a new length bucket takes ~5–15 s, beyond
 this file's budget; tests/test_diagnose.py runs the benchmark with the real one.
 """
 

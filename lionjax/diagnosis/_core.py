@@ -49,6 +49,7 @@ from ._fit import (
     impulse_gains,
     residual,
     simulate_windows,
+    zero_phase,
 )
 
 # ----------------------------------------------------------------------------- settings
@@ -101,12 +102,22 @@ def settings(
         )
     vh = min(2.5 * fh, 0.15 * fs)
     x = np.asarray(train.x, np.float64)
-    v = np.asarray(zero_phase_velocity(train.x, dt, 2 * math.pi * vh))
-    med = float(np.median(np.abs(v)))
-    if not (np.all(np.isfinite(v)) and med > 0):
+    v = zero_phase(train.x, dt, 2 * math.pi * vh)[1]
+    # speed scale: a record that sticks most of the time (friction, quantised encoder) has v̂
+    # ≈ 0 on more than half of its samples
+    # (the median is then the smoothing's tail, ~1e-8 m/s): take it over the moving samples
+    va = np.abs(v)
+    ok = bool(np.all(np.isfinite(va)))
+    med = float(np.median(va)) if ok else math.nan
+    top = float(np.quantile(va, 0.99)) if ok else math.nan
+    moving = va > 0.01 * top if ok else va > 0
+    if ok and not med > 0.01 * top and np.any(moving):
+        med = float(np.median(va[moving]))
+    if not (ok and med > 0 and np.mean(moving) >= 0.02):
         raise InputError(
             "diagnose: the train record does not move enough to locate velocity reversals "
-            f"(median |v̂| = {med!r} m/s from a {vh:.4g} Hz zero-phase derivative filter); "
+            f"(median |v̂| while moving = {med!r} m/s on {np.mean(moving):.1%} of the samples, "
+            f"from a {vh:.4g} Hz zero-phase derivative filter; at least 2 % moving needed); "
             "record a motion that covers the range of interest."
         )
     v_eps = 0.02 * med
@@ -183,10 +194,22 @@ class _Fitter:
         self.H = None
         dt = st.dt
         wv = 2 * math.pi * st.velocity_hz
-        self.v_valid = zero_phase_velocity(valid.x, dt, wv)
-        self.x_valid_smooth = zero_phase_lowpass(valid.x, dt, wv)
-        self.rtr = Regressors(train, self.bank)
-        self.rva = Regressors(valid, self.bank)
+        self.x_valid_smooth, self.v_valid = zero_phase(valid.x, dt, wv)
+        v_train = self.v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
+        self.rtr = Regressors(train, self.bank, self._known(train, v_train))
+        self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
+
+    def _known(self, rec: Record, v: np.ndarray) -> dict:
+        """Raw signals of the library's effects, computed once (names as the effects use)."""
+        x = np.asarray(rec.x, np.float64)
+        xi = (x - self.st.x_center) / self.st.x_scale
+        return {
+            "one": (np.ones_like(x), "zoh"),
+            "x_spring": (x, "foh"),
+            "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
+            "g_pos": (0.5 * self.st.x_scale * xi**2, "foh"),
+            "xi": xi,
+        }
 
     def _model(self, cands):
         return Augmented(MassDamper(), _effects_of(cands, self.ctx))
@@ -272,7 +295,7 @@ class _Fitter:
         p["xc"] = jnp.asarray(self.st.x_center)
         H = self.window(float(phys["a"]))
         e = simulate_windows(p, u, self.valid.x, self.x_valid_smooth, self.v_valid, self.st.dt, H)
-        return np.asarray(e)[: (self.valid.n_samples // H) * H]
+        return e[: (self.valid.n_samples // H) * H]
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -521,7 +544,7 @@ def diagnose(
     # noise floor of ε₁ on the validation record
     sx = _robust_diff_std(np.asarray(valid.x))
     sF = _robust_diff_std(np.asarray(valid.F))
-    gx, gF = (float(g) for g in impulse_gains(fitter.bank, st.dt, a))
+    gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     n_eff = _n_eff(base.residual)
     Fabs_max = float(np.max(np.abs(np.asarray(train.F))))

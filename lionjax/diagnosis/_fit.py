@@ -9,98 +9,461 @@ of motion; the core's :func:`lionjax.least_squares` also stacks ε₂ = dε₁/d
 row), which weights the fit by frequency and, on real data with unmodelled high-frequency
 dynamics, biases the viscous term (EMPS at λ = 40 Hz: Fv +86 % with both rows, +0.7 % with ε₁).
 So the diagnosis solves the ε₁ rows (plus the filter's initial-state nuisance columns, as the core
-does) with the core's regressors and filter bank.
+does) with the core's filter bank and the core's one solver, :func:`lionjax.linear_lstsq`.
+
+Compilation. Every compiled program here sees only *bucketed* shapes and *traced* settings:
+
+- a record of T samples is padded (edge values) to Tp = the next power of two ≥ T + 16, and
+  every row ≥ T is masked out of the least squares (so one program serves every length in the
+  bucket); the filters are causal, so rows < T are exactly those of the unpadded record, and the
+  zero-phase filter reverses only the first T samples (exact as well);
+- dt, the filter's poles, v_ε, τ and F_max are arrays, never Python constants, so a new sample
+  rate, filter corner or grid does not recompile;
+- the least-squares design has a fixed number of columns (:data:`P_MAX`): a structure's unused
+  columns are unit vectors on padded rows (orthogonal to the data, singular value 1, so the fit,
+  its Gram inverse and the condition number of the used columns are unchanged), and profile grids
+  have a fixed length (:data:`GRID`). So one program fits every candidate and every stack.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from .._filters import FilterBank
 from .._least_squares import linear_lstsq
 from .._models import AbstractModel
 from .._record import Record
 
+#: Columns of every least-squares design (effect columns + the filter's initial-state columns).
+P_MAX = 14
+#: Length of every profile grid (τ, F_max); shorter grids are padded by repeating a value.
+GRID = 32
+#: Padded lengths above this filter a profile grid 4 points at a time (memory).
+BIG = 1 << 20
+#: Signals whose value is (a function of x) × F: the input map u replaces F in them.
+F_DEP = {"F": None, "xiF": "xi"}
+#: At most this many F-dependent signals in one structure.
+K_MAX = 2
 
-def apply_input(F: Float[Array, " T"], dt, tau, fmax) -> Float[Array, " T"]:
+
+def padded_length(n: int) -> int:
+    """Bucketed length: the next power of two ≥ n + P_MAX + 2, at least 4096 (short records
+    share one bucket: a bucket costs compilations, a short record's padding costs little)."""
+    return max(4096, 1 << int(math.ceil(math.log2(n + P_MAX + 2))))
+
+
+def edge_pad(u, Tp: int) -> np.ndarray:
+    u = np.asarray(u, np.float64)
+    return np.concatenate([u, np.full(Tp - u.size, u[-1] if u.size else 0.0)])
+
+
+# ----------------------------------------------------------------------------- filters
+
+
+@eqx.filter_jit
+def _discrete(bank: FilterBank, dt):
+    Phi, G0, G1 = bank.discretise(dt)
+    _, _, C, D = bank.state_space()
+    return Phi, G0, G1, C, D, bank.coeffs[-1]
+
+
+class Discrete(eqx.Module):
+    """The exact sampled filter (Φ, Γ₀, Γ₁, C, D) of a bank at one dt, as arrays."""
+
+    Phi: jax.Array
+    G0: jax.Array
+    G1: jax.Array
+    C: jax.Array
+    D: jax.Array
+    c_last: jax.Array
+
+    @classmethod
+    def of(cls, bank: FilterBank, dt) -> Discrete:
+        return cls(*_discrete(bank, _f(dt)))
+
+
+def _filt(dsc: Discrete, u, foh):
+    """(V₁…V₄) of one signal, as :meth:`FilterBank.__call__` with ``init="steady"``; ``foh`` is
+    1.0 for a first-order hold, 0.0 for a zero-order hold (traced).
+
+    The recursion z[k+1] = Φz[k] + Γ₀u[k] + Γ₁Δu[k] runs in M chunks of L samples (L·M = T,
+    L ≈ √T): the zero-state response of every chunk in parallel (L sequential steps), the chunks'
+    start states by z_{m+1} = Φᴸz_m + (chunk m's end state) (M steps), then Φʲ·z_m added back.
+    Linear and exact; ~2√T sequential steps instead of T (a scan step costs microseconds on CPU).
+    """
+    n = dsc.Phi.shape[0]
+    T = u.shape[0]
+    L = 1 << (T.bit_length() // 2) if T & (T - 1) == 0 else T  # T a power of two: L ≈ √T
+    M = T // L
+    z0 = jnp.zeros((n,), u.dtype).at[0].set(u[0] / dsc.c_last)
+    du = foh * (jnp.concatenate([u[1:], u[-1:]]) - u)
+    Phi_T = dsc.Phi.T
+
+    def step(z, inp):
+        uk, duk = inp
+        return z @ Phi_T + uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1, z
+
+    zL, zs = jax.lax.scan(step, jnp.zeros((M, n), u.dtype), (u.reshape(M, L).T, du.reshape(M, L).T))
+
+    def power(P, _):
+        return dsc.Phi @ P, P
+
+    PL, Pw = jax.lax.scan(power, jnp.eye(n, dtype=u.dtype), None, length=L)  # Φʲ, j < L; Φᴸ
+
+    def bstep(z, zl):
+        return PL @ z + zl, z
+
+    _, S = jax.lax.scan(bstep, z0, zL)  # (M, n) chunk start states
+    z = zs + jnp.einsum("jab,mb->jma", Pw, S)  # (L, M, n)
+    z = jnp.swapaxes(z, 0, 1).reshape(T, n)
+    return z @ dsc.C.T + u[:, None] * dsc.D
+
+
+@jax.jit
+def _filter_many(dsc: Discrete, U, foh):
+    return jax.vmap(_filt, in_axes=(None, 0, 0))(dsc, U, foh)
+
+
+#: Signals filtered per call of the batched filter (fixed: one program per padded length).
+S_BATCH = 8
+
+
+def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
+    """(S, Tp, 4) filtered signals, in fixed batches of :data:`S_BATCH`."""
+    S, Tp = U.shape
+    out = []
+    for i in range(0, S, S_BATCH):
+        u = U[i : i + S_BATCH]
+        f = foh[i : i + S_BATCH]
+        m = u.shape[0]
+        if m < S_BATCH:
+            u = np.concatenate([u, np.zeros((S_BATCH - m, Tp))])
+            f = np.concatenate([f, np.zeros(S_BATCH - m)])
+        out.append(np.asarray(_filter_many(dsc, jnp.asarray(u), jnp.asarray(f)))[:m])
+    return np.concatenate(out)
+
+
+@jax.jit
+def _zero_phase(dsc: Discrete, x, T, dt):
+    Tp = x.shape[0]
+    k = jnp.arange(Tp)
+    rev = jnp.where(k < T, T - 1 - k, 0)
+    fwd = _filt(dsc, x, 1.0)[:, 0]
+    bwd = _filt(dsc, fwd[rev], 1.0)[:, 0]
+    sm = bwd[rev]
+    sm = jnp.where(k < T, sm, sm[T - 1])
+    nxt = jnp.concatenate([sm[1:], sm[-1:]])
+    prv = jnp.concatenate([sm[:1], sm[:-1]])
+    g = (nxt - prv) / (2 * dt)
+    g = jnp.where(k == 0, (sm[1] - sm[0]) / dt, g)
+    g = jnp.where(k == T - 1, (sm[T - 1] - sm[T - 2]) / dt, g)
+    g = jnp.where(k < T, g, g[T - 1])
+    return sm, g
+
+
+def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x smoothed, v̂) of :func:`lionjax._effects.zero_phase_lowpass` / ``zero_phase_velocity``
+    (forward and backward through (ω/(s + ω))³, then central differences), on bucketed shapes."""
+    x = np.asarray(x, np.float64)
+    T = x.size
+    Tp = padded_length(T)
+    bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
+    dsc = Discrete.of(bank, dt)
+    sm, g = _zero_phase(dsc, jnp.asarray(edge_pad(x, Tp)), _i(T), _f(dt))
+    return np.asarray(sm)[:T], np.asarray(g)[:T]
+
+
+@jax.jit
+def _free(dsc: Discrete, T0):
+    def step(Z, _):
+        return dsc.Phi @ Z, Z
+
+    n = dsc.Phi.shape[0]
+    _, Zs = jax.lax.scan(step, jnp.eye(n, dtype=dsc.Phi.dtype), None, length=T0.shape[0])
+    return jnp.einsum("jn,tni->tij", dsc.C, Zs)[:, :, 0]
+
+
+def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
+    """Σh² of ε₁'s response to unit white noise on x (foh) and on b·F (zoh).
+
+    ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F] (unit-DC-gain bank), so a noise σ_x on x and σ_F on F add
+    σ_x²·Σh_x² + b²σ_F²·Σh_F² to the variance of ε₁ (the noise floor).
+    """
+    T = int(round(float(20 * bank.coeffs[-2] / bank.coeffs[-1] / dt))) + 64
+    Tp = padded_length(T)
+    d = np.zeros((2, Tp))
+    d[:, 1] = 1.0
+    V = filter_signals(Discrete.of(bank, dt), d, np.array([1.0, 0.0]))[:, :T]
+    hx = V[0, :, 2] + a * V[0, :, 1]
+    hF = V[1, :, 0]
+    return float(np.sum(hx * hx)), float(np.sum(hF * hF))
+
+
+# ----------------------------------------------------------------------------- inputs
+
+
+def _apply_input(F, dt, tau, fmax):
+    """:func:`apply_input` traced: τ/dt = n + φ, F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1]."""
+    T = F.shape[-1]
+    s = tau / dt
+    n = jnp.floor(s)
+    phi = s - n
+    k = jnp.arange(T)
+    i0 = jnp.clip(k - n.astype(k.dtype), 0, T - 1)
+    i1 = jnp.clip(i0 - 1, 0, T - 1)
+    Fd = (1 - phi) * F[i0] + phi * F[i1]
+    return jnp.clip(Fd, -fmax, fmax)
+
+
+def apply_input(F, dt, tau, fmax) -> np.ndarray:
     """u = sat_Fmax(F(t − τ)) at the samples, for a force held between samples [N].
 
     With τ = (n + φ)·dt the delayed held force averaged over each interval is
     (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0]); the clip is hard.
     """
-    T = F.shape[-1]
-    t = jnp.arange(T, dtype=F.dtype)
-    Fd = jnp.interp(t - tau / dt, t, F, left=F[0], right=F[-1])
-    return jnp.clip(Fd, -fmax, fmax)
+    F = np.asarray(F, np.float64)
+    t = np.arange(F.size, dtype=np.float64)
+    Fd = np.interp(t - float(tau) / float(dt), t, F, left=F[0], right=F[-1])
+    return np.clip(Fd, -fmax, fmax)
 
 
-@eqx.filter_jit
-def _filter(bank: FilterBank, u, dt, hold: str):
-    return bank(u, dt, hold)
+# ----------------------------------------------------------------------------- least squares
 
 
-@eqx.filter_jit
-def _filter_batch(bank: FilterBank, U, dt, hold: str):
-    return jax.vmap(lambda u: bank(u, dt, hold))(U)
+def _design(dsc, Wfix, F, mult, onehot, dt, tau, fmax, T):
+    """The design W (Tp, P) for one input map: fixed columns + the F-dependent ones."""
+    Tp = F.shape[0]
+    k = jnp.arange(Tp)
+    u = _apply_input(F, dt, tau, fmax)
+    u = jnp.where(k < T, u, u[T - 1])
+    V = jax.vmap(_filt, in_axes=(None, 0, None))(dsc, mult * u[None, :], 0.0)[:, :, 0]
+    return Wfix + V.T @ onehot
 
 
-@eqx.filter_jit
-def free_response(bank: FilterBank, dt, T: int):
-    return bank.free_response(dt, T)[:, :, 0]
+def _reduce(W: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Upper-triangular Rₐ (…, P + 1, P + 1) with RₐᵀRₐ = [W | y]ᵀ[W | y] (masked designs):
+    Rₐ[:P, :P] = R_W, Rₐ[:P, P] = Q_Wᵀy and Rₐ[P, P]² the part of ‖y‖² no column reaches.
+
+    The tall products are taken in float64 on the host (the designs are float32): this squares
+    no rounding error of the data, and the solve itself (:func:`lionjax.linear_lstsq`) runs on
+    the small Rₐ, one compiled program for every record length.
+    """
+    W = np.asarray(W, np.float64)
+    y = np.broadcast_to(np.asarray(y, np.float64), W.shape[:-1])
+    A = np.concatenate([W, y[..., None]], -1)
+    return _cholesky(np.swapaxes(A, -1, -2) @ A)
+
+
+def _cholesky(G: np.ndarray) -> np.ndarray:
+    """Upper Rₐ with RₐᵀRₐ = G (augmented Gram [W | y]ᵀ[W | y]), see :func:`_reduce`."""
+    try:
+        return np.swapaxes(np.linalg.cholesky(G), -1, -2)
+    except np.linalg.LinAlgError:  # rank-deficient design: a square root through eigh
+        out = []
+        for g in G.reshape((-1,) + G.shape[-2:]):
+            P = g.shape[0] - 1
+            w, V = np.linalg.eigh(g[:P, :P])
+            w = np.maximum(w, 0.0)
+            R = np.sqrt(w)[:, None] * V.T
+            q = np.where(w > w.max() * 1e-14, (V.T @ g[:P, P]) / np.sqrt(np.where(w > 0, w, 1)), 0)
+            rest = max(g[P, P] - q @ q, 0.0)
+            Ra = np.zeros_like(g)
+            Ra[:P, :P], Ra[:P, P], Ra[P, P] = R, q, math.sqrt(rest)
+            out.append(Ra)
+        return np.stack(out).reshape(G.shape)
+
+
+@jax.jit
+@jax.vmap
+def _small_fit(Ra):
+    """:func:`lionjax.linear_lstsq` on the reduced system: min ‖R_Φc + Q_Φᵀy‖², plus the rest."""
+    P = Ra.shape[0] - 1
+    fit = linear_lstsq(Ra[:P, :P], Ra[:P, P])
+    return fit.coef, fit.rss, fit.gram_inverse, fit.condition
+
+
+@jax.jit
+def _grid_columns(dsc, F, mult, mask, dt, taus, fmaxs, T):
+    """Masked F-dependent columns (GRID, K, Tp) of the input maps (τᵢ, F_maxᵢ), unsigned: every
+    grid point's signals filtered in one batched scan."""
+    Tp = F.shape[0]
+    k = jnp.arange(Tp)
+    U = jax.vmap(_apply_input, in_axes=(None, None, 0, 0))(F, dt, taus, fmaxs)
+    U = jnp.where(k < T, U, U[:, T - 1][:, None])
+    S = (mult[None, :, :] * U[:, None, :]).reshape(-1, Tp)  # (G·K, Tp)
+    V = jax.vmap(_filt, in_axes=(None, 0, None))(dsc, S, 0.0)[:, :, 0] * mask[None, :]
+    return V.reshape(taus.shape[0], mult.shape[0], Tp)
+
+
+def _f(v):
+    return jnp.asarray(np.float64(v))
+
+
+def _i(v):
+    return jnp.asarray(np.int64(v))
 
 
 class Regressors:
     """ε₁ regressors of :class:`~lionjax.Augmented` structures on one record, built from the
-    models' own :meth:`signals`/:meth:`columns` (as :meth:`AbstractModel.regressors` does), with
-    every raw signal filtered once and cached: many structures and profile grids share them.
+    models' own :meth:`columns` and the signals of :meth:`signals`, with every raw signal
+    filtered once and cached: many structures and profile grids share them.
 
     The input u = sat_Fmax(F(t − τ)) replaces F in every signal that uses it (``"F"`` and the
-    position-dependent ``ξ·F``); ``variants`` holds the filtered grid of such signals.
+    position-dependent ``ξ·F``); those columns are built inside the compiled fit, per grid point.
+
+    ``known``: precomputed raw signals {name: (samples (T,), hold)} (the diagnosis supplies the
+    smoothed sign of its zero-phase velocity, so that no effect recompiles its own filter).
     """
 
-    def __init__(self, record: Record, bank: FilterBank):
+    def __init__(self, record: Record, bank: FilterBank, known: dict | None = None):
         self.record, self.bank = record, bank
+        self.T = record.n_samples
+        self.Tp = padded_length(self.T)
+        self.dt = float(record.dt)
+        self.dsc = Discrete.of(bank, self.dt)
+        self.x = np.asarray(record.x, np.float64)
+        self.F = np.asarray(record.F, np.float64)
+        self.Fp = jnp.asarray(edge_pad(self.F, self.Tp))
+        self.mask = np.zeros(self.Tp)
+        self.mask[: self.T] = 1.0
+        self.known = dict(known or {})
         self.cache: dict = {}
-        self.N = np.asarray(free_response(bank, record.dt, record.n_samples))
+        self.N = np.asarray(_free(self.dsc, jnp.zeros(self.Tp)))  # (Tp, n)
+        self.W0 = self.filtered({"x": (self.x, "foh")})["x"][:, 2]
 
-    def filtered(self, model: AbstractModel, inputs: Sequence[tuple[float, float]]):
-        """{signal: (G, T, 4)} for each input map (τ, F_max) in ``inputs``."""
-        rec = self.record
-        out = {}
-        base = model.signals(rec)
-        F_dep = {"F", "xiF", "F_1"}
-        for name, (u, hold) in base.items():
-            if name not in F_dep:
-                key = (name, None)
-                if key not in self.cache:
-                    self.cache[key] = np.asarray(_filter(self.bank, u, rec.dt, hold))[None]
-                out[name] = np.broadcast_to(
-                    self.cache[key], (len(inputs),) + self.cache[key].shape[1:]
-                )
-        need = [n for n in base if n in F_dep]
-        for n in need:
-            missing = [i for i in inputs if (n, i) not in self.cache]
-            if missing:
-                us = [apply_input(rec.F, rec.dt, t, f) for t, f in missing]
-                sigs = [model.signals(Record(rec.x, uu, rec.dt))[n] for uu in us]
-                U = jnp.stack([sg[0] for sg in sigs])
-                V = np.asarray(_filter_batch(self.bank, U, rec.dt, sigs[0][1]))
-                for i, v in zip(missing, V, strict=True):
-                    self.cache[(n, i)] = v
-            out[n] = np.stack([self.cache[(n, i)] for i in inputs])
-        return out
+    def filtered(self, raw: dict) -> dict:
+        """{name: (Tp, 4)} for raw signals {name: (samples, hold)}, cached by name."""
+        todo = [n for n in raw if n not in self.cache]
+        if todo:
+            U = np.stack([edge_pad(np.asarray(raw[n][0])[: self.T], self.Tp) for n in todo])
+            foh = np.array([1.0 if raw[n][1] == "foh" else 0.0 for n in todo])
+            for n, v in zip(todo, filter_signals(self.dsc, U, foh), strict=True):
+                self.cache[n] = v
+        return {n: self.cache[n] for n in raw}
 
-    def design(self, model: AbstractModel, inputs: Sequence[tuple[float, float]]):
-        """(W₁ (G, T, p), W₀₁ (T,)) for the first equation error."""
-        filt = self.filtered(model, inputs)
-        cols = [c.sign * filt[c.signal][:, :, c.order] for c in model.columns()]
-        return np.stack(cols, axis=-1), filt["x"][0, :, 2]
+    def _raw(self, model: AbstractModel, names: Sequence[str]) -> dict:
+        missing = {n for n in names if n not in self.known and n not in self.cache}
+        for e in getattr(model, "effects", ()):  # signals the diagnosis does not precompute:
+            own = {c.signal for c in e.columns()} & missing  # the effect's own code
+            if own:
+                sig = e.signals(self.record)
+                for n in own:
+                    u, hold = sig[n]
+                    self.known[n] = (np.asarray(u, np.float64), hold)
+        return {n: self.known.get(n, (None, None)) for n in names}
+
+    def layout(self, model: AbstractModel):
+        """(Wfix (Tp, P), mult (K, Tp), onehot (K, P), pad (Tp, P), p, Wdef (Tp, P)) of a
+        structure: fixed columns, F-dependent signals' multipliers and slots, the unit columns
+        of unused slots, the column count and the design for u = F."""
+        cols = model.columns()
+        p = len(cols)
+        n_nuis = self.N.shape[1]
+        if p + n_nuis > P_MAX:
+            raise ValueError(f"structure with {p} columns exceeds P_MAX = {P_MAX}")
+        fixed = sorted({c.signal for c in cols if c.signal not in F_DEP})
+        raw = self._raw(model, [s for s in fixed if s != "x"])
+        raw["x"] = (self.x, "foh")
+        filt = self.filtered(raw)
+        Wfix = np.zeros((self.Tp, P_MAX))
+        mult = np.zeros((K_MAX, self.Tp))
+        onehot = np.zeros((K_MAX, P_MAX))
+        kk = 0
+        fdep: list[str] = []
+        for j, c in enumerate(cols):
+            if c.signal in F_DEP:
+                if c.order != 0 or kk >= K_MAX:
+                    raise ValueError(f"unsupported F-dependent column {c}")
+                if c.signal == "xiF":
+                    g = self._xi(model)
+                else:
+                    g = np.ones(self.T)
+                mult[kk] = edge_pad(g, self.Tp)
+                fdep.append(c.signal)
+                onehot[kk, j] = c.sign
+                kk += 1
+            else:
+                Wfix[:, j] = c.sign * filt[c.signal][:, c.order]
+        Wfix[:, p : p + n_nuis] = self.N
+        pad = np.zeros((self.Tp, P_MAX))
+        for j in range(p + n_nuis, P_MAX):
+            pad[self.T + j, j] = 1.0
+        # the design with the identity input map u = F (τ = 0, F_max = ∞): every column fixed
+        names = [f"{n}·F" for n in fdep] + [f"_zero{k}" for k in range(len(fdep), K_MAX)]
+        raw = {nm: (mult[k, : self.T] * self.F, "zoh") for k, nm in enumerate(names)}
+        filt = self.filtered(raw)
+        Wdef = Wfix + np.stack([filt[nm][:, 0] for nm in names], 1) @ onehot
+        return Wfix, mult, onehot, pad, p, Wdef
+
+    def _xi(self, model) -> np.ndarray:
+        if "xi" in self.known:
+            return self.known["xi"]
+        ones = Record(self.record.x, jnp.ones_like(self.record.x), self.record.dt)
+        return np.asarray(model.signals(ones)["xiF"][0], np.float64)
+
+    def _args(self, model):
+        key = ("layout", _model_key(model))
+        if self.Tp > BIG:  # a long record: rebuild rather than hold a dense design per structure
+            return self.layout(model)
+        if key not in self.cache:
+            self.cache[key] = self.layout(model)
+        return self.cache[key]
+
+
+def _model_key(model) -> tuple:
+    return tuple(c for c in model.columns())
+
+
+def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
+    """coef, RSS, Gram inverse, condition (each leading G) of the masked LS per input map."""
+    taus = np.array([float(t) for t, _ in inputs], np.float64)
+    fmaxs = np.array([float(f) for _, f in inputs], np.float64)
+    y = np.asarray(y, np.float64) * regs.mask
+    if Wdef is not None and len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
+        Ras = [_reduce(Wdef * regs.mask[:, None] + pad, y)[None]]
+    else:
+        # only the K F-dependent columns change along the grid: Gram blocks in float64
+        Wf = Wfix * regs.mask[:, None] + pad
+        A = np.concatenate([Wf, y[:, None]], 1)
+        G0 = A.T @ A
+        O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
+        Ras = []
+        gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
+        for i in range(0, len(inputs), gb):
+            t, f = taus[i : i + gb], fmaxs[i : i + gb]
+            m = t.size
+            t = np.concatenate([t, np.zeros(gb - m)])
+            f = np.concatenate([f, np.full(gb - m, np.inf)])
+            V = _grid_columns(
+                regs.dsc,
+                regs.Fp,
+                jnp.asarray(mult),
+                jnp.asarray(regs.mask),
+                _f(regs.dt),
+                jnp.asarray(t),
+                jnp.asarray(f),
+                _i(regs.T),
+            )
+            V = np.asarray(V, np.float64)[:m]
+            C = V @ A  # (m, K, P + 1)
+            D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
+            OC = np.einsum("kp,mkq->mpq", O, C)
+            Gm = G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
+            Ras.append(_cholesky(Gm))
+    Ra = np.concatenate(Ras)
+    G = Ra.shape[0]
+    Rp = np.concatenate([Ra, np.broadcast_to(np.eye(Ra.shape[-1]), (-G % GRID,) + Ra.shape[1:])])
+    outs = [np.asarray(v) for v in _small_fit(jnp.asarray(Rp, jnp.float32))]
+    P = Ra.shape[-1] - 1
+    coef, _, gi, cond = (o[:G] for o in outs)
+    rss = Ra[:, P, P] ** 2  # float64: the reduced system is solved exactly (square, full rank)
+    return coef, rss, gi, cond
 
 
 def fit_batch(regs: Regressors, model: AbstractModel, inputs):
@@ -108,44 +471,37 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
 
     Returns θ ``(G, p)``, the RSS ``(G,)``, σ²(ΦᵀΦ)⁻¹ ``(G, p, p)`` and condition numbers.
     """
-    W, W0 = regs.design(model, inputs)
-    p = W.shape[-1]
-    th, rss, cov, cond = [], [], [], []
-    for g in range(W.shape[0]):
-        Phi = np.concatenate([W[g], regs.N], axis=1)
-        fit = linear_lstsq(jnp.asarray(Phi), jnp.asarray(W0))
-        coef, c = np.asarray(fit.coef), np.asarray(fit.gram_inverse)
-        rs = float(fit.rss)
-        s2 = rs / max(Phi.shape[0] - Phi.shape[1], 1)
-        th.append(coef[:p])
-        rss.append(rs)
-        cov.append(s2 * c[:p, :p])
-        cond.append(float(fit.condition))
-    return np.array(th), np.array(rss), np.array(cov), np.array(cond)
+    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
+    coef, rss, gi, cond = _solve_grid(regs, Wfix, mult, onehot, pad, regs.W0, inputs, Wdef)
+    n_cols = p + regs.N.shape[1]
+    s2 = rss / max(regs.T - n_cols, 1)
+    cov = s2[:, None, None] * gi[:, :p, :p]
+    return coef[:, :p], rss, cov, cond
 
 
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     """ε₁ on ``regs.record`` for fixed θ (validation): only the filter's initial-state
     nuisance coefficients are refitted on this record."""
-    W, W0 = regs.design(model, [inp])
-    r0 = W[0] @ theta + W0
-    eta = np.asarray(linear_lstsq(jnp.asarray(regs.N), jnp.asarray(r0)).coef)
-    return r0 + regs.N @ eta
+    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
+    W = Wdef[:, :p].copy()
+    if np.any(onehot) and (inp[0] != 0 or inp[1] != np.inf):
+        W = Wfix[:, :p].copy()
+        u = edge_pad(apply_input(regs.F, regs.dt, inp[0], inp[1]), regs.Tp)
+        V = filter_signals(regs.dsc, mult * u[None, :], np.zeros(K_MAX))[:, :, 0]
+        W += (V.T @ onehot)[:, :p]
+    r0 = W @ np.asarray(theta) + regs.W0
+    n = regs.N.shape[1]
+    Nfix = np.zeros((regs.Tp, P_MAX))
+    Nfix[:, :n] = regs.N
+    padn = np.zeros((regs.Tp, P_MAX))
+    for j in range(n, P_MAX):
+        padn[regs.T + j, j] = 1.0
+    zk = np.zeros((K_MAX, regs.Tp)), np.zeros((K_MAX, P_MAX))
+    eta = _solve_grid(regs, Nfix, *zk, padn, r0, [(0.0, math.inf)], Nfix)[0][0, :n]
+    return (r0 + regs.N @ eta)[: regs.T]
 
 
-def impulse_gains(bank: FilterBank, dt, a) -> tuple[Array, Array]:
-    """Σh² of ε₁'s response to unit white noise on x (foh) and on b·F (zoh).
-
-    ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F] (unit-DC-gain bank), so a noise σ_x on x and σ_F on F add
-    σ_x²·Σh_x² + b²σ_F²·Σh_F² to the variance of ε₁ (the noise floor).
-    """
-    T = int(round(float(20 * bank.coeffs[-2] / bank.coeffs[-1] / dt))) + 64
-    d = jnp.zeros((T,)).at[1].set(1.0)
-    Vx = bank(d, dt, "foh", init="zero")
-    VF = bank(d, dt, "zoh", init="zero")
-    hx = Vx[:, 2] + a * Vx[:, 1]
-    hF = VF[:, 0]
-    return jnp.sum(hx * hx), jnp.sum(hF * hF)
+# ----------------------------------------------------------------------------- simulation
 
 
 def _step(x, v, c, a, h):
@@ -158,42 +514,45 @@ def _step(x, v, c, a, h):
     return x + v * phi1 + c * phi2, v * e + c * phi1
 
 
-def simulate_windows(
-    p: dict[str, float],
-    u: Float[Array, " T"],
-    x_meas: Float[Array, " T"],
-    x_start: Float[Array, " T"],
-    v_start: Float[Array, " T"],
-    dt,
-    H: int,
-) -> Float[Array, " T"]:
-    """Windowed simulation error x_sim − x_meas [m], restarting every ``H`` samples.
+def simulate_windows(p, u, x_meas, x_start, v_start, dt, H: int) -> np.ndarray:
+    """Windowed simulation error x_sim − x_meas [m], restarting every ``H`` samples; the
+    samples after the last whole window are 0.
 
     Model: ẍ + a(x)ẋ = b(x)·(u + F₀ + c − F_c·sgn ẋ − k·x), a(x) = a + a'(x − x_c),
     b(x) = b + b'(x − x_c), u the mapped input (held), stepped exactly per sample with the
     nonlinear terms held over the sample. Coulomb friction sticks when the velocity would reverse
     within a step while the other forces stay inside ±F_c. Each window starts from the estimated
     state (x_start, v_start) at its first sample.
+
+    One scan over the padded record, the state reset at every window start: H, dt and the
+    parameters are traced, so one program serves every record of a length bucket.
     """
-    return _simulate_windows(p, u, x_meas, x_start, v_start, dt, H)
+    T = int(np.asarray(u).shape[0])
+    H = int(H)
+    Tn = (T // H) * H
+    Tp = padded_length(T)
+    args = [jnp.asarray(edge_pad(s, Tp)) for s in (u, x_meas, x_start, v_start)]
+    pj = {k: _f(v) for k, v in p.items()}
+    e = _simulate_windows(pj, *args, _f(dt), _i(H), _i(Tn))
+    return np.asarray(e)[:T]
 
 
-@eqx.filter_jit
-def _simulate_windows(p, u, x_meas, x_start, v_start, dt, H):
-    T = u.shape[0]
-    nw = T // H
-    Tn = nw * H
-    idx = jnp.arange(Tn).reshape(nw, H)
-    u_w, xm_w = u[idx], x_meas[idx]
-    x0, v0 = x_start[idx[:, 0]], v_start[idx[:, 0]]
+@jax.jit
+def _simulate_windows(p, u, x_meas, x_start, v_start, dt, H, Tn):
+    Tp = u.shape[0]
+    k = jnp.arange(Tp)
+    restart = (k % H) == 0
     a, b, Fc = p["a"], p["b"], p["Fc"]
 
-    def body(carry, k):
+    def body(carry, inp):
         x, v = carry
+        uk, rs, xs, vs = inp
+        x = jnp.where(rs, xs, x)
+        v = jnp.where(rs, vs, v)
         dx = x - p["xc"]
         ak = a + p["da_dx"] * dx
         bk = b + p["db_dx"] * dx
-        other = u_w[:, k] + p["F0"] - p["k"] * x
+        other = uk + p["F0"] - p["k"] * x
         s = jnp.sign(v)
         s = jnp.where(s == 0, jnp.sign(other) * (jnp.abs(other) > Fc), s)
         x1, v1 = _step(x, v, bk * (other - Fc * s), ak, dt)
@@ -203,6 +562,6 @@ def _simulate_windows(p, u, x_meas, x_start, v_start, dt, H):
         x1 = jnp.where(stuck, x, x1)
         return (x1, v1), x
 
-    _, xs = jax.lax.scan(body, (x0, v0), jnp.arange(H))
-    err = jnp.swapaxes(xs, 0, 1) - xm_w
-    return jnp.concatenate([err.reshape(-1), jnp.zeros((T - Tn,), err.dtype)])
+    z = jnp.zeros((), u.dtype)
+    _, xs = jax.lax.scan(body, (z, z), (u, restart, x_start, v_start))
+    return jnp.where(k < Tn, xs - x_meas, 0.0)
