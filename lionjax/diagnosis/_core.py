@@ -37,7 +37,6 @@ import numpy as np
 
 from .._errors import InputError
 from .._filters import FilterBank
-from .._model_effects import zero_phase_lowpass, zero_phase_velocity
 from .._models import Augmented, MassDamper
 from .._record import Record
 from .._tables import jsonable
