@@ -106,7 +106,9 @@ def _compare(ref, got, tol):
     _close(got.theta, ref.theta, tol)
     _close(got.J, ref.J, tol)
     _close(got.gain, ref.gain, tol)
-    np.testing.assert_array_equal(lj.solutions.result_codes(got.result), lj.solutions.result_codes(ref.result))
+    np.testing.assert_array_equal(
+        lj.solutions.result_codes(got.result), lj.solutions.result_codes(ref.result)
+    )
     assert got.kinds == ref.kinds
     for a, b in zip(got.outputs, ref.outputs, strict=True):
         for la, lb in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):

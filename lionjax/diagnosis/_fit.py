@@ -168,8 +168,9 @@ def _zero_phase(dsc: Discrete, x, T, dt):
 
 
 def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
-    """(x smoothed, v̂) of :func:`lionjax._model_effects.zero_phase_lowpass` / ``zero_phase_velocity``
-    (forward and backward through (ω/(s + ω))³, then central differences), on bucketed shapes."""
+    """(x smoothed, v̂) of :func:`lionjax._model_effects.zero_phase_lowpass` /
+    ``zero_phase_velocity`` (forward and backward through (ω/(s + ω))³, then central
+    differences), on bucketed shapes."""
     x = np.asarray(x, np.float64)
     T = x.size
     Tp = padded_length(T)
