@@ -39,6 +39,7 @@ from .._filters import FilterBank
 from .._least_squares import linear_lstsq
 from .._models import AbstractModel
 from .._record import Record
+from ..twin._windows import windowed_errors
 
 #: Columns of every least-squares design (effect columns + the filter's initial-state columns).
 P_MAX = 14
@@ -505,28 +506,14 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
 # ----------------------------------------------------------------------------- simulation
 
 
-def _step(x, v, c, a, h):
-    """Exact step of ẍ = −aẋ + c over h with c held (series for small a·h)."""
-    ah = a * h
-    small = jnp.abs(ah) < 1e-6
-    e = jnp.exp(-ah)
-    phi1 = jnp.where(small, h * (1 - ah / 2), (1 - e) / jnp.where(small, 1.0, a))
-    phi2 = jnp.where(small, h * h / 2 * (1 - ah / 3), (h - phi1) / jnp.where(small, 1.0, a))
-    return x + v * phi1 + c * phi2, v * e + c * phi1
-
-
 def simulate_windows(p, u, x_meas, x_start, v_start, dt, H: int) -> np.ndarray:
     """Windowed simulation error x_sim − x_meas [m], restarting every ``H`` samples; the
     samples after the last whole window are 0.
 
-    Model: ẍ + a(x)ẋ = b(x)·(u + F₀ + c − F_c·sgn ẋ − k·x), a(x) = a + a'(x − x_c),
-    b(x) = b + b'(x − x_c), u the mapped input (held), stepped exactly per sample with the
-    nonlinear terms held over the sample. Coulomb friction sticks when the velocity would reverse
-    within a step while the other forces stay inside ±F_c. Each window starts from the estimated
-    state (x_start, v_start) at its first sample.
-
-    One scan over the padded record, the state reset at every window start: H, dt and the
-    parameters are traced, so one program serves every record of a length bucket.
+    The twin's exact-hold simulator (:func:`lionjax.twin._windows.windowed_errors`: model,
+    sticking, restarts) on the record padded to its length bucket: H, dt and the parameters are
+    traced, so one program serves every record of a bucket. Each window starts from the
+    estimated state (x_start, v_start) at its first sample.
     """
     T = int(np.asarray(u).shape[0])
     H = int(H)
@@ -534,35 +521,5 @@ def simulate_windows(p, u, x_meas, x_start, v_start, dt, H: int) -> np.ndarray:
     Tp = padded_length(T)
     args = [jnp.asarray(edge_pad(s, Tp)) for s in (u, x_meas, x_start, v_start)]
     pj = {k: _f(v) for k, v in p.items()}
-    e = _simulate_windows(pj, *args, _f(dt), _i(H), _i(Tn))
+    e = windowed_errors(pj, *args, _f(dt), _i(H), _i(Tn))
     return np.asarray(e)[:T]
-
-
-@jax.jit
-def _simulate_windows(p, u, x_meas, x_start, v_start, dt, H, Tn):
-    Tp = u.shape[0]
-    k = jnp.arange(Tp)
-    restart = (k % H) == 0
-    a, b, Fc = p["a"], p["b"], p["Fc"]
-
-    def body(carry, inp):
-        x, v = carry
-        uk, rs, xs, vs = inp
-        x = jnp.where(rs, xs, x)
-        v = jnp.where(rs, vs, v)
-        dx = x - p["xc"]
-        ak = a + p["da_dx"] * dx
-        bk = b + p["db_dx"] * dx
-        other = uk + p["F0"] - p["k"] * x
-        s = jnp.sign(v)
-        s = jnp.where(s == 0, jnp.sign(other) * (jnp.abs(other) > Fc), s)
-        x1, v1 = _step(x, v, bk * (other - Fc * s), ak, dt)
-        stick = (Fc > 0) & (s * v1 < 0) & (jnp.abs(other) <= Fc)
-        stuck = (s == 0) & (Fc > 0)
-        v1 = jnp.where(stick | stuck, 0.0, v1)
-        x1 = jnp.where(stuck, x, x1)
-        return (x1, v1), x
-
-    z = jnp.zeros((), u.dtype)
-    _, xs = jax.lax.scan(body, (z, z), (u, restart, x_start, v_start))
-    return jnp.where(k < Tn, xs - x_meas, 0.0)
