@@ -51,7 +51,7 @@ def _run_per_record(kernel):
     batch = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dts), jnp.zeros(B))
     lengths = jnp.array([300, 250, 300, 280, 220, 300], jnp.int32)
     poles = [[-4.0 - 0.5 * i, -4.0, -5.0 + 0.2 * i] for i in range(B)]
-    bank = lj.stack_banks(poles)
+    bank = lj.studies.stack_banks(poles)
     return lj.lion_batched(
         lj.MassDamper(),
         batch,
