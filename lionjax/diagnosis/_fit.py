@@ -39,6 +39,7 @@ from .._filters import FilterBank
 from .._least_squares import linear_lstsq
 from .._models import AbstractModel
 from .._record import Record
+from .._scan import discretise
 from ..twin._windows import windowed_errors
 
 #: Columns of every least-squares design (effect columns + the filter's initial-state columns).
@@ -69,7 +70,7 @@ def edge_pad(u, Tp: int) -> np.ndarray:
 
 @eqx.filter_jit
 def _discrete(bank: FilterBank, dt):
-    Phi, G0, G1 = bank.discretise(dt)
+    Phi, G0, G1 = discretise(bank, dt)  # the expm's products at full precision
     _, _, C, D = bank.state_space()
     return Phi, G0, G1, C, D, bank.coeffs[-1]
 
@@ -90,6 +91,13 @@ class Discrete(eqx.Module):
 
 
 def _filt(dsc: Discrete, u, foh):
+    """:func:`_filt_chunked` with its products at full precision: a float32 dot runs at TF32 by
+    default on a GPU, and the recursion accumulates over the whole record."""
+    with jax.default_matmul_precision("highest"):
+        return _filt_chunked(dsc, u, foh)
+
+
+def _filt_chunked(dsc: Discrete, u, foh):
     """(V₁…V₄) of one signal, as :meth:`FilterBank.__call__` with ``init="steady"``; ``foh`` is
     1.0 for a first-order hold, 0.0 for a zero-order hold (traced).
 
