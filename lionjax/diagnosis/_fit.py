@@ -9,7 +9,10 @@ of motion; the core's :func:`lionjax.least_squares` also stacks ε₂ = dε₁/d
 row), which weights the fit by frequency and, on real data with unmodelled high-frequency
 dynamics, biases the viscous term (EMPS at λ = 40 Hz: Fv +86 % with both rows, +0.7 % with ε₁).
 So the diagnosis solves the ε₁ rows (plus the filter's initial-state nuisance columns, as the core
-does) with the core's filter bank and the core's one solver, :func:`lionjax.linear_lstsq`.
+does) with the core's filter bank and the core's one solver: the float64 augmented Gram
+[W | y]ᵀ[W | y] of each design (one pass over the record, on the host) goes to
+:func:`lionjax._least_squares.gram_lstsq` (the spectral solve of :func:`lionjax.linear_lstsq`
+from normal-equation statistics, as the streamed estimators use it). No factorisation of its own.
 
 Compilation. Every compiled program here sees only *bucketed* shapes and *traced* settings:
 
@@ -22,7 +25,8 @@ Compilation. Every compiled program here sees only *bucketed* shapes and *traced
 - the least-squares design has a fixed number of columns (:data:`P_MAX`): a structure's unused
   columns are unit vectors on padded rows (orthogonal to the data, singular value 1, so the fit,
   its Gram inverse and the condition number of the used columns are unchanged), and profile grids
-  have a fixed length (:data:`GRID`). So one program fits every candidate and every stack.
+  have a fixed length (:data:`GRID`). So one program fits every candidate and every stack, and
+  the solve (on (P + 1)² Grams) does not depend on the record length at all.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._filters import FilterBank
-from .._least_squares import linear_lstsq
+from .._least_squares import gram_lstsq
 from .._models import AbstractModel
 from .._record import Record
 from .._scan import discretise
@@ -256,46 +260,40 @@ def _design(dsc, Wfix, F, mult, onehot, dt, tau, fmax, T):
     return Wfix + V.T @ onehot
 
 
-def _reduce(W: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Upper-triangular Rₐ (…, P + 1, P + 1) with RₐᵀRₐ = [W | y]ᵀ[W | y] (masked designs):
-    Rₐ[:P, :P] = R_W, Rₐ[:P, P] = Q_Wᵀy and Rₐ[P, P]² the part of ‖y‖² no column reaches.
-
-    The tall products are taken in float64 on the host (the designs are float32): this squares
-    no rounding error of the data, and the solve itself (:func:`lionjax.linear_lstsq`) runs on
-    the small Rₐ, one compiled program for every record length.
-    """
+def _augmented_gram(W: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The augmented Gram [W | y]ᵀ[W | y] (…, P + 1, P + 1) of masked designs, in float64 on
+    the host: the tall products are the only pass over the record, and float64 keeps the
+    squaring of the condition number (cond(Gram) = cond(W)²) far from the rounding floor
+    (cond(W) up to ~1e6 leaves 1e-4 relative accuracy in the Gram's smallest eigenvalue)."""
     W = np.asarray(W, np.float64)
     y = np.broadcast_to(np.asarray(y, np.float64), W.shape[:-1])
     A = np.concatenate([W, y[..., None]], -1)
-    return _cholesky(np.swapaxes(A, -1, -2) @ A)
-
-
-def _cholesky(G: np.ndarray) -> np.ndarray:
-    """Upper Rₐ with RₐᵀRₐ = G (augmented Gram [W | y]ᵀ[W | y]), see :func:`_reduce`."""
-    try:
-        return np.swapaxes(np.linalg.cholesky(G), -1, -2)
-    except np.linalg.LinAlgError:  # rank-deficient design: a square root through eigh
-        out = []
-        for g in G.reshape((-1,) + G.shape[-2:]):
-            P = g.shape[0] - 1
-            w, V = np.linalg.eigh(g[:P, :P])
-            w = np.maximum(w, 0.0)
-            R = np.sqrt(w)[:, None] * V.T
-            q = np.where(w > w.max() * 1e-14, (V.T @ g[:P, P]) / np.sqrt(np.where(w > 0, w, 1)), 0)
-            rest = max(g[P, P] - q @ q, 0.0)
-            Ra = np.zeros_like(g)
-            Ra[:P, :P], Ra[:P, P], Ra[P, P] = R, q, math.sqrt(rest)
-            out.append(Ra)
-        return np.stack(out).reshape(G.shape)
+    return np.swapaxes(A, -1, -2) @ A
 
 
 @jax.jit
-@jax.vmap
-def _small_fit(Ra):
-    """:func:`lionjax.linear_lstsq` on the reduced system: min ‖R_Φc + Q_Φᵀy‖², plus the rest."""
-    P = Ra.shape[0] - 1
-    fit = linear_lstsq(Ra[:P, :P], Ra[:P, P])
+def _gram_fits(G, n_rows):
+    """:func:`lionjax.gram_lstsq` (the package's one solve, from normal-equation statistics) on
+    each augmented Gram G = [W | y]ᵀ[W | y] of a batch: coef, RSS, (WᵀW)⁻¹, condition."""
+    P = G.shape[-1] - 1
+    fit = jax.vmap(gram_lstsq, in_axes=(0, 0, 0, None))(
+        G[:, :P, :P], G[:, :P, P], G[:, P, P], n_rows
+    )
     return fit.coef, fit.rss, fit.gram_inverse, fit.condition
+
+
+def solve_grams(G: np.ndarray, n_rows: int):
+    """coef, RSS, Gram inverse and condition of min ‖Wc + y‖² for each augmented Gram
+    G = [W | y]ᵀ[W | y] (leading batch), by :func:`lionjax.gram_lstsq` in float64 whether or
+    not the caller enabled ``jax_enable_x64`` (the RSS feeds likelihood ratios, and a float32
+    Gram would lose the small singular values). The batch is padded to a multiple of
+    :data:`GRID` with identity systems, so one compiled program serves every grid length."""
+    G = np.asarray(G, np.float64)
+    n = G.shape[0]
+    eye = np.broadcast_to(np.eye(G.shape[-1]), (-n % GRID,) + G.shape[1:])
+    with jax.enable_x64(True):
+        out = _gram_fits(jnp.asarray(np.concatenate([G, eye])), jnp.asarray(float(n_rows)))
+        return tuple(np.asarray(o)[:n] for o in out)
 
 
 @jax.jit
@@ -436,14 +434,14 @@ def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
     fmaxs = np.array([float(f) for _, f in inputs], np.float64)
     y = np.asarray(y, np.float64) * regs.mask
     if Wdef is not None and len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
-        Ras = [_reduce(Wdef * regs.mask[:, None] + pad, y)[None]]
+        Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, y)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
         Wf = Wfix * regs.mask[:, None] + pad
         A = np.concatenate([Wf, y[:, None]], 1)
         G0 = A.T @ A
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
-        Ras = []
+        Gs = []
         gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
         for i in range(0, len(inputs), gb):
             t, f = taus[i : i + gb], fmaxs[i : i + gb]
@@ -465,14 +463,8 @@ def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
             D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
             OC = np.einsum("kp,mkq->mpq", O, C)
             Gm = G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
-            Ras.append(_cholesky(Gm))
-    Ra = np.concatenate(Ras)
-    G = Ra.shape[0]
-    Rp = np.concatenate([Ra, np.broadcast_to(np.eye(Ra.shape[-1]), (-G % GRID,) + Ra.shape[1:])])
-    outs = [np.asarray(v) for v in _small_fit(jnp.asarray(Rp, jnp.float32))]
-    P = Ra.shape[-1] - 1
-    coef, _, gi, cond = (o[:G] for o in outs)
-    rss = Ra[:, P, P] ** 2  # float64: the reduced system is solved exactly (square, full rank)
+            Gs.append(Gm)
+    coef, rss, gi, cond = solve_grams(np.concatenate(Gs), regs.T)
     return coef, rss, gi, cond
 
 
