@@ -752,8 +752,23 @@ def run_case(spec: tuple) -> dict:
         shrink=float(d.final["shrink"]),
         oracle_shrink=_oracle(cls, d),
         crash=None,
+        evidence=_evidence(d),
     )
     return row
+
+
+def _evidence(d) -> dict:
+    """What the confidence is built from, kept per case to study its calibration."""
+    base, final = getattr(d, "baseline", {}), d.final
+    return {
+        "weights": dict(getattr(d, "weights", {})),
+        "scores": {e.name: float(e.score) for e in d.effects},
+        "shares": {e.name: float(getattr(e, "share", math.nan)) for e in d.effects},
+        "remaining_excess_share": final.get("remaining_excess_share"),
+        "structure_base": base.get("structure"),
+        "structure_final": final.get("structure"),
+        "noise_ratio": (base["equation_gap"] / base["noise_floor"]) if base else None,
+    }
 
 
 def case_specs(per_class, seed0, classes, sources, diagnose=None, **kw) -> list[tuple]:

@@ -8,8 +8,10 @@ model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figu
 from ._candidates import (
     DEFAULT_CANDIDATES as DEFAULT_CANDIDATES,
     AbstractCandidate as AbstractCandidate,
+    AsymmetricFrictionCandidate as AsymmetricFrictionCandidate,
     CoulombCandidate as CoulombCandidate,
     DelayCandidate as DelayCandidate,
+    FlexibleModeCandidate as FlexibleModeCandidate,
     OffsetCandidate as OffsetCandidate,
     PositionCandidate as PositionCandidate,
     SaturationCandidate as SaturationCandidate,

@@ -1,19 +1,42 @@
 """The candidate effects the diagnosis tries (docs/method.md, "Effects" and "Diagnosis").
 
 Each candidate is an :class:`AbstractCandidate`: a name, a parameter count for the parsimony
-penalty, and what it adds to a structure — linear effect columns (:mod:`lionjax._model_effects`)
-and/or one profiled input parameter (τ of a delay, F_max of a saturation).
+penalty, and what it adds to a structure — linear effect columns (:mod:`lionjax._model_effects`
+and the two below) and/or one profiled nonlinear parameter (τ of a delay, F_max of a saturation,
+the frequency and damping of a flexible mode). A candidate owns the physical parameters it
+reports (:attr:`~AbstractCandidate.units`), when they are physically plausible
+(:meth:`~AbstractCandidate.implausible`) and which other candidates it contains
+(:attr:`~AbstractCandidate.subsumes`: spring ⊃ offset, asymmetric friction ⊃ Coulomb friction),
+so the stacking never adds a column twice.
+
+Two more regressor effects live here (only the diagnosis uses them):
+
+- :class:`DirectionalFriction`: the direction-dependent part of Coulomb friction. With F⁺ for
+  ẋ > 0 and F⁻ for ẋ < 0, the friction force is −F_c·sgn ẋ − ΔF·|sgn ẋ|, F_c = (F⁺ + F⁻)/2,
+  ΔF = (F⁺ − F⁻)/2: column +(1/Λ)[|sgñ v̂|], parameter b·ΔF. (A direction-dependent viscous
+  term Δc·|ẋ| is left out: on EMPS it takes the part of a constant offset while the axis moves
+  and displaces the published Coulomb + offset model; its effect is partly carried by ΔF.)
+- :class:`ModeColumns`: a flexible mode. The rigid mass M = 1/b split into M₁ (driven) and
+  m₂ = μM on a spring–damper (ω, ζ): with D(s) = s² + 2ζωs + ω² and h = (s²/D)[·],
+  collocated (x = x₁): ẍ + aẋ − μ·s²h[x] = b·u; non-collocated (x = x₂):
+  ẍ + aẋ − μ·s²h[x] = b·(u − h[u]). Columns −(s²/Λ)[h_x] and +(1/Λ)[h_F], parameters μ and
+  β = κb (κ = 0 collocated, 1 non-collocated); ω and ζ are profiled on a grid.
 """
 
 from __future__ import annotations
 
 import abc
+import math
 from typing import ClassVar
 
 import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
 
-from .._model_effects import Coulomb, LinearPosition, Offset, Spring
-from .._models import AbstractEffect
+from .._filters import FilterBank
+from .._model_effects import Coulomb, LinearPosition, Offset, Spring, zero_phase_velocity
+from .._models import AbstractEffect, Column
+from .._record import Record
 
 
 class Context(eqx.Module):
@@ -23,25 +46,119 @@ class Context(eqx.Module):
         omega_v: bandwidth [rad/s] of the zero-phase velocity filter for sgn ẋ.
         v_eps: velocity scale [m/s] of the smoothed sign.
         x_center, x_scale: mean and spread of the training positions [m].
+        mode: (ω [rad/s], ζ) of the flexible-mode columns, once profiled (else ``()``).
     """
 
     omega_v: float
     v_eps: float
     x_center: float
     x_scale: float
+    mode: tuple = ()
+
+
+class Limits(eqx.Module):
+    """What plausibility is judged against: the largest |F| of the training record [N]."""
+
+    F_abs_max: float
+
+
+class DirectionalFriction(AbstractEffect):
+    """Direction-dependent Coulomb friction −ΔF·|sgn ẋ| [N] (module docstring): column
+    +(1/Λ)[|tanh(v̂/v_ε)|], parameter b·ΔF; v̂ as for :class:`Coulomb`."""
+
+    omega: float
+    v_eps: float
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("bdF",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("abs_sgn_v", 0, 1.0),)
+
+    def signals(self, record: Record) -> dict:
+        v = zero_phase_velocity(record.x, record.dt, self.omega)
+        return {"abs_sgn_v": (jnp.abs(jnp.tanh(v / self.v_eps)), "foh")}
+
+    def physical(self, theta: Array, b: Array) -> dict:
+        return {"dF": theta[..., 0] / b}
+
+
+def mode_bank(omega: float, zeta: float) -> FilterBank:
+    """Λ'(s) = (s + ω)(s² + 2ζωs + ω²): h = (s²/D)[u] = V₄ + ωV₃ of this bank, exactly."""
+    w, z = float(omega), float(zeta)
+    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
+    return FilterBank.from_poles(jnp.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
+
+
+def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
+    """Names of h_x and h_F for one (ω, ζ) (distinct per mode: the regressors cache by name)."""
+    key = f"{float(omega):.9g},{float(zeta):.6g}"
+    return f"mode_x@{key}", f"mode_F@{key}"
+
+
+class ModeColumns(AbstractEffect):
+    """A flexible mode at (ω [rad/s], ζ): columns −(s²/Λ)[h_x], +(1/Λ)[h_F], h = (s²/D)[·]
+    (module docstring); parameters μ (mass ratio) and β = κ·b."""
+
+    acts_on_force: ClassVar[bool] = False  # μ multiplies an acceleration: not divided by b
+
+    omega: float
+    zeta: float
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("mu", "beta")
+
+    def columns(self) -> tuple[Column, ...]:
+        nx, nF = mode_signal_names(self.omega, self.zeta)
+        return (Column(nx, 2, -1.0), Column(nF, 0, 1.0))
+
+    def signals(self, record: Record) -> dict:
+        bank = mode_bank(self.omega, self.zeta)
+        nx, nF = mode_signal_names(self.omega, self.zeta)
+        out = {}
+        for nm, u, hold in ((nx, record.x, "foh"), (nF, record.F, "zoh")):
+            V = bank(u, record.dt, hold)
+            out[nm] = (V[:, 3] + self.omega * V[:, 2], hold)
+        return out
+
+    def physical(self, theta: Array, b: Array) -> dict:
+        return {"mass_ratio": theta[..., 0], "beta": theta[..., 1]}
 
 
 class AbstractCandidate(eqx.Module):
-    """One candidate effect: ``name``, ``n_params`` and what it adds to a structure."""
+    """One candidate effect: ``name``, ``n_params`` (linear and profiled, for the parsimony
+    penalty), what it adds to a structure, the physical parameters it reports with their
+    ``units``, their plausibility, and the candidates it ``subsumes`` (not stacked after it)."""
 
     name: ClassVar[str]
     n_params: ClassVar[int]
-    #: the profiled input parameter it sets, ``"tau"``, ``"fmax"`` or ``None``
+    #: the profiled nonlinear parameter it sets, ``"tau"``, ``"fmax"``, ``"mode"`` or ``None``
     profiled: ClassVar[str | None] = None
+    #: reported physical parameter → unit
+    units: ClassVar[dict[str, str]] = {}
+    #: names of the candidates whose columns this one contains
+    subsumes: ClassVar[tuple[str, ...]] = ()
+    #: a simpler structure (candidate names) that stands in for this one unless its extra
+    #: parameters are significant on validation data (spring → offset)
+    simpler: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
     def effects(self, ctx: Context) -> tuple[AbstractEffect, ...]:
         """Linear effect columns added to the model (may be empty)."""
+
+    def report(self, phys: dict[str, float]) -> dict[str, float]:
+        """Its physical parameters from a fitted structure's (``phys``: every parameter)."""
+        return {k: phys[k] for k in self.units if k in phys}
+
+    def implausible(self, phys: dict[str, float], lim: Limits) -> str:
+        """Why the fitted parameters are not physical (``""`` when they are)."""
+        return ""
+
+
+def _b_positive(phys) -> str:
+    return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
 
 class OffsetCandidate(AbstractCandidate):
@@ -49,9 +166,13 @@ class OffsetCandidate(AbstractCandidate):
 
     name: ClassVar[str] = "offset"
     n_params: ClassVar[int] = 1
+    units: ClassVar[dict[str, str]] = {"F0": "N"}
 
     def effects(self, ctx):
         return (Offset(),)
+
+    def implausible(self, phys, lim):
+        return _b_positive(phys)
 
 
 class CoulombCandidate(AbstractCandidate):
@@ -59,19 +180,57 @@ class CoulombCandidate(AbstractCandidate):
 
     name: ClassVar[str] = "coulomb_friction"
     n_params: ClassVar[int] = 1
+    units: ClassVar[dict[str, str]] = {"Fc": "N"}
 
     def effects(self, ctx):
         return (Coulomb(ctx.omega_v, ctx.v_eps),)
 
+    def implausible(self, phys, lim):
+        if not phys.get("Fc", 0) > 0:
+            return "friction would push along the motion (F_c ≤ 0)"
+        return _b_positive(phys)
+
+
+class AsymmetricFrictionCandidate(AbstractCandidate):
+    """Direction-dependent Coulomb friction: F⁺ for ẋ > 0 and F⁻ for ẋ < 0 [N]: the Coulomb
+    column plus :class:`DirectionalFriction`'s. Contains Coulomb friction; plausible when
+    F⁺, F⁻ ≥ 0, not both 0."""
+
+    name: ClassVar[str] = "asymmetric_friction"
+    n_params: ClassVar[int] = 2
+    units: ClassVar[dict[str, str]] = {"Fc_pos": "N", "Fc_neg": "N"}
+    subsumes: ClassVar[tuple[str, ...]] = ("coulomb_friction",)
+    simpler: ClassVar[tuple[str, ...]] = ("coulomb_friction", "offset")
+
+    def effects(self, ctx):
+        return (Coulomb(ctx.omega_v, ctx.v_eps), DirectionalFriction(ctx.omega_v, ctx.v_eps))
+
+    def report(self, phys):
+        Fc, dF = phys.get("Fc", math.nan), phys.get("dF", math.nan)
+        return {"Fc_pos": Fc + dF, "Fc_neg": Fc - dF}
+
+    def implausible(self, phys, lim):
+        r = self.report(phys)
+        if not (r["Fc_pos"] >= 0 and r["Fc_neg"] >= 0 and r["Fc_pos"] + r["Fc_neg"] > 0):
+            return "friction would push along the motion (F⁺ or F⁻ < 0)"
+        return _b_positive(phys)
+
 
 class SpringCandidate(AbstractCandidate):
-    """Spring −k(x − x₀) [N]: columns +(1/Λ)[x] and the offset column (equilibrium)."""
+    """Spring −k(x − x₀) [N]: columns +(1/Λ)[x] and the offset column (equilibrium); contains
+    the offset."""
 
     name: ClassVar[str] = "spring"
     n_params: ClassVar[int] = 2
+    units: ClassVar[dict[str, str]] = {"k": "N/m", "x0": "m"}
+    subsumes: ClassVar[tuple[str, ...]] = ("offset",)
+    simpler: ClassVar[tuple[str, ...]] = ("offset",)
 
     def effects(self, ctx):
         return (Spring(), Offset())
+
+    def implausible(self, phys, lim):
+        return _b_positive(phys)
 
 
 class PositionCandidate(AbstractCandidate):
@@ -79,9 +238,13 @@ class PositionCandidate(AbstractCandidate):
 
     name: ClassVar[str] = "position_dependent"
     n_params: ClassVar[int] = 2
+    units: ClassVar[dict[str, str]] = {"da_dx": "1/(s·m)", "db_dx": "1/(kg·m)"}
 
     def effects(self, ctx):
         return (LinearPosition(ctx.x_center, ctx.x_scale),)
+
+    def implausible(self, phys, lim):
+        return _b_positive(phys)
 
 
 class DelayCandidate(AbstractCandidate):
@@ -90,20 +253,76 @@ class DelayCandidate(AbstractCandidate):
     name: ClassVar[str] = "delay"
     n_params: ClassVar[int] = 1
     profiled: ClassVar[str | None] = "tau"
+    units: ClassVar[dict[str, str]] = {"tau": "s"}
 
     def effects(self, ctx):
         return ()
+
+    def implausible(self, phys, lim):
+        if not phys.get("tau", 0) > 0:
+            return "no positive delay"
+        return _b_positive(phys)
 
 
 class SaturationCandidate(AbstractCandidate):
-    """Actuator saturation F_max [N]: u = clip(F, ±F_max), F_max profiled on a grid."""
+    """Actuator saturation F_max [N], hard u = clip(F, ±F_max) or soft
+    u = F_max·tanh(F/F_max) (``soft`` = 1): shape and F_max profiled on one grid. Plausible
+    when it acts on the record: a hard F_max below the largest force, a soft one below four times
+    it (tanh then still compresses the largest force by ≥ 2 %).
+    """
 
     name: ClassVar[str] = "saturation"
-    n_params: ClassVar[int] = 1
+    n_params: ClassVar[int] = 1  # F_max; the shape is one binary choice
     profiled: ClassVar[str | None] = "fmax"
+    units: ClassVar[dict[str, str]] = {"Fmax": "N", "soft": ""}
 
     def effects(self, ctx):
         return ()
+
+    def report(self, phys):
+        f = phys.get("Fmax", math.inf)
+        return {"Fmax": abs(f), "soft": float(f < 0)}
+
+    def implausible(self, phys, lim):
+        f = phys.get("Fmax", math.inf)
+        if not (0 < f < 0.99 * lim.F_abs_max or -4.0 * lim.F_abs_max < f < 0):
+            return "F_max is not below the largest force"
+        return _b_positive(phys)
+
+
+class FlexibleModeCandidate(AbstractCandidate):
+    """A lightly damped flexible mode (:class:`ModeColumns`): mass ratio μ, frequency f_mode
+    [Hz] and damping ζ profiled on a grid, and the share κ of the input that passes through the
+    mode (0 collocated sensor, 1 non-collocated). Plausible when 0 < μ < 1 and −0.5 ≤ κ ≤ 1.5."""
+
+    name: ClassVar[str] = "flexible_mode"
+    n_params: ClassVar[int] = 4
+    profiled: ClassVar[str | None] = "mode"
+    units: ClassVar[dict[str, str]] = {
+        "mass_ratio": "",
+        "f_mode": "Hz",
+        "zeta_mode": "",
+        "input_share": "",
+    }
+
+    def effects(self, ctx):
+        if not ctx.mode:
+            raise ValueError("FlexibleModeCandidate: the mode (ω, ζ) is not profiled yet")
+        return (ModeColumns(*ctx.mode),)
+
+    def report(self, phys):
+        out = super().report(phys)
+        if "beta" in phys and phys.get("b"):
+            out["input_share"] = phys["beta"] / phys["b"]
+        return out
+
+    def implausible(self, phys, lim):
+        r = self.report(phys)
+        if not 0 < r.get("mass_ratio", 0) < 1:
+            return "no flexible mode: mass ratio outside (0, 1)"
+        if not -0.5 <= r.get("input_share", 0) <= 1.5:
+            return "no flexible mode: input share outside [−0.5, 1.5]"
+        return _b_positive(phys)
 
 
 #: The default library, in a fixed order (ties are broken by it: simplest first).
@@ -114,4 +333,6 @@ DEFAULT_CANDIDATES: tuple[AbstractCandidate, ...] = (
     DelayCandidate(),
     SaturationCandidate(),
     PositionCandidate(),
+    AsymmetricFrictionCandidate(),
+    FlexibleModeCandidate(),
 )

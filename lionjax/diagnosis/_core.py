@@ -40,13 +40,23 @@ from .._filters import FilterBank
 from .._models import Augmented, MassDamper
 from .._record import Record
 from .._tables import jsonable
-from ._candidates import DEFAULT_CANDIDATES, AbstractCandidate, Context
+from ._candidates import (
+    DEFAULT_CANDIDATES,
+    AbstractCandidate,
+    Context,
+    Limits,
+    mode_signal_names,
+)
 from ._fit import (
     Regressors,
     apply_input,
     fit_batch,
     impulse_gains,
+    edge_pad,
+    filter_signals,
+    mode_signals,
     residual,
+    rss_with_columns,
     simulate_windows,
     zero_phase,
 )
@@ -65,6 +75,7 @@ class Settings:
     window_s: float | None
     tau_grid: tuple[float, ...]
     fmax_grid: tuple[float, ...]
+    mode_grid: tuple[float, ...]
     x_center: float
     x_scale: float
 
@@ -82,6 +93,13 @@ class Settings:
 MAX_FILTER_HZ = 40.0
 #: Longest delay of the default profile grid [s] (at least 60 samples).
 MAX_DELAY_S = 0.03
+#: Flexible-mode grid: frequencies from MODE_BAND[0]·f_filter to MODE_BAND[1]·f_filter
+#: (below 0.2·f_s), and damping ratios.
+MODE_BAND = (0.1, 4.0)
+MODE_ZETAS = (0.03, 0.1, 0.3)
+MODE_N = 16
+#: Soft-saturation levels in the F_max grid.
+SOFT_N = 12
 
 
 def settings(
@@ -132,6 +150,8 @@ def settings(
             "diagnose: the train record's force F is zero everywhere; the input must excite the "
             "axis."
         )
+    f_hi = min(MODE_BAND[1] * fh, 0.2 * fs)
+    f_lo = min(max(MODE_BAND[0] * fh, 0.5), 0.5 * f_hi)
     return Settings(
         dt=dt,
         filter_hz=fh,
@@ -139,7 +159,10 @@ def settings(
         v_eps=v_eps,
         window_s=window_s,
         tau_grid=tuple(float(t) for t in taus),
-        fmax_grid=tuple(float(f) for f in fq),
+        # hard clips at the force quantiles, then soft ones (negative: |F_max|·tanh(F/|F_max|))
+        fmax_grid=tuple(float(f) for f in fq)
+        + tuple(-float(f) for f in np.geomspace(0.5 * fq[0], 2.0 * fq[-1], SOFT_N)),
+        mode_grid=tuple(float(f) for f in np.geomspace(f_lo, f_hi, MODE_N)),
         x_center=float(np.mean(x)),
         x_scale=float(max(np.std(x), 1e-12)),
     )
@@ -197,6 +220,7 @@ class _Fitter:
         v_train = self.v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
         self.rtr = Regressors(train, self.bank, self._known(train, v_train))
         self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
+        self.mode: tuple[float, float] | None = None
 
     def _known(self, rec: Record, v: np.ndarray) -> dict:
         """Raw signals of the library's effects, computed once (names as the effects use)."""
@@ -206,12 +230,51 @@ class _Fitter:
             "one": (np.ones_like(x), "zoh"),
             "x_spring": (x, "foh"),
             "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
+            "abs_sgn_v": (np.abs(np.tanh(v / self.st.v_eps)), "foh"),
             "g_pos": (0.5 * self.st.x_scale * xi**2, "foh"),
             "xi": xi,
         }
 
-    def _model(self, cands):
-        return Augmented(MassDamper(), _effects_of(cands, self.ctx))
+    def _model(self, cands, mode=None):
+        mode = self.mode if mode is None else mode
+        ctx = self.ctx if not mode else dataclasses.replace(self.ctx, mode=tuple(mode))
+        return Augmented(MassDamper(), _effects_of(cands, ctx))
+
+    def _add_mode(self, regs: Regressors, rec: Record, modes) -> list[str]:
+        """Put the flexible-mode signals of ``modes`` into ``regs.known``; their names."""
+        names = []
+        for (w, z), (hx, hF) in zip(
+            modes, mode_signals(rec.x, rec.F, self.st.dt, modes, regs.Tp), strict=True
+        ):
+            nx, nF = mode_signal_names(w, z)
+            regs.known[nx], regs.known[nF] = (hx, "foh"), (hF, "zoh")
+            names += [nx, nF]
+        return names
+
+    def _profile_mode(self, cands) -> tuple[float, float]:
+        """(ω, ζ) of the flexible mode: least training RSS of the structure over the grid
+        (frequencies × :data:`MODE_ZETAS`), then a finer grid around the best; the other
+        columns' Gram is shared (:func:`rss_with_columns`)."""
+        base = self._model([c for c in cands if c.profiled != "mode"], mode=())
+        regs = self.rtr
+
+        def best_of(modes):
+            rss = []
+            for i in range(0, len(modes), 8):
+                chunk = modes[i : i + 8]
+                hs = mode_signals(self.train.x, self.train.F, self.st.dt, chunk, regs.Tp)
+                U = np.stack([edge_pad(h, regs.Tp) for pair in hs for h in pair])
+                V = filter_signals(regs.dsc, U, np.tile([1.0, 0.0], len(chunk)))
+                cols = np.stack([-V[0::2, : regs.T, 2], V[1::2, : regs.T, 0]], 1)
+                rss.append(rss_with_columns(regs, base, cols))
+            return modes[int(np.argmin(np.concatenate(rss)))]
+
+        ws = 2 * math.pi * np.asarray(self.st.mode_grid)
+        w, z = best_of([(float(w), z) for w in ws for z in MODE_ZETAS])
+        r = float(ws[1] / ws[0])
+        fine = np.geomspace(w / r, w * r, 5)[[1, 3]]
+        zs = (max(z / 1.7, MODE_ZETAS[0]), z, z * 1.7)
+        return best_of([(w, zf) for zf in zs] + [(float(wf), float(zf)) for wf in fine for zf in zs])
 
     def _profile(self, model, tau, fmax, which):
         st = self.st
@@ -223,7 +286,8 @@ class _Fitter:
         rss = fit_batch(self.rtr, model, inputs)[1]
         i = int(np.argmin(rss))
         best = float(grid[i])
-        if 0 < i < len(grid) - 1:  # parabolic refinement (log grid for τ)
+        same = 0 < i < len(grid) - 1 and len({np.sign(g) for g in grid[i - 1 : i + 2]}) == 1
+        if same:  # parabolic refinement (log grid for τ) within one saturation shape
             g = np.log(grid[i - 1 : i + 2]) if which == "tau" else grid[i - 1 : i + 2]
             r = rss[i - 1 : i + 2]
             den = (g[0] - g[1]) * (g[0] - g[2]) * (g[1] - g[2])
@@ -237,8 +301,14 @@ class _Fitter:
 
     def fit(self, cands: Sequence[AbstractCandidate]) -> Fitted:
         dt = self.st.dt
+        if any(c.profiled == "mode" for c in cands) and self.mode is None:
+            # profiled once, on the first structure that holds it (the candidate alone on the
+            # baseline), then fixed in stacks
+            self.mode = self._profile_mode(cands)
+            for regs, rec in ((self.rtr, self.train), (self.rva, self.valid)):
+                self._add_mode(regs, rec, [self.mode])
         model = self._model(cands)
-        prof = [c.profiled for c in cands if c.profiled]
+        prof = [c.profiled for c in cands if c.profiled in ("tau", "fmax")]
         tau, fmax = 0.0, math.inf
         for _ in range(2 if len(prof) > 1 else 1):
             for which in prof:
@@ -257,6 +327,8 @@ class _Fitter:
             phys["Fmax"] = fmax
         if "k" in phys and "F0" in phys:
             phys["x0"] = phys["F0"] / phys["k"] if phys["k"] != 0 else math.nan
+        if any(c.profiled == "mode" for c in cands):
+            phys["f_mode"], phys["zeta_mode"] = self.mode[0] / (2 * math.pi), self.mode[1]
         sim = self._simulate(phys, u_va, cands)
         return Fitted(
             names=names,
@@ -343,6 +415,7 @@ class EffectScore:
     share: float
     significant: bool
     reason: str
+    plausible: bool = True
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -402,58 +475,13 @@ class Diagnosis:
         )
 
 
-_UNITS = {
-    "a": "1/s",
-    "b": "1/kg",
-    "Fc": "N",
-    "F0": "N",
-    "k": "N/m",
-    "x0": "m",
-    "tau": "s",
-    "Fmax": "N",
-    "da_dx": "1/(s·m)",
-    "db_dx": "1/(kg·m)",
-}
-
-_EFFECT_PARAMS = {
-    "coulomb_friction": ("Fc",),
-    "offset": ("F0",),
-    "spring": ("k", "x0"),
-    "delay": ("tau",),
-    "saturation": ("Fmax",),
-    "position_dependent": ("da_dx", "db_dx"),
-}
-
-
-def _params_of(name: str, phys: dict[str, float]) -> dict[str, float]:
-    keys = _EFFECT_PARAMS.get(name, ())
-    return {k: phys[k] for k in keys if k in phys}
-
+#: Units of the baseline's and the derived parameters (each candidate owns its own: ``units``).
+_UNITS = {"a": "1/s", "b": "1/kg", "F0": "N", "tau": "s", "Fmax": "N"}
 
 #: Near-tie: a candidate whose BIC weight is at least 1/TIE_RATIO of the verdict's.
 TIE_RATIO = 20.0
 #: Share of the excess gap a stack must remove to earn full confidence.
 EXPLAINED_FULL = 0.9
-
-_IMPLAUSIBLE = ("friction would", "F_max is not", "no positive delay", "b ≤ 0")
-
-
-def _plausible_reason(score: EffectScore) -> str:
-    """The implausibility reason of a scored candidate, or "" when its parameters are physical."""
-    return score.reason if score.reason.startswith(_IMPLAUSIBLE) else ""
-
-
-def _plausible(name: str, fit: Fitted, st: Settings, Fabs_max: float) -> str:
-    p = fit.physical
-    if name == "coulomb_friction" and not p.get("Fc", 0) > 0:
-        return "friction would push along the motion (F_c ≤ 0)"
-    if name == "saturation" and not fit.fmax < 0.99 * Fabs_max:
-        return "F_max is not below the largest force"
-    if name == "delay" and not fit.tau > 0:
-        return "no positive delay"
-    if not p.get("b", 1.0) > 0:
-        return "b ≤ 0"
-    return ""
 
 
 # ----------------------------------------------------------------------------- diagnose
@@ -476,8 +504,9 @@ def diagnose(
     Arguments:
         train: training record (x [m], F [N], uniform dt).
         valid: validation record (default: ``train`` — then nothing is validated; pass one).
-        candidates: the effect library (default: ``coulomb_friction``, ``offset``, ``spring``,
-            ``delay``, ``saturation``, ``position_dependent``).
+        candidates: the effect library (default: ``offset``, ``coulomb_friction``, ``spring``,
+            ``delay``, ``saturation``, ``position_dependent``, ``asymmetric_friction``,
+            ``flexible_mode``; :data:`DEFAULT_CANDIDATES`).
         filter_hz: corner λ/2π [Hz] of the filter (s + λ)³ (default min(f_s/25, 40 Hz)).
         window_s: restart interval H [s] of the windowed simulation error (default 1/a clipped
             to [20·dt, 2 s]).
@@ -546,21 +575,27 @@ def diagnose(
     gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     n_eff = _n_eff(base.residual)
-    Fabs_max = float(np.max(np.abs(np.asarray(train.F))))
+    limits = Limits(float(np.max(np.abs(np.asarray(train.F)))))
 
     def excess(ms):
         return max(ms - floor**2, 0.0)
 
     def score_of(cur: Fitted, new: Fitted, p: int) -> float:
-        return n_eff * math.log(cur.ms_valid / max(new.ms_valid, 1e-300)) - p * math.log(n_eff)
+        # mean squares below the noise floor count as the floor: ε₁ carries the position noise
+        # through s²/Λ, and a column with high-frequency content of x (a flexible mode) can
+        # cancel part of that noise — a gain on noise, not on the gap
+        lo = max(floor**2, 1e-300)
+        gain = math.log(max(cur.ms_valid, lo) / max(new.ms_valid, lo))
+        return n_eff * gain - p * math.log(n_eff)
 
     def assess(cur, new, cand) -> EffectScore:
         sc = score_of(cur, new, cand.n_params)
         ex0 = excess(cur.ms_valid)
         share = 1 - excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
-        why = _plausible(cand.name, new, st, Fabs_max)
-        sig = sc > threshold and share >= min_share and not why
-        if not why:
+        why = cand.implausible(new.physical, limits)
+        plausible = not why
+        sig = sc > threshold and share >= min_share and plausible
+        if plausible:
             why = (
                 "significant"
                 if sig
@@ -568,7 +603,7 @@ def diagnose(
             )
         return EffectScore(
             name=cand.name,
-            params=_params_of(cand.name, new.physical),
+            params=cand.report(new.physical),
             gap=new.gap,
             shrink=1 - new.gap / base.gap if base.gap > 0 else 0.0,
             equation_gap=new.equation_gap,
@@ -577,6 +612,7 @@ def diagnose(
             share=share,
             significant=bool(sig),
             reason=why,
+            plausible=plausible,
         )
 
     # every candidate alone
@@ -603,30 +639,41 @@ def diagnose(
         steps.append(best[0])
         stack.append(best[2])
         cur = best[1]
-        pool = [c for c in pool if c is not best[2]]
-        # a spring with equilibrium already carries the offset column (and vice versa)
-        if best[2].name in ("spring", "offset"):
-            pool = [c for c in pool if c.name != "offset"]
+        # a candidate is not stacked after one that contains it (spring ⊃ offset)
+        pool = [c for c in pool if c is not best[2] and c.name not in best[2].subsumes]
 
-    # parsimony pass: a spring added while other effects were missing may stand for a mere
-    # offset (closed loop: a constant force shifts the equilibrium); keep the simpler structure
-    # unless the spring's stiffness is itself significant on validation data.
-    names_now = [c.name for c in stack]
-    if "spring" in names_now and "offset" not in names_now:
-        off = next((c for c in candidates if c.name == "offset"), None)
-        if off is not None:
-            alt = [off if c.name == "spring" else c for c in stack]
-            f_alt = fitter.fit(alt)
-            if score_of(f_alt, cur, 1) <= threshold:
-                stack, cur = alt, f_alt
-                steps = [
-                    dataclasses.replace(
-                        s, name="offset", params=_params_of("offset", f_alt.physical)
-                    )
-                    if s.name == "spring"
-                    else s
-                    for s in steps
-                ]
+    # parsimony pass: a candidate with a simpler stand-in (spring → offset: in closed loop a
+    # constant force shifts the equilibrium; asymmetric friction → Coulomb + offset: while the
+    # axis moves, a direction-dependent level is a constant force) is replaced by it unless
+    # its own extra parameters are significant on validation data.
+    by_name = {c.name: c for c in candidates}
+    stands_for: dict[str, str] = {}  # a stand-in's name → the candidate it replaced
+    for c in list(stack):
+        names_now = [k.name for k in stack]
+        simpler = [by_name[n] for n in c.simpler if n in by_name and n not in names_now]
+        if not simpler or len(simpler) != len([n for n in c.simpler if n not in names_now]):
+            continue
+        i = stack.index(c)
+        alt = [*stack[:i], *simpler, *stack[i + 1 :]]
+        f_alt = fitter.fit(alt)
+        n_simple = sum(k.n_params for k in simpler)
+        rest = [k for k in stack if k is not c]
+        prev = fitter.fit(rest) if rest else base
+        # the stand-in must itself explain the gap (significant where c stood), and c's extra
+        # parameters must not be significant over it
+        if (
+            score_of(prev, f_alt, n_simple) > threshold
+            and score_of(f_alt, cur, c.n_params - n_simple) <= threshold
+        ):
+            stack, cur = alt, f_alt
+            stands_for[simpler[0].name] = c.name
+            j = [st_.name for st_ in steps].index(c.name)
+            steps = [
+                *steps[:j],
+                *(dataclasses.replace(steps[j], name=k.name, params=k.report(f_alt.physical))
+                  for k in simpler),
+                *steps[j + 1 :],
+            ]
 
     at_floor = base.equation_gap <= floor_factor * floor
     if stack:
@@ -638,7 +685,7 @@ def diagnose(
 
     # evidence: BIC weights exp(score/2) of "no effect" (score 0) and each plausible candidate
     # alone (score = validated 2·log-likelihood gain − p·ln N_eff = −ΔBIC)
-    plausible = {s.name: s.score for s in effects if not _plausible_reason(s)}
+    plausible = {s.name: s.score for s in effects if s.plausible}
     top = max([0.0, *plausible.values()])
     raw = {"none": math.exp(-top / 2)} | {k: math.exp((v - top) / 2) for k, v in plausible.items()}
     total = sum(raw.values())
@@ -646,6 +693,9 @@ def diagnose(
     explained = 1.0 - (
         excess(cur.ms_valid) / excess(base.ms_valid) if excess(base.ms_valid) > 0 else 0.0
     )
+    if verdict in stands_for and stands_for[verdict] in weights:
+        # the stand-in and the candidate it replaced are one explanation: pool their evidence
+        weights[verdict] += weights.pop(stands_for[verdict])
     ambiguous: list[str] = []
     if verdict in weights:
         near = [k for k in weights if weights[k] >= weights[verdict] / TIE_RATIO]
@@ -654,12 +704,17 @@ def diagnose(
     if verdict == "none":
         confidence = weights["none"]
     elif verdict == "unexplained":
-        best_share = max([s.share for s in effects if not _plausible_reason(s)], default=0.0)
+        # an implausible fit that removes much of the gap still resembles the effect
+        best_share = max([s.share for s in effects], default=0.0)
         confidence = float(np.clip(1.0 - best_share, 0.0, 1.0))
     else:
         confidence = weights.get(verdict, 0.0) * min(1.0, max(explained, 0.0) / EXPLAINED_FULL)
 
     final_params = {k: v for k, v in cur.physical.items()}
+    units = dict(_UNITS)
+    for c in stack:
+        final_params.update(c.report(cur.physical))
+        units.update(c.units)
     if "spring" in [c.name for c in stack] and "offset" not in [c.name for c in stack]:
         final_params.pop("F0", None)
     elif "x0" in final_params and "spring" not in [c.name for c in stack]:
@@ -667,7 +722,7 @@ def diagnose(
     final = {
         "model": "MassDamper+" + "+".join(c.name for c in stack) if stack else "MassDamper",
         "params": final_params,
-        "units": {k: _UNITS.get(k, "") for k in final_params},
+        "units": {k: units.get(k, "") for k in final_params},
         "std": _std_physical(cur),
         "gap": cur.gap,
         "shrink": 1 - cur.gap / base.gap if base.gap > 0 else 0.0,
@@ -678,7 +733,7 @@ def diagnose(
         ),
     }
     final.update(final_params)
-    from ._where import where_findings
+    from ._where import structure, where_findings
 
     series = {
         "t": np.asarray(valid.t),
@@ -692,6 +747,8 @@ def diagnose(
         "H": np.asarray(fitter.H),
     }
     where = where_findings(series, st, floor)
+    F_va = np.asarray(valid.F)
+    final["structure"] = structure(cur.residual, F_va, st)
     baseline = {
         "model": "MassDamper",
         "params": {"a": a, "b": b},
@@ -705,6 +762,7 @@ def diagnose(
         "noise_floor": floor,
         "at_noise_floor": bool(at_floor),
         "condition": base.condition,
+        "structure": structure(base.residual, F_va, st),
     }
     return Diagnosis(
         baseline=baseline,

@@ -203,6 +203,38 @@ def _free(dsc: Discrete, T0):
     return jnp.einsum("jn,tni->tij", dsc.C, Zs)[:, :, 0]
 
 
+@jax.jit
+def _filter_systems(dsc: Discrete, U, foh):
+    """Each signal through its own filter (a batch of :class:`Discrete`, leading axis)."""
+    return jax.vmap(_filt)(dsc, U, foh)
+
+
+def mode_signals(record_x, record_F, dt: float, modes, Tp: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(h_x, h_F) of a record for each mode (ω [rad/s], ζ) in ``modes``: h = (s²/D)[·],
+    D = s² + 2ζωs + ω², x under a first-order hold, F under a zero-order hold (as
+    :class:`~lionjax.diagnosis._candidates.ModeColumns` computes them with its own filter,
+    here on bucketed shapes: h = V₄ + ωV₃ of the bank (s + ω)·D, in fixed batches)."""
+    from ._candidates import mode_bank
+
+    T = np.asarray(record_x).size
+    xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
+    out = []
+    per = S_BATCH // 2
+    for i in range(0, len(modes), per):
+        chunk = list(modes[i : i + per])
+        m = len(chunk)
+        chunk += [chunk[-1]] * (per - m)
+        ds = [Discrete.of(mode_bank(w, z), dt) for w, z in chunk for _ in (0, 1)]
+        dsc = jax.tree.map(lambda *a: jnp.stack(a), *ds)
+        U = np.stack([u for _ in chunk for u in (xp, Fp)])
+        foh = np.tile([1.0, 0.0], per)
+        V = np.asarray(_filter_systems(dsc, jnp.asarray(U), jnp.asarray(foh)), np.float64)
+        w = np.repeat([float(w) for w, _ in chunk], 2)
+        h = V[:, :T, 3] + w[:, None] * V[:, :T, 2]
+        out += [(h[2 * j], h[2 * j + 1]) for j in range(m)]
+    return out
+
+
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
     """Σh² of ε₁'s response to unit white noise on x (foh) and on b·F (zoh).
 
@@ -232,19 +264,26 @@ def _apply_input(F, dt, tau, fmax):
     i0 = jnp.clip(k - n.astype(k.dtype), 0, T - 1)
     i1 = jnp.clip(i0 - 1, 0, T - 1)
     Fd = (1 - phi) * F[i0] + phi * F[i1]
-    return jnp.clip(Fd, -fmax, fmax)
+    m = jnp.abs(fmax)
+    soft = m * jnp.tanh(Fd / jnp.where(jnp.isfinite(m), m, 1.0))
+    return jnp.where(fmax < 0, soft, jnp.clip(Fd, -m, m))
 
 
 def apply_input(F, dt, tau, fmax) -> np.ndarray:
     """u = sat_Fmax(F(t − τ)) at the samples, for a force held between samples [N].
 
     With τ = (n + φ)·dt the delayed held force averaged over each interval is
-    (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0]); the clip is hard.
+    (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0]). F_max > 0: the hard clip;
+    F_max < 0 stands for the soft saturation |F_max|·tanh(F/|F_max|) (one profile grid holds
+    both shapes).
     """
     F = np.asarray(F, np.float64)
     t = np.arange(F.size, dtype=np.float64)
     Fd = np.interp(t - float(tau) / float(dt), t, F, left=F[0], right=F[-1])
-    return np.clip(Fd, -fmax, fmax)
+    m = abs(float(fmax))
+    if fmax < 0:
+        return m * np.tanh(Fd / m)
+    return np.clip(Fd, -m, m)
 
 
 # ----------------------------------------------------------------------------- least squares
@@ -265,10 +304,15 @@ def _augmented_gram(W: np.ndarray, y: np.ndarray) -> np.ndarray:
     the host: the tall products are the only pass over the record, and float64 keeps the
     squaring of the condition number (cond(Gram) = cond(W)²) far from the rounding floor
     (cond(W) up to ~1e6 leaves 1e-4 relative accuracy in the Gram's smallest eigenvalue)."""
+    A = _augmented_design(W, y)
+    return np.swapaxes(A, -1, -2) @ A
+
+
+def _augmented_design(W: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """[W | y] in float64."""
     W = np.asarray(W, np.float64)
     y = np.broadcast_to(np.asarray(y, np.float64), W.shape[:-1])
-    A = np.concatenate([W, y[..., None]], -1)
-    return np.swapaxes(A, -1, -2) @ A
+    return np.concatenate([W, y[..., None]], -1)
 
 
 @jax.jit
@@ -355,6 +399,17 @@ class Regressors:
                 self.cache[n] = v
         return {n: self.cache[n] for n in raw}
 
+    def drop(self, names) -> None:
+        """Forget raw and filtered signals ``names`` and every cached layout that uses them
+        (profiled columns: one structure per grid point would otherwise stay in memory)."""
+        names = set(names)
+        for n in names:
+            self.known.pop(n, None)
+            self.cache.pop(n, None)
+        for k in [k for k in self.cache if isinstance(k, tuple) and k[0] == "layout"]:
+            if any(c.signal in names for c in k[1]):
+                del self.cache[k]
+
     def _raw(self, model: AbstractModel, names: Sequence[str]) -> dict:
         missing = {n for n in names if n not in self.known and n not in self.cache}
         for e in getattr(model, "effects", ()):  # signals the diagnosis does not precompute:
@@ -437,8 +492,7 @@ def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
         Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, y)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
-        Wf = Wfix * regs.mask[:, None] + pad
-        A = np.concatenate([Wf, y[:, None]], 1)
+        A = _augmented_design(Wfix * regs.mask[:, None] + pad, y)
         G0 = A.T @ A
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
@@ -464,8 +518,7 @@ def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
             OC = np.einsum("kp,mkq->mpq", O, C)
             Gm = G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
             Gs.append(Gm)
-    coef, rss, gi, cond = solve_grams(np.concatenate(Gs), regs.T)
-    return coef, rss, gi, cond
+    return solve_grams(np.concatenate(Gs), regs.T)
 
 
 def fit_batch(regs: Regressors, model: AbstractModel, inputs):
@@ -479,6 +532,31 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
     s2 = rss / max(regs.T - n_cols, 1)
     cov = s2[:, None, None] * gi[:, :p, :p]
     return coef[:, :p], rss, cov, cond
+
+
+def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -> np.ndarray:
+    """Training RSS of ``model`` (u = F) with K more ε₁ columns, for each of m sets ``cols``
+    (m, K, T) (filtered, signs included): the profile of a column family over a nonlinear
+    parameter (the flexible mode's ω, ζ) without building a design per grid point. The new
+    columns take the K first unused slots (whose unit pad columns leave the design); only their
+    Gram blocks are new."""
+    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
+    n = p + regs.N.shape[1]
+    m, K, _ = cols.shape
+    if n + K > P_MAX:
+        raise ValueError(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
+    A = _augmented_design(Wdef * regs.mask[:, None] + pad, regs.W0 * regs.mask)
+    A[:, n : n + K] = 0.0
+    G0 = A.T @ A
+    V = np.zeros((m, K, regs.Tp))
+    V[:, :, : regs.T] = cols
+    C = V @ A  # (m, K, P + 1)
+    D = V @ np.swapaxes(V, 1, 2)
+    O = np.zeros((K, P_MAX + 1))
+    O[np.arange(K), n + np.arange(K)] = 1.0
+    OC = np.einsum("kp,mkq->mpq", O, C)
+    Gm = G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
+    return solve_grams(Gm, regs.T)[1]
 
 
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:

@@ -126,3 +126,35 @@ def where_findings(series: dict[str, np.ndarray], st, floor: float) -> list[dict
         }
     )
     return out
+
+
+def structure(r: np.ndarray, F: np.ndarray, st) -> dict[str, float]:
+    """How structured a validation residual is, relative to the 99 % bound of white noise
+    (MATLAB ``resid``'s two tests, on the residual decimated to the filter's time constant):
+
+    - ``input_correlation``: max |ρ(r, F)| over lags 0…20 / bound — a residual that still
+      follows the input holds an unmodelled input-driven effect;
+    - ``whiteness``: max |ρ(r, r)| over lags 1…20 / bound (ε₁ is filtered, so this is > 1 even
+      for white noise on x; compare a structure before and after a candidate);
+    - ``peak``: the largest power of the residual's spectrum (smoothed over ±2 bins) in
+      0…4·f_filter over its median there — a narrow-band residual (a mode) has a high peak.
+    """
+    r = np.asarray(r, np.float64)
+    F = np.asarray(F, np.float64)[: r.size]
+    step = max(1, int(round(1.0 / (2 * math.pi * st.filter_hz * st.dt))))
+    rd, Fd = r[::step], F[::step]
+    w = _xcorr_test(rd, rd, 20)
+    c = _xcorr_test(rd, Fd, 20)
+    spec = np.abs(np.fft.rfft(r - r.mean())) ** 2
+    f = np.fft.rfftfreq(r.size, st.dt)
+    band = spec[(f > 0) & (f < 4 * st.filter_hz)]
+    if band.size >= 5:
+        sm = np.convolve(band, np.ones(5) / 5, mode="same")
+        peak = float(np.max(sm) / max(np.median(sm), 1e-300))
+    else:
+        peak = 1.0
+    return {
+        "input_correlation": c["max_abs"] / c["bound_99"],
+        "whiteness": w["max_abs"] / w["bound_99"],
+        "peak": peak,
+    }
