@@ -762,7 +762,7 @@ def _evidence(d) -> dict:
     base, final = getattr(d, "baseline", {}), d.final
     return {
         "weights": dict(getattr(d, "weights", {})),
-        "scores": {e.name: float(e.score) for e in d.effects},
+        "scores": {e.name: float(getattr(e, "score", math.nan)) for e in d.effects},
         "shares": {e.name: float(getattr(e, "share", math.nan)) for e in d.effects},
         "remaining_excess_share": final.get("remaining_excess_share"),
         "structure_base": base.get("structure"),

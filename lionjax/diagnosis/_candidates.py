@@ -157,6 +157,10 @@ class AbstractCandidate(eqx.Module):
         return ""
 
 
+#: Largest plausible mass ratio of a flexible mode.
+MAX_MODE_MASS = 0.6
+
+
 def _b_positive(phys) -> str:
     return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
@@ -293,7 +297,10 @@ class SaturationCandidate(AbstractCandidate):
 class FlexibleModeCandidate(AbstractCandidate):
     """A lightly damped flexible mode (:class:`ModeColumns`): mass ratio μ, frequency f_mode
     [Hz] and damping ζ profiled on a grid, and the share κ of the input that passes through the
-    mode (0 collocated sensor, 1 non-collocated). Plausible when 0 < μ < 1 and −0.5 ≤ κ ≤ 1.5."""
+    mode (0 collocated sensor, 1 non-collocated). Plausible when 0 < μ ≤ :data:`MAX_MODE_MASS`
+    and −0.5 ≤ κ ≤ 1.5: a "mode" carrying most of the mass is a different rigid body, and a
+    column that lowers the acceleration's weight at high frequency also cancels position noise,
+    which is what an implausibly large μ fits."""
 
     name: ClassVar[str] = "flexible_mode"
     n_params: ClassVar[int] = 4
@@ -318,8 +325,8 @@ class FlexibleModeCandidate(AbstractCandidate):
 
     def implausible(self, phys, lim):
         r = self.report(phys)
-        if not 0 < r.get("mass_ratio", 0) < 1:
-            return "no flexible mode: mass ratio outside (0, 1)"
+        if not 0 < r.get("mass_ratio", 0) <= MAX_MODE_MASS:
+            return f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}]"
         if not -0.5 <= r.get("input_share", 0) <= 1.5:
             return "no flexible mode: input share outside [−0.5, 1.5]"
         return _b_positive(phys)

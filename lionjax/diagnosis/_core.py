@@ -20,9 +20,12 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    A candidate is *significant* when its score exceeds ``threshold``, its parameters are physical
    (F_c > 0, F_max inside the force range …) and it removes at least ``min_share`` of the gap in
    excess of the noise floor. Greedy stacking adds the best significant candidate until none is.
-5. **Verdict**: the first of the stack; ``none`` when nothing is significant and the gap is within
-   ``floor_factor`` of the noise floor; ``unexplained`` when a gap above it remains that no
-   candidate removes.
+5. **Verdict**: the first of the stack, provided the stack explains the residual's structure
+   as well as its size (its residual's spectral peak is not sharper than the baseline's:
+   :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the gap is within
+   ``floor_factor`` of the noise floor or the residual is noise-like (input correlation within
+   its 99 % bound and no spectral peak, :func:`._where.structure`); ``unexplained`` when a
+   structured gap remains that no candidate removes, or that the named stack leaves sharper.
 """
 
 from __future__ import annotations
@@ -50,16 +53,17 @@ from ._candidates import (
 from ._fit import (
     Regressors,
     apply_input,
-    fit_batch,
-    impulse_gains,
     edge_pad,
     filter_signals,
+    fit_batch,
+    impulse_gains,
     mode_signals,
     residual,
     rss_with_columns,
     simulate_windows,
     zero_phase,
 )
+from ._where import structure
 
 # ----------------------------------------------------------------------------- settings
 
@@ -274,7 +278,9 @@ class _Fitter:
         r = float(ws[1] / ws[0])
         fine = np.geomspace(w / r, w * r, 5)[[1, 3]]
         zs = (max(z / 1.7, MODE_ZETAS[0]), z, z * 1.7)
-        return best_of([(w, zf) for zf in zs] + [(float(wf), float(zf)) for wf in fine for zf in zs])
+        return best_of(
+            [(w, zf) for zf in zs] + [(float(wf), float(zf)) for wf in fine for zf in zs]
+        )
 
     def _profile(self, model, tau, fmax, which):
         st = self.st
@@ -482,6 +488,11 @@ _UNITS = {"a": "1/s", "b": "1/kg", "F0": "N", "tau": "s", "Fmax": "N"}
 TIE_RATIO = 20.0
 #: Share of the excess gap a stack must remove to earn full confidence.
 EXPLAINED_FULL = 0.9
+#: Spectral peak ratio (:func:`._where.structure`) up to which a residual counts as noise.
+NOISE_PEAK = 100.0
+#: A named stack whose residual's spectral peak exceeds this multiple of the baseline's (and
+#: NOISE_PEAK) does not explain the residual's structure: the verdict is ``unexplained``.
+PEAK_GROWTH = 2.0
 
 
 # ----------------------------------------------------------------------------- diagnose
@@ -670,15 +681,28 @@ def diagnose(
             j = [st_.name for st_ in steps].index(c.name)
             steps = [
                 *steps[:j],
-                *(dataclasses.replace(steps[j], name=k.name, params=k.report(f_alt.physical))
-                  for k in simpler),
+                *(
+                    dataclasses.replace(steps[j], name=k.name, params=k.report(f_alt.physical))
+                    for k in simpler
+                ),
                 *steps[j + 1 :],
             ]
 
     at_floor = base.equation_gap <= floor_factor * floor
+    # a named stack must explain the residual's structure, not only its size: a stack that
+    # leaves a sharper spectral peak than the baseline's fits a resonance-like shape to an
+    # effect it does not describe (cogging or backlash taken for a flexible mode)
+    s_final = structure(cur.residual, np.asarray(valid.F), st)
+    # "unexplained" needs a residual with structure (MATLAB resid's cross-correlation with the
+    # input beyond its 99 % bound, or a spectral peak): a gap above the estimated floor whose
+    # residual is white and input-independent means the floor was underestimated (a coarse
+    # encoder at a high sample rate hides its steps from the third-difference estimator)
+    s_base = structure(base.residual, np.asarray(valid.F), st)
+    noise_like = s_base["input_correlation"] <= 1.0 and s_base["peak"] <= NOISE_PEAK
+    peak_grew = s_final["peak"] > max(PEAK_GROWTH * s_base["peak"], NOISE_PEAK)
     if stack:
-        verdict = stack[0].name
-    elif at_floor:
+        verdict = "unexplained" if peak_grew else stack[0].name
+    elif at_floor or noise_like:
         verdict = "none"
     else:
         verdict = "unexplained"
@@ -733,7 +757,7 @@ def diagnose(
         ),
     }
     final.update(final_params)
-    from ._where import structure, where_findings
+    from ._where import where_findings
 
     series = {
         "t": np.asarray(valid.t),
@@ -747,8 +771,8 @@ def diagnose(
         "H": np.asarray(fitter.H),
     }
     where = where_findings(series, st, floor)
-    F_va = np.asarray(valid.F)
-    final["structure"] = structure(cur.residual, F_va, st)
+    final["structure"] = s_final
+    final["structure_explained"] = not peak_grew
     baseline = {
         "model": "MassDamper",
         "params": {"a": a, "b": b},
@@ -761,8 +785,9 @@ def diagnose(
         "equation_gap_units": "m/s²",
         "noise_floor": floor,
         "at_noise_floor": bool(at_floor),
+        "noise_like": bool(noise_like),
         "condition": base.condition,
-        "structure": structure(base.residual, F_va, st),
+        "structure": s_base,
     }
     return Diagnosis(
         baseline=baseline,

@@ -209,7 +209,9 @@ def _filter_systems(dsc: Discrete, U, foh):
     return jax.vmap(_filt)(dsc, U, foh)
 
 
-def mode_signals(record_x, record_F, dt: float, modes, Tp: int) -> list[tuple[np.ndarray, np.ndarray]]:
+def mode_signals(
+    record_x, record_F, dt: float, modes, Tp: int
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """(h_x, h_F) of a record for each mode (ω [rad/s], ζ) in ``modes``: h = (s²/D)[·],
     D = s² + 2ζωs + ω², x under a first-order hold, F under a zero-order hold (as
     :class:`~lionjax.diagnosis._candidates.ModeColumns` computes them with its own filter,
