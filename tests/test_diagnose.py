@@ -128,3 +128,47 @@ def test_blind_small():
     assert all(r["verdict"] == "none" for r in clean)
     ool = [r for r in rows if r["class"] == "dead_zone"]  # outside the library
     assert all(r["verdict"] == "unexplained" for r in ool)
+
+
+def test_gram_solve_is_float64_without_x64():
+    """The diagnosis' solve (augmented Gram → lj's gram_lstsq) against numpy's lstsq (an
+    independent SVD reference) at 1e-9, with jax_enable_x64 switched off by the caller."""
+    import jax
+
+    from lionjax.diagnosis._fit import _augmented_gram, solve_grams
+
+    rng = np.random.default_rng(3)
+    W = rng.normal(size=(500, 5)) * np.array([1e-3, 1.0, 30.0, 1.0, 5e2])
+    y = W @ np.array([2.0, -1.0, 0.5, 0.0, 3e-3]) + 1e-4 * rng.normal(size=500)
+    with jax.enable_x64(False):
+        coef, rss, gi, cond = solve_grams(_augmented_gram(W, y)[None], 500)
+    ref, res, *_ = np.linalg.lstsq(W, -y, rcond=None)
+    assert coef.dtype == np.float64
+    np.testing.assert_allclose(coef[0], ref, rtol=1e-9, atol=1e-12)
+    assert rss[0] == pytest.approx(float(res[0]), rel=1e-6)  # RSS by cancellation in the Gram
+    np.testing.assert_allclose(gi[0], np.linalg.inv(W.T @ W), rtol=1e-8)
+
+
+def test_mode_signals_and_soft_saturation_against_scipy():
+    """h = (s²/D)[·] of the flexible-mode candidate (bucketed batched filter) against scipy's
+    lsim (first-order hold: linear interpolation) and zero-order-hold discretisation, 1e-8; the
+    soft input map against tanh."""
+    from scipy import signal
+
+    from lionjax.diagnosis._fit import apply_input, mode_signals, padded_length
+
+    dt, T = 1 / 997.3, 3000
+    t = np.arange(T) * dt
+    x = 0.01 * np.sin(2 * np.pi * 3.1 * t) + 0.002 * np.sin(2 * np.pi * 37.0 * t)  # x(0) = 0
+    F = np.sign(np.sin(2 * np.pi * 1.3 * t + 0.3))
+    w, z = 2 * np.pi * 21.0, 0.07
+    num, den = [1.0, 0.0, 0.0], [1.0, 2 * z * w, w * w]
+    hx_ref = signal.lsim(signal.lti(num, den), x, t, interp=True)[1]
+    A, B, C, D, _ = signal.cont2discrete(signal.tf2ss(num, den), dt, "zoh")
+    x0 = np.linalg.solve(np.eye(2) - A, B[:, 0] * F[0])  # at rest under F[0]: h = 0
+    hF_ref = signal.dlsim((A, B, C, D, dt), F, t=t, x0=x0)[1][:, 0]
+    ((hx, hF),) = mode_signals(x, F, dt, [(w, z)], padded_length(T))
+    scale = np.max(np.abs(hx_ref))
+    np.testing.assert_allclose(hx, hx_ref, atol=1e-8 * scale)
+    np.testing.assert_allclose(hF, hF_ref, atol=1e-8 * np.max(np.abs(hF_ref)))
+    np.testing.assert_allclose(apply_input(F * 2.0, dt, 0.0, -1.5), 1.5 * np.tanh(F * 2.0 / 1.5))
