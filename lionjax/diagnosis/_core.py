@@ -193,7 +193,8 @@ class Fitted:
 
     @property
     def gap(self) -> float:
-        return float(np.sqrt(np.mean(self.sim_error**2)))
+        with np.errstate(over="ignore"):  # a diverging windowed simulation: gap = inf
+            return float(np.sqrt(np.mean(self.sim_error**2)))
 
     @property
     def equation_gap(self) -> float:
