@@ -26,14 +26,7 @@ Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kerne
 - XLA:CPU has no multi-output fusion and re-computes a shared value inside every consumer; the
   θ increments are therefore packed in complex pairs and divided by a runtime 1 (it never
   duplicates an expensive producer, :func:`lionjax._phi.materialise`), and θ itself is carried
-  in complex pairs, so the whole step is one fusion updated in place; the filter states are
-  carried in complex pairs too (half the fusions and carry copies per sample). Where no
-  accumulator reads θ the increments' guard divides as reals (XLA's complex division costs
-  about ten vector divisions per record and sample);
-- one filter per record (``FilterBank`` coeffs ``(B, n)``, or one ``dt`` per record): the
-  kernel reads the compact per-record filter (Φ, Γ₀, Γ₁, λ: :class:`_Filter`) and forms the
-  outputs at the step's start, midpoint and end from z_k and z_{k+1}, instead of the composed
-  maps of every signal (free as shared scalars; as per-record arrays five times the reads);
+  in complex pairs, so the whole step is one fusion updated in place;
 - E(hS) by its series alone while tr(hS) ≤ 1/2 (a free guard: beyond it the divisor is 0 and
   the record comes back non-finite), the records that fail re-run with the closed form
   (``Execution(phi="series")``, the default);
@@ -437,7 +430,7 @@ class _Inputs(eqx.Module):
 class _State(eqx.Module):
     """The kernel's carry from sample to sample (all (Bs,) arrays)."""
 
-    z: list  # S lists of n filter states (XLA: the S·n states in complex pairs)
+    z: list  # S lists of n filter states
     theta: list | None  # θ as complex pairs (θ₀ + iθ₁, …)
     valid: Array | None  # the stepper's per-step validity (steppers that report it)
     outputs: tuple[Accumulated, ...]
@@ -638,28 +631,12 @@ class _Core:
             return list(tc)
         return [f(v) for v in tc for f in (jnp.real, jnp.imag)][: self.p]
 
-    # the filter states are carried in complex pairs as well (XLA): half the loop's fusions
-    # and carry copies per sample
-
-    def z_pack(self, z):
-        if not self.pairs:
-            return z
-        flat = [v for zs in z for v in zs]
-        flat += [jnp.zeros_like(flat[0])] if len(flat) % 2 else []
-        return [jax.lax.complex(a, b) for a, b in zip(flat[::2], flat[1::2], strict=True)]
-
-    def z_unpack(self, zc):
-        if not self.pairs:
-            return zc
-        flat = [f(v) for v in zc for f in (jnp.real, jnp.imag)]
-        return [flat[s * self.n : (s + 1) * self.n] for s in range(self.S)]
-
     def init(self, zero) -> _State:
         """The carry before the first step; ``zero`` a (Bs,) array of zeros of the dtype."""
         plan, p = self.plan, self.p
         th0 = [self.theta0[i] for i in range(p)] if plan.estimate else None
         return _State(
-            z=self.z_pack([[self.z0[s][i] for i in range(self.n)] for s in range(self.S)]),
+            z=[[self.z0[s][i] for i in range(self.n)] for s in range(self.S)],
             theta=self.to_pairs(th0) if plan.estimate else None,
             valid=(
                 jnp.ones(zero.shape, bool)
@@ -675,7 +652,7 @@ class _Core:
         """Sample k → k+1 (``partial``: this slab's sums, added to the totals per slab)."""
         plan, n, p, S = self.plan, self.n, self.p, self.S
         lin, one = self.lin, self.one
-        z = self.z_unpack(c.z)
+        z = c.z
         zn = [[lin(s, "next", i, z[s], uk[s], uk1[s]) for i in range(n)] for s in range(S)]
         act = None
         if plan.masked:
@@ -723,7 +700,7 @@ class _Core:
             new = o.update(Accumulated(st.carry, sm), sample, inp)
             outs.append(Accumulated(new.carry, st.sums))
             part.append(new.sums)
-        return _State(self.z_pack(zn), theta, valid, tuple(outs)), tuple(part)
+        return _State(zn, theta, valid, tuple(outs)), tuple(part)
 
     @staticmethod
     def zero_sums(c: _State) -> tuple:
@@ -740,7 +717,7 @@ class _Core:
     def final(self, c: _State, u_end):
         """(θ(T) as p arrays, J = ½εᵀε at each record's last sample); ``u_end``: the S signals
         at that sample."""
-        W1, W2, y1, y2 = self.regressors("start", self.z_unpack(c.z), u_end, u_end)
+        W1, W2, y1, y2 = self.regressors("start", c.z, u_end, u_end)
         th = self.from_pairs(c.theta)
         e1 = sum(a * b for a, b in zip(W1, th, strict=True)) + y1
         e2 = sum(a * b for a, b in zip(W2, th, strict=True)) + y2
