@@ -26,7 +26,13 @@ Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kerne
 - XLA:CPU has no multi-output fusion and re-computes a shared value inside every consumer; the
   θ increments are therefore packed in complex pairs and divided by a runtime 1 (it never
   duplicates an expensive producer, :func:`lionjax._phi.materialise`), and θ itself is carried
-  in complex pairs, so the whole step is one fusion updated in place;
+  in complex pairs, so the whole step is one fusion updated in place. Where no accumulator
+  reads θ the increments' guard divides as reals (XLA's complex division costs about ten vector
+  divisions per record and sample);
+- one filter per record (``FilterBank`` coeffs ``(B, n)``, or one ``dt`` per record): the
+  kernel reads the compact per-record filter (Φ, Γ₀, Γ₁, λ: :class:`_Filter`) and forms the
+  outputs at the step's start, midpoint and end from z_k and z_{k+1}, instead of the composed
+  maps of every signal (free as shared scalars; as per-record arrays five times the reads);
 - E(hS) by its series alone while tr(hS) ≤ 1/2 (a free guard: beyond it the divisor is 0 and
   the record comes back non-finite), the records that fail re-run with the closed form
   (``Execution(phi="series")``, the default);
