@@ -26,7 +26,13 @@ Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kerne
 - XLA:CPU has no multi-output fusion and re-computes a shared value inside every consumer; the
   θ increments are therefore packed in complex pairs and divided by a runtime 1 (it never
   duplicates an expensive producer, :func:`lionjax._phi.materialise`), and θ itself is carried
-  in complex pairs, so the whole step is one fusion updated in place;
+  in complex pairs, so the whole step is one fusion updated in place. Where no accumulator
+  reads θ the increments' guard divides as reals (XLA's complex division costs about ten vector
+  divisions per record and sample);
+- one filter per record (``FilterBank`` coeffs ``(B, n)``, or one ``dt`` per record): the
+  kernel reads the compact per-record filter (Φ, Γ₀, Γ₁, λ: :class:`_Filter`) and forms the
+  outputs at the step's start, midpoint and end from z_k and z_{k+1}, instead of the composed
+  maps of every signal (free as shared scalars; as per-record arrays five times the reads);
 - E(hS) by its series alone while tr(hS) ≤ 1/2 (a free guard: beyond it the divisor is 0 and
   the record comes back non-finite), the records that fail re-run with the closed form
   (``Execution(phi="series")``, the default);
@@ -49,6 +55,7 @@ for long records on accelerators; it stores the regressors).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 from collections.abc import Sequence
@@ -76,7 +83,7 @@ from ._outputs import (
     TailStatistics,
     Trajectory,
 )
-from ._phi import fast_series_terms, materialise, phi_sym2
+from ._phi import fast_series_terms, materialise, phi_sym2, real_divisions
 from ._record import Record
 from ._scan import affine_scan, discretise, filter_states, matmul, matvec
 from ._solution_tools import by_name, finish
@@ -388,12 +395,34 @@ class _Maps(eqx.Module):
 _MODES = ("next", "start", "mid", "end")
 
 
+class _Filter(eqx.Module):
+    """One filter per record, compactly (batch axis last): Φ (n, n), Γ₀, Γ₁ (n,), the
+    coefficients of zᵢ in V_{n+1} (λ reversed, (n,)) and the unit-DC-gain scale λₙ (or None).
+    The same for every signal (the holds are static); the outputs at the start, midpoint and
+    end of a step come from the states z_k and z_{k+1} (:func:`_maps` composes them per
+    signal instead: free as scalars, but as per-record arrays they are 5× the values read per
+    sample)."""
+
+    Phi: Array
+    G0: Array
+    G1: Array
+    lam_rev: Array
+    scale: Array | None
+
+
+def _filter(bank: FilterBank, dt: Array) -> _Filter:
+    """:class:`_Filter` of one filter and interval (vmapped over records by the stream)."""
+    Phi, G0, G1 = discretise(bank, dt)
+    lam = bank.coeffs.astype(Phi.dtype)
+    return _Filter(Phi, G0, G1, lam[::-1], lam[-1] if bank.unit_dc_gain else None)
+
+
 class _Inputs(eqx.Module):
     """Kernel inputs. Each field is given once: in the ``shared`` instance (values common to the
     batch, scalars in the kernel) or in the ``per`` instance (one per record, batch axis last
     inside the kernel); the other holds None."""
 
-    maps: tuple[_Maps, ...] | None = None  # one per signal
+    maps: tuple[_Maps, ...] | _Filter | None = None  # one per signal, or one per record
     h: Array | None = None  # sampling interval [s]
     G: Array | None = None  # gain (p, p)
     length: Array | None = None  # valid samples per record
@@ -531,7 +560,10 @@ class _Core:
             v = getattr(per, name)
             return _nested(v, False) if v is not None else _nested(getattr(shared, name), True)
 
-        self.maps = [{k: getattr(m, k) for k in _MODES} for m in get("maps")]
+        maps = get("maps")
+        self.filt = maps if isinstance(maps, _Filter) else None  # one filter per record
+        if self.filt is None:
+            self.maps = [{k: getattr(m, k) for k in _MODES} for m in maps]
         self.h = get("h")
         self.one = shared.one
         self.foh = [hold == "foh" for _, hold in plan.signals]
@@ -543,6 +575,8 @@ class _Core:
         self.theta0 = _nested(per.theta0, False) if plan.estimate else None
 
     def lin(self, s, mode, row, z, uk, uk1):
+        if self.filt is not None:
+            return self.compact(s, mode, row, z, uk, uk1)
         M = self.maps[s][mode][row]
         n = self.n
         terms = [
@@ -551,6 +585,30 @@ class _Core:
             if _structural(mode, self.foh[s], n, row, c)
         ]
         return sum(terms[1:], terms[0])
+
+    def compact(self, s, mode, row, z, uk, uk1):
+        """:meth:`lin` from a :class:`_Filter` (per-record coefficients): the next state's
+        entry ``row``, or output V_{row+1} at the step's start, midpoint or end."""
+        f, n = self.filt, self.n
+
+        def nxt(i):
+            v = sum((f.Phi[i][j] * z[j] for j in range(1, n)), f.Phi[i][0] * z[0]) + f.G0[i] * uk
+            return v + f.G1[i] * (uk1 - uk) if self.foh[s] else v
+
+        if mode == "next":
+            return nxt(row)
+
+        def state(i):
+            if mode == "start":
+                return z[i]
+            return nxt(i) if mode == "end" else 0.5 * (z[i] + nxt(i))
+
+        if row < n:
+            v = state(row)
+        else:
+            u = uk if mode == "start" else uk1 if mode == "end" else 0.5 * (uk + uk1)
+            v = u - sum((f.lam_rev[i] * state(i) for i in range(1, n)), f.lam_rev[0] * state(0))
+        return v if f.scale is None else v * f.scale
 
     def regressors(self, mode, z, uk, uk1):
         """W rows (W1, W2) and W₀ = (y1, y2) from the maps, elementwise."""
@@ -617,17 +675,23 @@ class _Core:
         theta, valid, theta_new = c.theta, c.valid, None
         if plan.estimate:
             W1, W2, y1, y2 = self.regressors("mid" if plan.midpoint else "start", z, uk, uk1)
-            d, ok = self.stepper.increment(
-                self.from_pairs(c.theta),
-                W1,
-                W2,
-                y1,
-                y2,
-                self.G,
-                self.h,
-                series=plan.series_terms,
-                one=one,
-            )
+            # the increments feed the θ pairs only (one fusion whatever the divisions): real
+            # divisions by the runtime 1 (two per record, not XLA's complex division); complex
+            # ones where accumulators read θ too (there they keep the step from being duplicated
+            # into every consumer)
+            cheap = real_divisions() if not self.outputs else contextlib.nullcontext()
+            with cheap:
+                d, ok = self.stepper.increment(
+                    self.from_pairs(c.theta),
+                    W1,
+                    W2,
+                    y1,
+                    y2,
+                    self.G,
+                    self.h,
+                    series=plan.series_terms,
+                    one=one,
+                )
             tc = [t - v for t, v in zip(c.theta, self.to_pairs(d), strict=True)]
             if act is not None:
                 tc = [jnp.where(act, a, b) for a, b in zip(tc, c.theta, strict=True)]
@@ -816,11 +880,10 @@ class _Stream:
         holds = [sigs0[k][1] == "foh" for k in order]
         per_bank = bool(bank.batch_shape)
         shared_coeffs = not per_bank and jnp.ndim(records.dt) == 0
-        if shared_coeffs:
+        if shared_coeffs:  # scalars in the kernel: the composed maps cost nothing to read
             maps = tuple(_maps(bank, jnp.asarray(records.dt, dtype), f) for f in holds)
-        else:
-            axis = 0 if per_bank else None
-            maps = tuple(jax.vmap(_maps, in_axes=(axis, 0, None))(bank, dt, f) for f in holds)
+        else:  # per-record arrays: the compact form, a quarter of the values read per sample
+            maps = jax.vmap(_filter, in_axes=(0 if per_bank else None, 0))(bank, dt)
         maps = jax.tree.map(lambda a: jnp.asarray(a, dtype), maps)
         z0 = jnp.stack(
             [
