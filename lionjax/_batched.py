@@ -195,8 +195,9 @@ class Execution(eqx.Module):
         phi: how E(hS) = (I − e^{−hS})(hS)⁻¹ is evaluated: ``"series"`` (default: its series
             alone, 8 terms in float32, 14 in float64, while tr(hS) ≤ 1/2 — truncation below the
             unit roundoff — and the records where some sample exceeds the bound, or θ is not
-            finite, re-run with the closed form, gathered into a batch of B/16, the whole batch
-            if more fail) or ``"closed"`` (the closed form throughout).
+            finite, re-run with the closed form, gathered B/16 at a time: one closed-form
+            program, compiled once; a loop, so forward-mode differentiable only) or
+            ``"closed"`` (the closed form throughout; also for reverse-mode gradients).
     """
 
     chunk: int = eqx.field(static=True, default=_BLOCK)
@@ -1176,22 +1177,24 @@ def _lion_batched_body(
     )
     if execution.phi == "series":
         # the short series where tr(hS) ≤ 1/2 (records beyond it come back non-finite), then the
-        # closed form for those records only: up to Bf of them gathered into one small batch,
-        # the whole batch if more (Bf: a 16th of the batch, a multiple of the device count)
+        # closed form for those records only, gathered Bf at a time into a small batch (Bf: a
+        # 16th of the batch, a multiple of the device count): one closed-form program, compiled
+        # once, whatever the number of failures (a loop with no failure runs no iteration)
         o = run(plan(fast_series_terms(dtype)))
         bad = ~jnp.all(jnp.isfinite(o.theta), axis=-1)
         ndev = len(jax.local_devices()) if execution.shard else 1
         Bf = min(B, ndev * -(-max(1, B // 16) // ndev))
-        idx = jnp.nonzero(bad, size=Bf, fill_value=-1)[0]
-        idx = jnp.where(idx < 0, idx[0], idx)  # pad with a failed record (same values)
+        closed = plan(0)
 
-        def some():
-            sub = run(plan(0), idx)
-            return jax.tree.map(lambda a, b: a.at[idx].set(b), o, sub)
+        def redo(carry):
+            o, todo = carry
+            idx = jnp.nonzero(todo, size=Bf, fill_value=-1)[0]
+            idx = jnp.where(idx < 0, idx[0], idx)  # pad with a failed record (same values)
+            sub = run(closed, idx)
+            o = jax.tree.map(lambda a, b: a.at[idx].set(b), o, sub)
+            return o, todo.at[idx].set(False)
 
-        n_bad = jnp.sum(bad)
-        branch = jnp.where(n_bad == 0, 0, jnp.where(n_bad <= Bf, 1, 2))
-        o = jax.lax.switch(branch, [lambda: o, some, lambda: run(plan(0))])
+        o, _ = jax.lax.while_loop(lambda c: jnp.any(c[1]), redo, (o, bad))
     else:
         o = run(plan(0))
     for i, a, s in zip(post, accs, o.outputs, strict=True):

@@ -9,13 +9,6 @@ _CACHE = pathlib.Path(__file__).resolve().parents[1] / ".jax_cache"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
-# The suite's programs are compiled once and run on small records, so the CPU backend's LLVM
-# optimisation passes cost more than they save (~30 % of the suite's compile time). Level 0
-# changes how fast the generated code runs, not what it computes (XLA:CPU does not relax
-# floating-point semantics at any level). Set XLA_FLAGS yourself to test at another level.
-_FLAGS = os.environ.get("XLA_FLAGS", "")
-if "xla_backend_optimization_level" not in _FLAGS:
-    os.environ["XLA_FLAGS"] = f"{_FLAGS} --xla_backend_optimization_level=0".strip()
 
 import jax  # noqa: E402
 

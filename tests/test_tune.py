@@ -20,9 +20,9 @@ H_FD = 1e-4  # central-difference step in log g, log p
 @pytest.fixture(scope="module")
 def records():
     # the paper's device (eq. 13) around x = 0 (region 2), the paper's input 4, Falcon encoder
-    # quantisation and 0.01 N force noise: two 2-s records (noise seeds 1, 2)
+    # quantisation and 0.01 N force noise: two 3-s records (noise seeds 1, 2)
     plant = twin.FALCON_PAPER.with_effects(twin.EncoderQuantisation())
-    return lj.studies.study_records(noise_seeds=[1, 2], plant=plant, n_samples=2000)
+    return lj.studies.study_records(noise_seeds=[1, 2], plant=plant, n_samples=3000)
 
 
 @pytest.fixture(scope="module")
@@ -116,7 +116,7 @@ def test_tune_bad_input(records):
     with pytest.raises(lj.InputError, match="solver"):
         lj.studies.tune(lj.MassDamper(), records, solver="bfgs")
     with pytest.raises(lj.InputError, match="transient"):
-        lj.studies.tune(lj.MassDamper(), records, objective=lj.studies.TuneObjective(transient=1.9))
+        lj.studies.tune(lj.MassDamper(), records, objective=lj.studies.TuneObjective(transient=2.9))
     with pytest.raises(lj.InputError, match="kappa"):
         lj.studies.TuneObjective(kappa=-1.0)
     with pytest.raises(lj.InputError, match="broadcast"):
