@@ -498,27 +498,30 @@ def main(argv=None) -> dict:
         devices=len(jax.local_devices()),
         kernel="xla",  # Execution(kernel="auto") resolves to XLA on every backend today
     )
-    # --- lionjax on one device, records as they come (no placement): the batch split into
-    # one loop per core inside one program
-    if "one_device" not in skip:
+
+    def unplaced(name, bank_used, **extra):
+        """Time lion_batched on one device, records as they come (no placement): the batch
+        split into one loop per core inside one program. Returns θ."""
         recs1 = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dt, dtype))
         one_device = lj.Execution(shard=False)
         run1 = lambda: lj.lion_batched(
-            model, recs1, gain=gain, execution=one_device, throw=False
+            model, recs1, bank=bank_used, gain=gain, execution=one_device, throw=False
         ).theta.block_until_ready()
         t0 = time.perf_counter()
         th1 = np.asarray(run1())
         first = time.perf_counter() - t0
         secs = best_time(run1, args.repeats)
-        timed["lionjax_one_device"] = run1
+        timed[name] = run1
         record(
-            "lionjax_one_device",
+            name,
             secs,
             N,
             law="exact",
             compile_s=max(first - secs, 0.0),
             roofline_fraction=N / secs / 1e6 / ROOFLINE_MSPS,
+            **extra,
         )
+        return th1
 
     def check(name, theta, n=None):
         ref = theta_lj[: theta.shape[0]] if n is None else n
@@ -527,7 +530,9 @@ def main(argv=None) -> dict:
         out[name]["agrees"] = bool(err <= rtol)
         print(f"{'':>10}  max relative difference to lionjax {err:.2e} (tolerance {rtol:g})")
 
+    # --- lionjax on one device with the shared filter
     if "one_device" not in skip:
+        th1 = unplaced("lionjax_one_device", bank)
         check("lionjax_one_device", th1)
 
     # --- lionjax with one filter per record (a FilterBank with coeffs (B, n), as lj.study
@@ -537,23 +542,8 @@ def main(argv=None) -> dict:
         per_bank = lj.FilterBank(
             jnp.broadcast_to(bank.coeffs, (B, bank.order)), unit_dc_gain=bank.unit_dc_gain
         )
-        recs_p = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dt, dtype))
-        one_dev = lj.Execution(shard=False)
-        runp = lambda: lj.lion_batched(
-            model, recs_p, bank=per_bank, gain=gain, execution=one_dev, throw=False
-        ).theta.block_until_ready()
-        t0 = time.perf_counter()
-        thp = np.asarray(runp())
-        first = time.perf_counter() - t0
-        secs = best_time(runp, args.repeats)
-        timed["lionjax_per_record_filters"] = runp
-        record(
-            "lionjax_per_record_filters",
-            secs,
-            N,
-            law="exact",
-            compile_s=max(first - secs, 0.0),
-            execution="one device, records as they come",
+        thp = unplaced(
+            "lionjax_per_record_filters", per_bank, execution="one device, records as they come"
         )
         check("lionjax_per_record_filters", thp)
 

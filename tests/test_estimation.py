@@ -255,7 +255,6 @@ def test_jit_equals_no_jit(single):
         plain = lj.lion(lj.MassDamper(), rec, **kw)
     assert np.max(np.abs(np.asarray(jitted.theta[-1]))) > 0.1  # it moved
     np.testing.assert_allclose(jitted.theta, plain.theta, rtol=1e-10, atol=1e-12)
-    rec = lj.Record(single.x[:100], single.F[:100], DT)
     ls_j = lj.least_squares(lj.MassDamper(), rec, bank=fast)
     with jax.disable_jit():
         ls_p = lj.least_squares(lj.MassDamper(), rec, bank=fast)
