@@ -465,18 +465,17 @@ def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
     Precomputing them keeps the per-sample work of the kernel to one dot product per output
     (the θ step never recomputes the filter update).
     """
-    Phi, G0, G1 = discretise(bank, dt)  # products at full precision (TF32 on a GPU otherwise)
+    f = _filter(bank, dt)  # Φ, Γ₀, Γ₁, λ reversed and the scale, as the per-record form
     n = bank.order
-    dtype = Phi.dtype
-    G1 = G1 if foh else jnp.zeros_like(G1)
+    dtype = f.Phi.dtype
+    G1 = f.G1 if foh else jnp.zeros_like(f.G1)
     z = jnp.zeros((n, 1), dtype)
     start = jnp.concatenate([jnp.eye(n, dtype=dtype), z, z], -1)
-    nxt = jnp.concatenate([Phi, (G0 - G1)[:, None], G1[:, None]], -1)
-    lam_rev = bank.coeffs[::-1].astype(dtype)  # coefficient of zᵢ in V_{n+1} is λ_{n−i}
+    nxt = jnp.concatenate([f.Phi, (f.G0 - G1)[:, None], G1[:, None]], -1)
 
     def outputs(state, u_row):
-        V = jnp.concatenate([state, (u_row - jnp.sum(lam_rev[:, None] * state, 0))[None]], 0)
-        return V * bank.coeffs[-1] if bank.unit_dc_gain else V
+        V = jnp.concatenate([state, (u_row - jnp.sum(f.lam_rev[:, None] * state, 0))[None]], 0)
+        return V if f.scale is None else V * f.scale
 
     unit = lambda a, b: jnp.concatenate([jnp.zeros((n,), dtype), jnp.array([a, b], dtype)])
     return _Maps(

@@ -126,8 +126,10 @@ _REAL_DIVISIONS = [False]
 def real_divisions():
     """While tracing inside this context, :func:`materialise` divides each value by the divisor
     as a real number (no complex pairs): for kernels without complex arithmetic (the Pallas
-    kernel of :mod:`lionjax._pallas`; GPU kernels have no fusion problem to work around). The
-    guard is kept: a divisor of 0 still turns the element non-finite."""
+    kernel of :mod:`lionjax._pallas`; GPU kernels have no fusion problem to work around), and
+    in the XLA kernel where the values have one consumer (no accumulator reads θ: XLA expands a
+    complex division into about ten real ones). The guard is kept: a divisor of 0 still turns
+    the element non-finite."""
     old = _REAL_DIVISIONS[0]
     _REAL_DIVISIONS[0] = True
     try:

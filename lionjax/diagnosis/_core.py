@@ -662,9 +662,10 @@ def diagnose(
     stands_for: dict[str, str] = {}  # a stand-in's name → the candidate it replaced
     for c in list(stack):
         names_now = [k.name for k in stack]
-        simpler = [by_name[n] for n in c.simpler if n in by_name and n not in names_now]
-        if not simpler or len(simpler) != len([n for n in c.simpler if n not in names_now]):
-            continue
+        missing = [n for n in c.simpler if n not in names_now]
+        if not missing or any(n not in by_name for n in missing):
+            continue  # nothing to stand in, or a stand-in outside the library
+        simpler = [by_name[n] for n in missing]
         i = stack.index(c)
         alt = [*stack[:i], *simpler, *stack[i + 1 :]]
         f_alt = fitter.fit(alt)

@@ -515,12 +515,18 @@ def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
                 _i(regs.T),
             )
             V = np.asarray(V, np.float64)[:m]
-            C = V @ A  # (m, K, P + 1)
-            D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
-            OC = np.einsum("kp,mkq->mpq", O, C)
-            Gm = G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
-            Gs.append(Gm)
+            Gs.append(_gram_with_columns(G0, A, V, O))
     return solve_grams(np.concatenate(Gs), regs.T)
+
+
+def _gram_with_columns(G0: np.ndarray, A: np.ndarray, V: np.ndarray, O: np.ndarray) -> np.ndarray:
+    """Augmented Grams (m, P + 1, P + 1) of [A + VᵀO]: the fixed design A = [W | y] (Tp, P + 1)
+    whose Gram is G0, plus K columns V (m, K, Tp) placed by the one-hot O (K, P + 1). Only the
+    new blocks AᵀV and VᵀV are computed (float64): a profile grid shares the fixed columns."""
+    C = V @ A  # (m, K, P + 1)
+    D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
+    OC = np.einsum("kp,mkq->mpq", O, C)
+    return G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
 
 
 def fit_batch(regs: Regressors, model: AbstractModel, inputs):
@@ -552,13 +558,9 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -
     G0 = A.T @ A
     V = np.zeros((m, K, regs.Tp))
     V[:, :, : regs.T] = cols
-    C = V @ A  # (m, K, P + 1)
-    D = V @ np.swapaxes(V, 1, 2)
     O = np.zeros((K, P_MAX + 1))
     O[np.arange(K), n + np.arange(K)] = 1.0
-    OC = np.einsum("kp,mkq->mpq", O, C)
-    Gm = G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
-    return solve_grams(Gm, regs.T)[1]
+    return solve_grams(_gram_with_columns(G0, A, V, O), regs.T)[1]
 
 
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
