@@ -12,10 +12,13 @@ os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 # XLA's CPU fusion emitters (its default) take about twice as long to compile this package's
-# programs as the elemental emitters, and run them no faster (measured on the 2-core CI machine:
-# a first lion_batched call 9.5 → 5.3 s, a first lion call 4.4 → 2.2 s, the tune compile
-# 25 → 15 s; the second calls within noise). The suite is compile-bound, so it uses the
-# elemental ones; children (notebook kernels, subprocess tests) inherit the flag.
+# programs as the elemental emitters (measured on the 2-core CI machine: a first lion_batched
+# call 9.5 → 5.3 s, a first lion call 4.4 → 2.2 s, the tune compile 25 → 15 s). At the suite's
+# sizes (a few records of a few thousand samples) the run time is the same, and the suite is
+# compile-bound, so the tests use the elemental emitters; children (notebook kernels,
+# subprocess tests) inherit the flag. Not for real work: at benchmark sizes the fusion
+# emitters' kernels run 3.5x faster (benchmarks/README.md, "Compile time and the XLA:CPU
+# emitters").
 # (Gated on the jaxlib it was measured with: XLA aborts on a flag it does not know.)
 _FLAG = "--xla_cpu_use_fusion_emitters=false"
 _JAXLIB = tuple(int(p) for p in re.findall(r"\d+", metadata.version("jaxlib"))[:2])
