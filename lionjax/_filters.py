@@ -201,12 +201,7 @@ class FilterBank(eqx.Module):
         """
         Phi, _, _ = self.discretise(dt)
         _, _, C, _ = self.state_space()
-
-        def step(Z, _):
-            return Phi @ Z, Z
-
-        _, Zs = jax.lax.scan(step, jnp.eye(self.order, dtype=Phi.dtype), None, length=n_samples)
-        return jnp.einsum("jn,tni->tij", C, Zs)
+        return jnp.einsum("jn,tni->tij", C, powers(Phi, n_samples))
 
     def __call__(
         self,
@@ -239,3 +234,14 @@ class FilterBank(eqx.Module):
 
         _, zs = jax.lax.scan(step, z0, (u, du))
         return zs @ C.T + u[:, None] * D
+
+
+def powers(Phi: Float[Array, "n n"], n_samples: int) -> Float[Array, "T n n"]:
+    """Φᵏ for k = 0 … T − 1: the states of the unforced recurrence z[k+1] = Φz[k] started from
+    each unit state eᵢ (column i of Φᵏ), by a scan of T matrix products."""
+
+    def step(Z, _):
+        return Phi @ Z, Z
+
+    _, Zs = jax.lax.scan(step, jnp.eye(Phi.shape[-1], dtype=Phi.dtype), None, length=n_samples)
+    return Zs

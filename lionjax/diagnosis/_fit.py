@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._filters import FilterBank
+from .._filters import FilterBank, powers
 from .._least_squares import gram_lstsq
 from .._models import AbstractModel
 from .._record import Record
@@ -124,10 +124,8 @@ def _filt_chunked(dsc: Discrete, u, foh):
 
     zL, zs = jax.lax.scan(step, jnp.zeros((M, n), u.dtype), (u.reshape(M, L).T, du.reshape(M, L).T))
 
-    def power(P, _):
-        return dsc.Phi @ P, P
-
-    PL, Pw = jax.lax.scan(power, jnp.eye(n, dtype=u.dtype), None, length=L)  # Φʲ, j < L; Φᴸ
+    Pw = powers(dsc.Phi, L)  # Φʲ, j < L
+    PL = dsc.Phi @ Pw[-1]  # Φᴸ
 
     def bstep(z, zl):
         return PL @ z + zl, z
@@ -195,12 +193,9 @@ def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
 
 @jax.jit
 def _free(dsc: Discrete, T0):
-    def step(Z, _):
-        return dsc.Phi @ Z, Z
-
-    n = dsc.Phi.shape[0]
-    _, Zs = jax.lax.scan(step, jnp.eye(n, dtype=dsc.Phi.dtype), None, length=T0.shape[0])
-    return jnp.einsum("jn,tni->tij", dsc.C, Zs)[:, :, 0]
+    """V₁ of the unforced filter from each unit state, (T, n) (:meth:`FilterBank.free_response`
+    on a traced dt)."""
+    return jnp.einsum("jn,tni->tij", dsc.C, powers(dsc.Phi, T0.shape[0]))[:, :, 0]
 
 
 @jax.jit
