@@ -91,6 +91,11 @@ def mode_bank(omega: float, zeta: float) -> FilterBank:
     return FilterBank.from_poles(jnp.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
 
 
+def mode_output(V, omega):
+    """h = (s²/D)[u] = V₄ + ωV₃ from the outputs ``V`` (…, 4) of :func:`mode_bank`'s filter."""
+    return V[..., 3] + omega * V[..., 2]
+
+
 def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
     """Names of h_x and h_F for one (ω, ζ) (distinct per mode: the regressors cache by name)."""
     key = f"{float(omega):.9g},{float(zeta):.6g}"
@@ -120,7 +125,7 @@ class ModeColumns(AbstractEffect):
         out = {}
         for nm, u, hold in ((nx, record.x, "foh"), (nF, record.F, "zoh")):
             V = bank(u, record.dt, hold)
-            out[nm] = (V[:, 3] + self.omega * V[:, 2], hold)
+            out[nm] = (mode_output(V, self.omega), hold)
         return out
 
     def physical(self, theta: Array, b: Array) -> dict:

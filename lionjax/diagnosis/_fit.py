@@ -209,9 +209,10 @@ def mode_signals(
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(h_x, h_F) of a record for each mode (ω [rad/s], ζ) in ``modes``: h = (s²/D)[·],
     D = s² + 2ζωs + ω², x under a first-order hold, F under a zero-order hold (as
-    :class:`~lionjax.diagnosis._candidates.ModeColumns` computes them with its own filter,
-    here on bucketed shapes: h = V₄ + ωV₃ of the bank (s + ω)·D, in fixed batches)."""
-    from ._candidates import mode_bank
+    :class:`~lionjax.diagnosis._candidates.ModeColumns` computes them, one record at a time,
+    through the same bank and :func:`~lionjax.diagnosis._candidates.mode_output`; here on
+    bucketed shapes, in fixed batches)."""
+    from ._candidates import mode_bank, mode_output
 
     T = np.asarray(record_x).size
     xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
@@ -227,7 +228,7 @@ def mode_signals(
         foh = np.tile([1.0, 0.0], per)
         V = np.asarray(_filter_systems(dsc, jnp.asarray(U), jnp.asarray(foh)), np.float64)
         w = np.repeat([float(w) for w, _ in chunk], 2)
-        h = V[:, :T, 3] + w[:, None] * V[:, :T, 2]
+        h = mode_output(V[:, :T], w[:, None])
         out += [(h[2 * j], h[2 * j + 1]) for j in range(m)]
     return out
 
