@@ -58,6 +58,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import warnings
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -1001,6 +1002,29 @@ def _check_common(what, model, records, bank, lengths, execution) -> None:
         raise InputError(
             f"{what}: lengths must have shape ({B},) (valid samples per record), got "
             f"{jnp.shape(lengths)}. lionjax.stack_records returns them."
+        )
+    _warn_placed_per_record(what, records, bank)
+
+
+def _warn_placed_per_record(what, records, bank) -> None:
+    """Records laid out over several CPU devices with one filter or one dt per record: the
+    per-record discretisation (a vmapped matrix exponential) is known to stop XLA:CPU at some
+    batch sizes (B = 4000–4096 over 2 host devices, JAX 0.10.2; benchmarks/README.md, "Known
+    problem"). Warn before the call, since a hang cannot report itself."""
+    x = records.x
+    if jax.default_backend() != "cpu" or isinstance(x, jax.core.Tracer):
+        return
+    if not isinstance(x, jax.Array) or len(x.sharding.device_set) < 2:
+        return
+    if bank.batch_shape or jnp.ndim(records.dt) > 0:
+        warnings.warn(
+            f"{what}: records placed over {len(x.sharding.device_set)} CPU devices with one "
+            "filter or one dt per record: XLA:CPU has been seen not to return from the "
+            "per-record discretisation at some batch sizes (B = 4000-4096 over 2 host "
+            "devices; benchmarks/README.md, 'Known problem'). If the call does not return, "
+            "pass the records unplaced (one device), or one filter and one scalar dt.",
+            RuntimeWarning,
+            stacklevel=3,
         )
 
 
