@@ -58,7 +58,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-import warnings
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -72,6 +71,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from ._errors import RESULTS, InputError
 from ._estimators import AbstractGain, AbstractSampleStepper, AutoGain, ExactStep, default_bank
 from ._filters import FilterBank
+from ._linalg import matmul, matvec
 from ._models import AbstractModel
 from ._outputs import (
     AbstractOutput,
@@ -86,7 +86,7 @@ from ._outputs import (
 )
 from ._phi import fast_series_terms, materialise, phi_sym2, real_divisions
 from ._record import Record
-from ._scan import affine_scan, discretise, filter_states, matmul, matvec
+from ._scan import affine_scan, filter_states
 from ._solution_tools import by_name, finish
 
 # ----------------------------------------------------------------------------------------------
@@ -414,7 +414,7 @@ class _Filter(eqx.Module):
 
 def _filter(bank: FilterBank, dt: Array) -> _Filter:
     """:class:`_Filter` of one filter and interval (vmapped over records by the stream)."""
-    Phi, G0, G1 = discretise(bank, dt)
+    Phi, G0, G1 = bank.discretise(dt)
     lam = bank.coeffs.astype(Phi.dtype)
     return _Filter(Phi, G0, G1, lam[::-1], lam[-1] if bank.unit_dc_gain else None)
 
@@ -1003,29 +1003,6 @@ def _check_common(what, model, records, bank, lengths, execution) -> None:
             f"{what}: lengths must have shape ({B},) (valid samples per record), got "
             f"{jnp.shape(lengths)}. lionjax.stack_records returns them."
         )
-    _warn_placed_per_record(what, records, bank)
-
-
-def _warn_placed_per_record(what, records, bank) -> None:
-    """Records laid out over several CPU devices with one filter or one dt per record: the
-    per-record discretisation (a vmapped matrix exponential) is known to stop XLA:CPU at some
-    batch sizes (B = 4000–4096 over 2 host devices, JAX 0.10.2; benchmarks/README.md, "Known
-    problem"). Warn before the call, since a hang cannot report itself."""
-    x = records.x
-    if jax.default_backend() != "cpu" or isinstance(x, jax.core.Tracer):
-        return
-    if not isinstance(x, jax.Array) or len(x.sharding.device_set) < 2:
-        return
-    if bank.batch_shape or jnp.ndim(records.dt) > 0:
-        warnings.warn(
-            f"{what}: records placed over {len(x.sharding.device_set)} CPU devices with one "
-            "filter or one dt per record: XLA:CPU has been seen not to return from the "
-            "per-record discretisation at some batch sizes (B = 4000-4096 over 2 host "
-            "devices; benchmarks/README.md, 'Known problem'). If the call does not return, "
-            "pass the records unplaced (one device), or one filter and one scalar dt.",
-            RuntimeWarning,
-            stacklevel=3,
-        )
 
 
 def lion_batched(
@@ -1366,7 +1343,7 @@ def lion_parallel(
     float32 runs at float32 precision on every backend. ``G`` is the gain matrix (p×p), e.g.
     from ``lionjax.lion(...).gain``. vmap it for many records.
     """
-    with jax.default_matmul_precision("highest"):  # the filter's expm (the rest is elementwise)
+    with jax.default_matmul_precision("highest"):  # any dot a model traces (tests/test_parallel)
         return _lion_parallel(model, record, G, bank, theta0, midpoint)
 
 

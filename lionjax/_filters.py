@@ -36,6 +36,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._errors import InputError
+from ._linalg import expm
 
 Hold = Literal["zoh", "foh"]
 HOLDS = ("zoh", "foh")
@@ -180,7 +181,7 @@ class FilterBank(eqx.Module):
         B_bal = B / s * s[-1]  # S⁻¹B·ω₀ⁿ⁻¹ = e_n
         M = jnp.zeros((n + 2, n + 2), A.dtype)
         M = M.at[:n, :n].set(A_bal * h).at[:n, n].set(B_bal * h).at[n, n + 1].set(1.0)
-        E = jax.scipy.linalg.expm(M)
+        E = expm(M)  # elementwise products: exact float32 on a GPU, see lionjax._linalg
         Phi = E[:n, :n] * s[:, None] / s[None, :]
         return Phi, E[:n, n] * s / s[-1], E[:n, n + 1] * s / s[-1]
 

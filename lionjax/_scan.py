@@ -6,11 +6,9 @@ bank (Aₖ = Φ, time-invariant; bₖ = Γ₀uₖ + Γ₁(uₖ₊₁ − uₖ), 
 θ step (:func:`lionjax.lion_parallel`). Their prefix compositions
 (A₂, b₂)∘(A₁, b₁) = (A₂A₁, A₂b₁ + b₂) are an associative scan of depth O(log T).
 
-The products of the small (n ≤ 4 or p×p) matrices are written as broadcast multiplies and sums
-(:func:`matmul`, :func:`matvec`), never as ``dot_general``: a float32 dot on a GPU runs at TF32
-by default (10-bit mantissa), and composed over 10⁶ samples that error made ``lion_parallel``'s
-final θ differ from ``lion_batched``'s by 16 % (issue 11). Elementwise products are exact
-float32 whatever the backend and its matmul-precision setting.
+The products of the small (n ≤ 4 or p×p) matrices are :func:`lionjax._linalg.matmul` and
+``matvec`` (broadcast multiplies and sums, never ``dot_general``, whose float32 form runs at TF32
+on a GPU by default), and so is the filter's discretisation (:func:`lionjax._linalg.expm`).
 """
 
 from __future__ import annotations
@@ -20,16 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
 from ._filters import FilterBank, check_hold
-
-
-def matmul(A: Array, B: Array) -> Array:
-    """A @ B over the last two axes (batch axes broadcast), as multiplies and a sum."""
-    return jnp.sum(A[..., :, :, None] * B[..., None, :, :], axis=-2)
-
-
-def matvec(A: Array, v: Array) -> Array:
-    """A @ v over the last axes (batch axes broadcast), as multiplies and a sum."""
-    return jnp.sum(A * v[..., None, :], axis=-1)
+from ._linalg import matmul, matvec
 
 
 def affine_compose(first, second):
@@ -49,14 +38,6 @@ def affine_scan(A: Array, b: Array, x0: Array, axis: int = 0) -> Array:
     return matvec(Acum, x0) + bcum
 
 
-def discretise(bank: FilterBank, dt: ArrayLike):
-    """:meth:`FilterBank.discretise` with its matrix exponential's products at full precision
-    (``jax.default_matmul_precision("highest")``: explicit in the traced dot_generals, so a
-    float32 Φ is not rounded to TF32 on a GPU)."""
-    with jax.default_matmul_precision("highest"):
-        return bank.discretise(dt)
-
-
 def filter_states(
     bank: FilterBank, u: ArrayLike, dt: ArrayLike, hold: str = "zoh", dtype=None
 ) -> Array:
@@ -69,7 +50,7 @@ def filter_states(
     u = jnp.asarray(u)
     dtype = u.dtype if dtype is None else dtype
     u = u.astype(dtype)
-    Phi, G0, G1 = (a.astype(dtype) for a in discretise(bank, dt))
+    Phi, G0, G1 = (a.astype(dtype) for a in bank.discretise(dt))
     du = (u[1:] - u[:-1]) if hold == "foh" else jnp.zeros_like(u[1:])
     b = G0[None, :] * u[:-1, None] + G1[None, :] * du[:, None]  # (T − 1, n)
     z0 = bank.steady_state(u[0]).astype(dtype)

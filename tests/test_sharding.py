@@ -30,15 +30,11 @@ SCRIPT = textwrap.dedent(
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-10, atol=0)
     # std = sqrt(E[θ²] − E[θ]²) amplifies last-bit differences of the (differently fused) kernel
     np.testing.assert_allclose(a.tail_std, b.tail_std, rtol=1e-5)
-    # one filter per record on placed records: warned (XLA:CPU can hang there at some sizes,
-    # benchmarks/README.md), and at this size equal to the records as they come
-    import warnings
+    # one filter per record on placed records (the per-record discretisation over both
+    # devices, which stopped XLA:CPU at B = 4000-4096 with jax's expm; benchmarks/README.md)
     banks = lj.studies.stack_banks([[-40.0 - i, -40.0, -40.0] for i in range(B)])
     kw2 = dict(gain=lj.FixedGain(1e3), bank=banks, throw=False)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        c = lj.lion_batched(lj.MassDamper(), placed, **kw2)
-    assert any("placed over 2 CPU devices" in str(w.message) for w in caught), caught
+    c = lj.lion_batched(lj.MassDamper(), placed, **kw2)
     d = lj.lion_batched(lj.MassDamper(), rec, **kw2)
     np.testing.assert_allclose(c.theta, d.theta, rtol=1e-10)
     print("OK", a.theta.sharding)

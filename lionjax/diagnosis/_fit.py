@@ -43,7 +43,6 @@ from .._filters import FilterBank, powers
 from .._least_squares import gram_lstsq
 from .._models import AbstractModel
 from .._record import Record
-from .._scan import discretise
 from ..twin._windows import windowed_errors
 
 #: Columns of every least-squares design (effect columns + the filter's initial-state columns).
@@ -74,7 +73,7 @@ def edge_pad(u, Tp: int) -> np.ndarray:
 
 @eqx.filter_jit
 def _discrete(bank: FilterBank, dt):
-    Phi, G0, G1 = discretise(bank, dt)  # the expm's products at full precision
+    Phi, G0, G1 = bank.discretise(dt)  # elementwise products: full precision on any backend
     _, _, C, D = bank.state_space()
     return Phi, G0, G1, C, D, bank.coeffs[-1]
 
