@@ -1339,7 +1339,7 @@ def lion_parallel(
     (A₂, c₂)∘(A₁, c₁) = (A₂A₁, A₂c₁ + c₂). Depth O(log T) — for long records on accelerators;
     on a CPU the sequential :func:`lion_batched` is faster. Stores the regressors (memory
     O(T·p²)). The regressors are built as :func:`lion_batched` builds them (the model's signals,
-    holds and columns); every small matrix product is elementwise (:mod:`lionjax._scan`), so
+    holds and columns); every small matrix product is elementwise (:mod:`lionjax._linalg`), so
     float32 runs at float32 precision on every backend. ``G`` is the gain matrix (p×p), e.g.
     from ``lionjax.lion(...).gain``. vmap it for many records.
     """

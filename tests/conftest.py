@@ -17,7 +17,7 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 # sizes (a few records of a few thousand samples) the run time is the same, and the suite is
 # compile-bound, so the tests use the elemental emitters; children (notebook kernels,
 # subprocess tests) inherit the flag. Not for real work: at benchmark sizes the fusion
-# emitters' kernels run 3.5x faster (benchmarks/README.md, "Compile time and the XLA:CPU
+# emitters' kernels run 2.6-3.6x faster (benchmarks/README.md, "Compile time and the XLA:CPU
 # emitters").
 # (Gated on the jaxlib it was measured with: XLA aborts on a flag it does not know.)
 _FLAG = "--xla_cpu_use_fusion_emitters=false"
