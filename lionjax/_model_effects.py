@@ -8,15 +8,16 @@ Sign convention of the augmented model (fixed; effects act on the force, in N):
 Every effect here is linear in its parameters and adds :class:`~lionjax.extend.Column` s to the
 model through :class:`~lionjax.Augmented`; its parameters are b times the physical ones, and
 :meth:`physical` divides by b (on a ``Piecewise`` base, one copy per region: bᵢ times the physical
-ones, names suffixed ``_i``; ``LinearPosition`` excepted, it modulates a and b). With
+ones, names suffixed ``_i``; ``PolynomialPosition`` excepted, it modulates a and b). With
 ε₁ = V₃ + aV₂ − bQ₁ + … (docs/method.md, "Equation errors"), the columns are
 
 - offset (:class:`Offset`): −(1/Λ)[1], parameter b·F₀;
 - Coulomb (:class:`Coulomb`): +(1/Λ)[sgñ v̂], parameter b·F_c;
 - spring (:class:`Spring`): +(1/Λ)[x], parameter b·k; with an equilibrium add the offset
   column, whose parameter is then b·(F₀ + k·x₀);
-- position (:class:`LinearPosition`): +(s/Λ)[ℓξ²/2], −(1/Λ)[ξ·F], ξ = (x − x_c)/ℓ, parameters
-  a₁, b₁ of a(x) = a + a₁ξ, b(x) = b + b₁ξ (exact: ξẋ = d/dt(ℓξ²/2), the §3 construction).
+- position (:class:`PolynomialPosition`, degree K ≤ 3, default 1):
+  +(s/Λ)[ℓξᵏ⁺¹/(k+1)], −(1/Λ)[ξᵏ·F], ξ = (x − x_c)/ℓ, parameters aₖ, bₖ of
+  a(x) = a + Σ aₖξᵏ, b(x) = b + Σ bₖξᵏ (exact: ξᵏẋ = d/dt(ℓξᵏ⁺¹/(k+1)), the §3 construction).
 
 sgñ v̂ = tanh(v̂/v_ε) is a smoothed sign of a zero-phase derivative-filter velocity v̂: x is
 passed forward and backward through the low-pass λₙ/Λ_v(s) = (ω/(s + ω))³ and differentiated by
@@ -41,8 +42,8 @@ from ._record import Record
 
 __all__ = [
     "Coulomb",
-    "LinearPosition",
     "Offset",
+    "PolynomialPosition",
     "Spring",
     "zero_phase_lowpass",
     "zero_phase_velocity",
@@ -135,42 +136,83 @@ class Spring(AbstractEffect):
         return {"k": theta[..., 0] / b}
 
 
-class LinearPosition(AbstractEffect):
-    """Position-dependent coefficients a(x) = a + a₁ξ, b(x) = b + b₁ξ, ξ = (x − x_c)/ℓ.
+#: Highest degree of :class:`PolynomialPosition`.
+MAX_POSITION_DEGREE = 3
 
-    Exact columns (docs/method.md, "Exact regressors across regions"): a₁ξẋ = d/dt(ℓξ²/2)
-    → +(s/Λ)[ℓξ²/2]; b₁ξF → −(1/Λ)[ξF].
-    :meth:`physical` reports da/dx = a₁/ℓ [1/(s·m)] and db/dx = b₁/ℓ [1/(kg·m)].
+
+def _position_signal_names(k: int) -> tuple[str, str]:
+    """Raw signal names of the degree-k terms: (ℓξᵏ⁺¹/(k+1), ξᵏ·F); degree 1 keeps the names
+    ``g_pos``/``xiF``."""
+    return ("g_pos", "xiF") if k == 1 else (f"g_pos{k}", f"xi{k}F")
+
+
+def position_physical_names(degree: int) -> tuple[str, ...]:
+    """Physical names of :class:`PolynomialPosition` of ``degree``: ``da_dx``, ``db_dx``, then
+    ``a_x2``, ``b_x2``, ``a_x3``, ``b_x3`` (coefficients of (x − x_c)ᵏ)."""
+    out = ["da_dx", "db_dx"]
+    for k in range(2, degree + 1):
+        out += [f"a_x{k}", f"b_x{k}"]
+    return tuple(out)
+
+
+class PolynomialPosition(AbstractEffect):
+    """Position-dependent coefficients, polynomial in ξ = (x − x_c)/ℓ of degree K ≤ 3:
+    a(x) = a + Σₖ aₖξᵏ, b(x) = b + Σₖ bₖξᵏ (k = 1 … K).
+
+    Exact columns (docs/method.md, "Exact regressors across regions"): aₖξᵏẋ =
+    d/dt(ℓξᵏ⁺¹/(k+1)) → +(s/Λ)[ℓξᵏ⁺¹/(k+1)]; bₖξᵏF → −(1/Λ)[ξᵏF]. Parameters (a₁, b₁, a₂, b₂,
+    …); :meth:`physical` reports the coefficients of (x − x_c)ᵏ: da/dx = a₁/ℓ [1/(s·m)],
+    db/dx = b₁/ℓ [1/(kg·m)], then a_xk = aₖ/ℓᵏ [1/(s·mᵏ)], b_xk = bₖ/ℓᵏ [1/(kg·mᵏ)].
+    Degree 1 (the default) is a(x), b(x) linear in x (this effect's former name,
+    ``LinearPosition``).
 
     Attributes:
-        center: x_c [m]; scale: ℓ [m] > 0 (the diagnosis uses the training record's mean and std).
+        center: x_c [m]; scale: ℓ [m] > 0 (the diagnosis uses the training record's mean and
+            std); degree: K, 1 (default) … :data:`MAX_POSITION_DEGREE`.
     """
 
     acts_on_force: ClassVar[bool] = False  # it modulates a and b: added once, b not divided
 
     center: Float[Array, ""]
     scale: Float[Array, ""]
+    degree: int = eqx.field(static=True)
 
-    def __init__(self, center: ArrayLike, scale: ArrayLike):
+    def __init__(self, center: ArrayLike, scale: ArrayLike, degree: int = 1):
         self.center = jnp.asarray(center, jnp.result_type(float))
         self.scale = jnp.asarray(scale, jnp.result_type(float))
         c = concrete(self.scale)
         if c is not None and not np.all(c > 0):
             raise InputError(
-                f"LinearPosition: argument 'scale' must be > 0 [m], got {c.tolist()}; pass the "
-                "spread of the record's positions."
+                f"{type(self).__name__}: argument 'scale' must be > 0 [m], got {c.tolist()}; "
+                "pass the spread of the record's positions."
             )
+        if not (isinstance(degree, int | np.integer) and 1 <= degree <= MAX_POSITION_DEGREE):
+            raise InputError(
+                f"PolynomialPosition: argument 'degree' must be an int in 1 … "
+                f"{MAX_POSITION_DEGREE}, got {degree!r}."
+            )
+        self.degree = int(degree)
 
     @property
     def names(self) -> tuple[str, ...]:
-        return ("a1", "b1")
+        return tuple(n for k in range(1, self.degree + 1) for n in (f"a{k}", f"b{k}"))
 
     def columns(self) -> tuple[Column, ...]:
-        return (Column("g_pos", 1, 1.0), Column("xiF", 0, -1.0))
+        out = []
+        for k in range(1, self.degree + 1):
+            g, f = _position_signal_names(k)
+            out += [Column(g, 1, 1.0), Column(f, 0, -1.0)]
+        return tuple(out)
 
     def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
         xi = (record.x - self.center) / self.scale
-        return {"g_pos": (0.5 * self.scale * xi**2, "foh"), "xiF": (xi * record.F, "zoh")}
+        out = {}
+        for k in range(1, self.degree + 1):
+            g, f = _position_signal_names(k)
+            out[g] = (self.scale * xi ** (k + 1) / (k + 1), "foh")
+            out[f] = (xi**k * record.F, "zoh")
+        return out
 
     def physical(self, theta: Array, b: Array) -> dict[str, Array]:
-        return {"da_dx": theta[..., 0] / self.scale, "db_dx": theta[..., 1] / self.scale}
+        names = position_physical_names(self.degree)
+        return {n: theta[..., j] / self.scale ** (j // 2 + 1) for j, n in enumerate(names)}

@@ -73,22 +73,35 @@ def test_spring_and_offset_recovered():
     assert p["F0"] == pytest.approx(F0 + k * x0, rel=2e-3)  # the constant F0 + k·x0
 
 
-def test_linear_position_exact():
-    a, b, a1, b1, xc, ell = 15.0, 2.0, 3.0, -0.3, 0.0, 0.01
+@pytest.mark.parametrize("degree", [1, 3])
+def test_polynomial_position_exact(degree):
+    # a(x) = a + Σ aₖξᵏ, b(x) = b + Σ bₖξᵏ of the effect's degree, simulated by solve_ivp
+    # |ξ| reaches ~2–3: a(x) ∈ [3, 19] 1/s, b(x) ∈ [1.4, 4.2] 1/kg stay positive
+    a, b, xc, ell = 15.0, 2.0, 0.0, 0.04
+    ak = [2.0, -1.0, 0.5][:degree]
+    bk = [-0.3, 0.2, -0.1][:degree]
 
     def rhs(t, y, F):
         xi = (y[0] - xc) / ell
-        return [y[1], -(a + a1 * xi) * y[1] + (b + b1 * xi) * F]
+        pa = sum(c * xi ** (k + 1) for k, c in enumerate(ak))
+        pb = sum(c * xi ** (k + 1) for k, c in enumerate(bk))
+        return [y[1], -(a + pa) * y[1] + (b + pb) * F]
 
     F = 3 * _force(2)
     _, x = _sim(rhs, F)
+    assert np.ptp(x) / ell > 3  # ξ covers enough range for the higher terms
     rec = lj.Record(x, F, DT)
-    p = _lstsq_fit(lj.Augmented(lj.MassDamper(), [lj.LinearPosition(xc, ell)]), rec, BANK)
-    # exact in a₁ (ξẋ = d/dt ℓξ²/2); ξ·F is held per sample (O(dt) error): 1 % / 5 %
+    eff = lj.PolynomialPosition(xc, ell, degree)
+    assert len(eff.names) == 2 * degree
+    p = _lstsq_fit(lj.Augmented(lj.MassDamper(), [eff]), rec, BANK)
+    # exact in aₖ (ξᵏẋ = d/dt ℓξᵏ⁺¹/(k+1)); ξᵏ·F is held per sample (O(dt) error): 1 % / 5 %
     assert p["a"] == pytest.approx(a, rel=1e-2)
     assert p["b"] == pytest.approx(b, rel=1e-2)
-    assert p["da_dx"] == pytest.approx(a1 / ell, rel=5e-2)
-    assert p["db_dx"] == pytest.approx(b1 / ell, rel=5e-2)
+    assert p["da_dx"] == pytest.approx(ak[0] / ell, rel=5e-2)
+    assert p["db_dx"] == pytest.approx(bk[0] / ell, rel=5e-2)
+    for k in range(2, degree + 1):
+        assert p[f"a_x{k}"] == pytest.approx(ak[k - 1] / ell**k, rel=5e-2)
+        assert p[f"b_x{k}"] == pytest.approx(bk[k - 1] / ell**k, rel=5e-2)
 
 
 def test_coulomb_recovered_smooth_friction():
@@ -106,7 +119,9 @@ def test_bad_arguments():
     with pytest.raises(lj.InputError, match="omega"):
         lj.Coulomb(-1.0, 1e-3)
     with pytest.raises(lj.InputError, match="scale"):
-        lj.LinearPosition(0.0, 0.0)
+        lj.PolynomialPosition(0.0, 0.0)
+    with pytest.raises(lj.InputError, match="degree"):
+        lj.PolynomialPosition(0.0, 0.01, 4)
 
 
 @pytest.mark.parametrize("bounds", [None, (0.0,), (-0.01, 0.01)])
@@ -118,7 +133,7 @@ def test_physical_closed_form(bounds):
     R = 1 if bounds is None else len(bounds) + 1
     a, b = 15.0 + 5.0 * np.arange(R), 2.0 / (1.0 + 0.5 * np.arange(R))  # b = 2, 1.33, 1
     F0, Fc, k, a1, b1, ell = 3.0, 0.7, 40.0, 3.0, -0.3, 0.02
-    effects = [lj.Offset(), lj.Coulomb(100.0, 1e-3), lj.Spring(), lj.LinearPosition(0.0, ell)]
+    effects = [lj.Offset(), lj.Coulomb(100.0, 1e-3), lj.Spring(), lj.PolynomialPosition(0.0, ell)]
     model = lj.Augmented(base, effects)
     base_theta = np.stack([a, b], axis=1).ravel()
     theta = np.concatenate([base_theta, b * F0, b * Fc, b * k, [a1, b1]])
@@ -175,4 +190,4 @@ def test_force_effect_needs_a_gain():
 
     with pytest.raises(lj.InputError, match="no input gain"):
         lj.Augmented(NoGain(), [lj.Offset()])
-    lj.Augmented(NoGain(), [lj.LinearPosition(0.0, 0.01)])  # modulates a, b: no gain needed
+    lj.Augmented(NoGain(), [lj.PolynomialPosition(0.0, 0.01)])  # modulates a, b: no gain needed

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._filters import FilterBank
-from .._model_effects import Coulomb, LinearPosition, Offset, Spring, zero_phase_velocity
+from .._model_effects import Coulomb, Offset, PolynomialPosition, Spring, zero_phase_velocity
 from .._models import AbstractEffect, Column
 from .._record import Record
 
@@ -47,6 +47,7 @@ class Context(eqx.Module):
         v_eps: velocity scale [m/s] of the smoothed sign.
         x_center, x_scale: mean and spread of the training positions [m].
         mode: (ω [rad/s], ζ) of the flexible-mode columns, once profiled (else ``()``).
+        position_degree: degree of the position-dependent a(x), b(x), once profiled (else 1).
     """
 
     omega_v: float
@@ -54,6 +55,7 @@ class Context(eqx.Module):
     x_center: float
     x_scale: float
     mode: tuple = ()
+    position_degree: int = 1
 
 
 class Limits(eqx.Module):
@@ -139,7 +141,7 @@ class AbstractCandidate(eqx.Module):
 
     name: ClassVar[str]
     n_params: ClassVar[int]
-    #: the profiled nonlinear parameter it sets, ``"tau"``, ``"fmax"``, ``"mode"`` or ``None``
+    #: the profiled parameter it sets, ``"tau"``, ``"fmax"``, ``"mode"``, ``"degree"`` or None
     profiled: ClassVar[str | None] = None
     #: reported physical parameter → unit
     units: ClassVar[dict[str, str]] = {}
@@ -152,6 +154,10 @@ class AbstractCandidate(eqx.Module):
     @abc.abstractmethod
     def effects(self, ctx: Context) -> tuple[AbstractEffect, ...]:
         """Linear effect columns added to the model (may be empty)."""
+
+    def params(self, ctx: Context) -> int:
+        """Parameter count for the parsimony penalty under the profiled settings ``ctx``."""
+        return self.n_params
 
     def report(self, phys: dict[str, float]) -> dict[str, float]:
         """Its physical parameters from a fitted structure's (``phys``: every parameter)."""
@@ -243,14 +249,28 @@ class SpringCandidate(AbstractCandidate):
 
 
 class PositionCandidate(AbstractCandidate):
-    """a(x), b(x) linear in position (exact §3-style columns, :class:`LinearPosition`)."""
+    """a(x), b(x) polynomial in position, degree 1 … 3 (exact §3-style columns,
+    :class:`~lionjax.PolynomialPosition`): the degree is profiled on the training record (least
+    BIC), two parameters per degree. Reports the coefficients of (x − x_c)ᵏ."""
 
     name: ClassVar[str] = "position_dependent"
-    n_params: ClassVar[int] = 2
-    units: ClassVar[dict[str, str]] = {"da_dx": "1/(s·m)", "db_dx": "1/(kg·m)"}
+    n_params: ClassVar[int] = 2  # per degree
+    profiled: ClassVar[str | None] = "degree"
+    units: ClassVar[dict[str, str]] = {
+        "da_dx": "1/(s·m)",
+        "db_dx": "1/(kg·m)",
+        "a_x2": "1/(s·m²)",
+        "b_x2": "1/(kg·m²)",
+        "a_x3": "1/(s·m³)",
+        "b_x3": "1/(kg·m³)",
+        "x_center": "m",
+    }
 
     def effects(self, ctx):
-        return (LinearPosition(ctx.x_center, ctx.x_scale),)
+        return (PolynomialPosition(ctx.x_center, ctx.x_scale, ctx.position_degree),)
+
+    def params(self, ctx):
+        return self.n_params * ctx.position_degree
 
     def implausible(self, phys, lim):
         return _b_positive(phys)

@@ -40,9 +40,11 @@ import numpy as np
 
 from .._errors import InputError
 from .._filters import FilterBank
+from .._model_effects import MAX_POSITION_DEGREE
 from .._models import Augmented, MassDamper
 from .._record import Record
 from .._tables import jsonable
+from ..twin._windows import WINDOW_PARAMETERS
 from ._candidates import (
     DEFAULT_CANDIDATES,
     AbstractCandidate,
@@ -226,6 +228,16 @@ class _Fitter:
         self.rtr = Regressors(train, self.bank, self._known(train, v_train))
         self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
         self.mode: tuple[float, float] | None = None
+        self.degree: int | None = None  # of the position-dependent a(x), b(x), once profiled
+
+    def params(self, cand: AbstractCandidate) -> int:
+        """``cand``'s parameter count under the profiled settings."""
+        return cand.params(self._context())
+
+    def _context(self, mode=None) -> Context:
+        mode = self.mode if mode is None else mode
+        ctx = self.ctx if not mode else dataclasses.replace(self.ctx, mode=tuple(mode))
+        return dataclasses.replace(ctx, position_degree=self.degree or 1)
 
     def _known(self, rec: Record, v: np.ndarray) -> dict:
         """Raw signals of the library's effects, computed once (names as the effects use)."""
@@ -237,13 +249,15 @@ class _Fitter:
             "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
             "abs_sgn_v": (np.abs(np.tanh(v / self.st.v_eps)), "foh"),
             "g_pos": (0.5 * self.st.x_scale * xi**2, "foh"),
+            "g_pos2": (self.st.x_scale * xi**3 / 3.0, "foh"),
+            "g_pos3": (0.25 * self.st.x_scale * xi**4, "foh"),
             "xi": xi,
+            "xi2": xi**2,
+            "xi3": xi**3,
         }
 
     def _model(self, cands, mode=None):
-        mode = self.mode if mode is None else mode
-        ctx = self.ctx if not mode else dataclasses.replace(self.ctx, mode=tuple(mode))
-        return Augmented(MassDamper(), _effects_of(cands, ctx))
+        return Augmented(MassDamper(), _effects_of(cands, self._context(mode)))
 
     def _add_mode(self, regs: Regressors, rec: Record, modes) -> list[str]:
         """Put the flexible-mode signals of ``modes`` into ``regs.known``; their names."""
@@ -336,6 +350,8 @@ class _Fitter:
             phys["x0"] = phys["F0"] / phys["k"] if phys["k"] != 0 else math.nan
         if any(c.profiled == "mode" for c in cands):
             phys["f_mode"], phys["zeta_mode"] = self.mode[0] / (2 * math.pi), self.mode[1]
+        if any(c.profiled == "degree" for c in cands):
+            phys["x_center"] = self.st.x_center
         sim = self._simulate(phys, u_va, cands)
         return Fitted(
             names=names,
@@ -368,7 +384,7 @@ class _Fitter:
         return self.H
 
     def _simulate(self, phys, u, cands):
-        keys = ("a", "b", "F0", "Fc", "k", "da_dx", "db_dx")
+        keys = tuple(k for k in WINDOW_PARAMETERS if k != "xc")
         p = {k: jnp.asarray(float(phys.get(k, 0.0))) for k in keys}
         p["xc"] = jnp.asarray(self.st.x_center)
         H = self.window(float(phys["a"]))
@@ -601,7 +617,7 @@ def diagnose(
         return n_eff * gain - p * math.log(n_eff)
 
     def assess(cur, new, cand) -> EffectScore:
-        sc = score_of(cur, new, cand.n_params)
+        sc = score_of(cur, new, fitter.params(cand))
         ex0 = excess(cur.ms_valid)
         share = 1 - excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
         why = cand.implausible(new.physical, limits)
@@ -627,11 +643,19 @@ def diagnose(
             plausible=plausible,
         )
 
-    # every candidate alone
+    # every candidate alone; the position-dependent degree is chosen here, by the same
+    # validated score as the candidates (each degree pays its own parameters), then fixed
     alone: dict[str, tuple[EffectScore, Fitted]] = {}
     for c in candidates:
-        f = fitter.fit([c])
-        alone[c.name] = (assess(base, f, c), f)
+        tries = []
+        for deg in range(1, MAX_POSITION_DEGREE + 1) if c.profiled == "degree" else (None,):
+            fitter.degree = deg if deg is not None else fitter.degree
+            f = fitter.fit([c])
+            tries.append((assess(base, f, c), f, deg))
+        s_best, f_best, deg = max(tries, key=lambda t: t[0].score)
+        if deg is not None:
+            fitter.degree = deg
+        alone[c.name] = (s_best, f_best)
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
 
     # greedy stacking
@@ -669,14 +693,14 @@ def diagnose(
         i = stack.index(c)
         alt = [*stack[:i], *simpler, *stack[i + 1 :]]
         f_alt = fitter.fit(alt)
-        n_simple = sum(k.n_params for k in simpler)
+        n_simple = sum(fitter.params(k) for k in simpler)
         rest = [k for k in stack if k is not c]
         prev = fitter.fit(rest) if rest else base
         # the stand-in must itself explain the gap (significant where c stood), and c's extra
         # parameters must not be significant over it
         if (
             score_of(prev, f_alt, n_simple) > threshold
-            and score_of(f_alt, cur, c.n_params - n_simple) <= threshold
+            and score_of(f_alt, cur, fitter.params(c) - n_simple) <= threshold
         ):
             stack, cur = alt, f_alt
             stands_for[simpler[0].name] = c.name

@@ -46,15 +46,18 @@ from .._record import Record
 from ..twin._windows import windowed_errors
 
 #: Columns of every least-squares design (effect columns + the filter's initial-state columns).
-P_MAX = 14
+P_MAX = 16
 #: Length of every profile grid (τ, F_max); shorter grids are padded by repeating a value.
 GRID = 32
 #: Padded lengths above this filter a profile grid 4 points at a time (memory).
 BIG = 1 << 20
-#: Signals whose value is (a function of x) × F: the input map u replaces F in them.
-F_DEP = {"F": None, "xiF": "xi"}
-#: At most this many F-dependent signals in one structure.
-K_MAX = 2
+#: Signals whose value is (a function of x) × F: the input map u replaces F in them; the value
+#: is the name of the multiplier's raw signal (``known``), None for F itself.
+F_DEP = {"F": None, "xiF": "xi", "xi2F": "xi2", "xi3F": "xi3"}
+#: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
+#: compiled program per bucket; most structures have F and ξF only).
+K_BUCKETS = (2, 4)
+K_MAX = K_BUCKETS[-1]
 
 
 def padded_length(n: int) -> int:
@@ -432,18 +435,20 @@ class Regressors:
         raw["x"] = (self.x, "foh")
         filt = self.filtered(raw)
         Wfix = np.zeros((self.Tp, P_MAX))
-        mult = np.zeros((K_MAX, self.Tp))
-        onehot = np.zeros((K_MAX, P_MAX))
+        n_dep = sum(c.signal in F_DEP for c in cols)
+        K = next((k for k in K_BUCKETS if k >= n_dep), n_dep)
+        mult = np.zeros((K, self.Tp))
+        onehot = np.zeros((K, P_MAX))
         kk = 0
         fdep: list[str] = []
         for j, c in enumerate(cols):
             if c.signal in F_DEP:
                 if c.order != 0 or kk >= K_MAX:
                     raise ValueError(f"unsupported F-dependent column {c}")
-                if c.signal == "xiF":
-                    g = self._xi(model)
-                else:
+                if F_DEP[c.signal] is None:
                     g = np.ones(self.T)
+                else:
+                    g = self._multiplier(model, c.signal)
                 mult[kk] = edge_pad(g, self.Tp)
                 fdep.append(c.signal)
                 onehot[kk, j] = c.sign
@@ -455,17 +460,20 @@ class Regressors:
         for j in range(p + n_nuis, P_MAX):
             pad[self.T + j, j] = 1.0
         # the design with the identity input map u = F (τ = 0, F_max = ∞): every column fixed
-        names = [f"{n}·F" for n in fdep] + [f"_zero{k}" for k in range(len(fdep), K_MAX)]
+        names = [f"{n}·F" for n in fdep] + [f"_zero{k}" for k in range(len(fdep), K)]
         raw = {nm: (mult[k, : self.T] * self.F, "zoh") for k, nm in enumerate(names)}
         filt = self.filtered(raw)
         Wdef = Wfix + np.stack([filt[nm][:, 0] for nm in names], 1) @ onehot
         return Wfix, mult, onehot, pad, p, Wdef
 
-    def _xi(self, model) -> np.ndarray:
-        if "xi" in self.known:
-            return self.known["xi"]
+    def _multiplier(self, model, signal: str) -> np.ndarray:
+        """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the model's own
+        signals of a record with F = 1."""
+        name = F_DEP[signal]
+        if name in self.known:
+            return self.known[name]
         ones = Record(self.record.x, jnp.ones_like(self.record.x), self.record.dt)
-        return np.asarray(model.signals(ones)["xiF"][0], np.float64)
+        return np.asarray(model.signals(ones)[signal][0], np.float64)
 
     def _args(self, model):
         key = ("layout", _model_key(model))
@@ -566,7 +574,7 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     if np.any(onehot) and (inp[0] != 0 or inp[1] != np.inf):
         W = Wfix[:, :p].copy()
         u = edge_pad(apply_input(regs.F, regs.dt, inp[0], inp[1]), regs.Tp)
-        V = filter_signals(regs.dsc, mult * u[None, :], np.zeros(K_MAX))[:, :, 0]
+        V = filter_signals(regs.dsc, mult * u[None, :], np.zeros(mult.shape[0]))[:, :, 0]
         W += (V.T @ onehot)[:, :p]
     r0 = W @ np.asarray(theta) + regs.W0
     n = regs.N.shape[1]
@@ -575,7 +583,7 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     padn = np.zeros((regs.Tp, P_MAX))
     for j in range(n, P_MAX):
         padn[regs.T + j, j] = 1.0
-    zk = np.zeros((K_MAX, regs.Tp)), np.zeros((K_MAX, P_MAX))
+    zk = np.zeros((K_BUCKETS[0], regs.Tp)), np.zeros((K_BUCKETS[0], P_MAX))
     eta = _solve_grid(regs, Nfix, *zk, padn, r0, [(0.0, math.inf)], Nfix)[0][0, :n]
     return (r0 + regs.N @ eta)[: regs.T]
 

@@ -19,8 +19,22 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-#: The parameters :func:`windowed_errors` reads (SI: 1/s, 1/kg, N, N, N/m, m, 1/(s·m), 1/(kg·m)).
-WINDOW_PARAMETERS = ("a", "b", "Fc", "F0", "k", "xc", "da_dx", "db_dx")
+#: The parameters :func:`windowed_errors` reads (SI: 1/s, 1/kg, N, N, N/m, m, 1/(s·m),
+#: 1/(kg·m), then the coefficients of (x − x_c)² and (x − x_c)³ in a(x) and b(x)).
+WINDOW_PARAMETERS = (
+    "a",
+    "b",
+    "Fc",
+    "F0",
+    "k",
+    "xc",
+    "da_dx",
+    "db_dx",
+    "a_x2",
+    "b_x2",
+    "a_x3",
+    "b_x3",
+)
 
 
 def exact_hold_step(x, v, c, a, h):
@@ -51,8 +65,9 @@ def windowed_errors(
 ) -> Float[Array, " T"]:
     """Windowed simulation error x_sim − x_meas [m]: 0 from sample ``n_valid`` on.
 
-    Model: ẍ + a(x)ẋ = b(x)·(u + F₀ − F_c·sgn ẋ − k·x), a(x) = a + a'(x − x_c),
-    b(x) = b + b'(x − x_c), with ``p`` holding :data:`WINDOW_PARAMETERS`; u the applied force
+    Model: ẍ + a(x)ẋ = b(x)·(u + F₀ − F_c·sgn ẋ − k·x), a(x) = a + a'd + a₂d² + a₃d³,
+    b(x) = b + b'd + b₂d² + b₃d³, d = x − x_c, with ``p`` holding :data:`WINDOW_PARAMETERS`
+    (the polynomial terms ``a_x2`` … ``b_x3`` may be left out: 0); u the applied force
     [N], held over each sample; each step is :func:`exact_hold_step` with the nonlinear terms held
     over the sample. Coulomb friction sticks when the velocity would reverse within a step while
     the other forces stay inside ±F_c. Every H samples (k % H == 0) the state restarts from
@@ -62,6 +77,8 @@ def windowed_errors(
     k = jnp.arange(T)
     restart = (k % H) == 0
     a, b, Fc = p["a"], p["b"], p["Fc"]
+    zero = jnp.zeros((), u.dtype)
+    a2, a3, b2, b3 = (p.get(k, zero) for k in ("a_x2", "a_x3", "b_x2", "b_x3"))
 
     def body(carry, inp):
         x, v = carry
@@ -69,8 +86,8 @@ def windowed_errors(
         x = jnp.where(rs, xs, x)
         v = jnp.where(rs, vs, v)
         dx = x - p["xc"]
-        ak = a + p["da_dx"] * dx
-        bk = b + p["db_dx"] * dx
+        ak = a + dx * (p["da_dx"] + dx * (a2 + dx * a3))
+        bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3))
         other = uk + p["F0"] - p["k"] * x
         s = jnp.sign(v)
         s = jnp.where(s == 0, jnp.sign(other) * (jnp.abs(other) > Fc), s)
