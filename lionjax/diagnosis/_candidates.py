@@ -150,6 +150,9 @@ class AbstractCandidate(eqx.Module):
     #: a simpler structure (candidate names) that stands in for this one unless its extra
     #: parameters are significant on validation data (spring → offset)
     simpler: ClassVar[tuple[str, ...]] = ()
+    #: whether the windowed simulation (:func:`lionjax.twin._windows.windowed_errors`) models
+    #: the effect in full, so that its simulated gap can judge it
+    simulated: ClassVar[bool] = True
 
     @abc.abstractmethod
     def effects(self, ctx: Context) -> tuple[AbstractEffect, ...]:
@@ -216,6 +219,7 @@ class AsymmetricFrictionCandidate(AbstractCandidate):
     units: ClassVar[dict[str, str]] = {"Fc_pos": "N", "Fc_neg": "N"}
     subsumes: ClassVar[tuple[str, ...]] = ("coulomb_friction",)
     simpler: ClassVar[tuple[str, ...]] = ("coulomb_friction", "offset")
+    simulated: ClassVar[bool] = False  # the simulation has its mean level F_c only
 
     def effects(self, ctx):
         return (Coulomb(ctx.omega_v, ctx.v_eps), DirectionalFriction(ctx.omega_v, ctx.v_eps))
@@ -330,6 +334,7 @@ class FlexibleModeCandidate(AbstractCandidate):
     name: ClassVar[str] = "flexible_mode"
     n_params: ClassVar[int] = 4
     profiled: ClassVar[str | None] = "mode"
+    simulated: ClassVar[bool] = False  # the windowed simulation is of the rigid body
     units: ClassVar[dict[str, str]] = {
         "mass_ratio": "",
         "f_mode": "Hz",

@@ -18,8 +18,9 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    score = N_eff·ln(RSS_before/RSS_after) − p·ln N_eff (a validated likelihood ratio with a BIC
    parsimony penalty; N_eff corrects the sample count for the residual's autocorrelation).
    A candidate is *significant* when its score exceeds ``threshold``, its parameters are physical
-   (F_c > 0, F_max inside the force range …) and it removes at least ``min_share`` of the gap in
-   excess of the noise floor. Greedy stacking adds the best significant candidate until none is.
+   (F_c > 0, F_max inside the force range …), it removes at least ``min_share`` of the gap in
+   excess of the noise floor and, if the windowed simulation models it, it does not make the
+   simulated gap worse (by more than :data:`MAX_WORSENING`). Greedy stacking adds the best significant candidate until none is.
 5. **Verdict**: the first of the stack, provided the stack explains the residual's structure
    as well as its size (its residual's spectral peak is not sharper than the baseline's:
    :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the gap is within
@@ -503,6 +504,9 @@ _UNITS = {"a": "1/s", "b": "1/kg", "F0": "N", "tau": "s", "Fmax": "N"}
 
 #: Near-tie: a candidate whose BIC weight is at least 1/TIE_RATIO of the verdict's.
 TIE_RATIO = 20.0
+#: Largest relative growth of the windowed-simulation gap a simulated candidate may cause and
+#: still be named (the simulation's own bias from held nonlinear terms stays well inside it).
+MAX_WORSENING = 0.1
 #: Share of the excess gap a stack must remove to earn full confidence.
 EXPLAINED_FULL = 0.9
 #: Spectral peak ratio (:func:`._where.structure`) up to which a residual counts as noise.
@@ -622,12 +626,25 @@ def diagnose(
         share = 1 - excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
         why = cand.implausible(new.physical, limits)
         plausible = not why
-        sig = sc > threshold and share >= min_share and plausible
+        # an effect the windowed simulation models must not make the simulated gap worse: an
+        # equation-error fit that does (an out-of-library dead zone taken for a polynomial
+        # b(x)) describes the residual, not the device
+        # (a simulation that diverges, gap inf or nan, is worse)
+        worse = (
+            cand.simulated
+            and math.isfinite(cur.gap)
+            and not new.gap <= (1 + MAX_WORSENING) * cur.gap
+        )
+        sig = sc > threshold and share >= min_share and plausible and not worse
         if plausible:
             why = (
                 "significant"
                 if sig
-                else (f"score {sc:.3g} ≤ {threshold}" if sc <= threshold else "removes too little")
+                else f"score {sc:.3g} ≤ {threshold}"
+                if sc <= threshold
+                else "removes too little"
+                if share < min_share
+                else f"makes the simulated gap worse ({new.gap:.3g} m against {cur.gap:.3g} m)"
             )
         return EffectScore(
             name=cand.name,
