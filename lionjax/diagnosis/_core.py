@@ -20,7 +20,8 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    A candidate is *significant* when its score exceeds ``threshold``, its parameters are physical
    (F_c > 0, F_max inside the force range …), it removes at least ``min_share`` of the gap in
    excess of the noise floor and, if the windowed simulation models it, it does not make the
-   simulated gap worse (by more than :data:`MAX_WORSENING`). Greedy stacking adds the best significant candidate until none is.
+   simulated gap worse (by more than :data:`MAX_WORSENING`). Greedy stacking adds the best
+   significant candidate until none is.
 5. **Verdict**: the first of the stack, provided the stack explains the residual's structure
    as well as its size (its residual's spectral peak is not sharper than the baseline's:
    :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the gap is within
