@@ -19,7 +19,7 @@ Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kerne
 (:func:`_kernel`) serves every option, each adding work only when asked for:
 
 - the records are read in their own ``(B, T)`` layout, one ``(C + 1)``-sample slab per block
-  transposed in cache (C = ``Execution.chunk``, 64): the batch is never transposed as a whole;
+  transposed in cache (C = ``Execution.chunk``, 128): the batch is never transposed as a whole;
 - the carry is flat (B,) arrays in typed Modules; the filter update and the regressors at the
   step's midpoint come from linear maps of (z_k, u_k, u_{k+1}) precomputed per filter
   (:func:`_maps`), so the θ step never recomputes the filter;
@@ -169,7 +169,7 @@ def _mesh() -> Mesh | None:
 
 #: Kernel implementations :class:`Execution` accepts (``"auto"``: the best for the backend).
 KERNELS = ("auto", "xla", "pallas")
-_BLOCK = 64  # samples per slab read from the (B, T) records (transposed in cache, per block)
+_BLOCK = 128  # samples per slab read from the (B, T) records (transposed in cache, per block)
 
 
 class Execution(eqx.Module):
@@ -177,7 +177,7 @@ class Execution(eqx.Module):
     (results are the same, to rounding, whatever they are).
 
     Attributes:
-        chunk: samples per slab read from the ``(B, T)`` records per inner loop (default 64;
+        chunk: samples per slab read from the ``(B, T)`` records per inner loop (default 128;
             each slab is transposed in cache, the batch never is as a whole).
         split: independent loops per device, each over its own rows of the batch (XLA:CPU runs
             them concurrently: this is how one CPU device uses every core without copying the
