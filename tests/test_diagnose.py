@@ -128,6 +128,21 @@ def test_blind_small():
     assert all(r["verdict"] == "none" for r in clean)
     ool = [r for r in rows if r["class"] == "dead_zone"]  # outside the library
     assert all(r["verdict"] == "unexplained" for r in ool)
+    # "none" is never a verdict the evidence contradicts (confidence = its BIC weight)
+    assert all(r["confidence"] >= 0.05 for r in rows if r["verdict"] == "none")
+
+
+def test_strong_evidence_is_not_none():
+    # Dahl friction from the independent simulator (benchmarks/_blind_sim.py): its pre-sliding
+    # stiffness is no library shape; Coulomb friction beats "no effect" on validation by far
+    # more than 20:1 yet removes too little of the gap to be named. The verdict used to be
+    # "none" with confidence 1e-15; it is "unexplained"
+    train, valid, info = blind.make_case("coulomb_friction", 2011002, source="scipy")
+    assert info["shape"] == "dahl"
+    d = lj.diagnose(train, valid)
+    coulomb = next(e for e in d.effects if e.name == "coulomb_friction")
+    assert coulomb.plausible and coulomb.score > 2 * np.log(20) and not coulomb.significant
+    assert d.verdict == "unexplained"
 
 
 def test_gram_solve_is_float64_without_x64():

@@ -26,8 +26,10 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    as well as its size (its residual's spectral peak is not sharper than the baseline's:
    :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the gap is within
    ``floor_factor`` of the noise floor or the residual is noise-like (input correlation within
-   its 99 % bound and no spectral peak, :func:`._where.structure`); ``unexplained`` when a
-   structured gap remains that no candidate removes, or that the named stack leaves sharper.
+   its 99 % bound and no spectral peak, :func:`._where.structure`), unless some plausible
+   candidate's validated evidence beats "no effect" by more than :data:`TIE_RATIO`;
+   ``unexplained`` when a structured gap remains that no candidate removes, or that the named
+   stack leaves sharper, or in that exception.
 """
 
 from __future__ import annotations
@@ -761,6 +763,12 @@ def diagnose(
     explained = 1.0 - (
         excess(cur.ms_valid) / excess(base.ms_valid) if excess(base.ms_valid) > 0 else 0.0
     )
+    if verdict == "none" and weights["none"] < 1.0 / TIE_RATIO:
+        # a plausible candidate beats "no effect" by more than the tie ratio on validation data
+        # yet removes too little of the gap to be named: there is an effect, and the library
+        # does not describe it (Dahl friction's pre-sliding stiffness) — not "none" with a
+        # confidence near 0
+        verdict = "unexplained"
     if verdict in stands_for and stands_for[verdict] in weights:
         # the stand-in and the candidate it replaced are one explanation: pool their evidence
         weights[verdict] += weights.pop(stands_for[verdict])
