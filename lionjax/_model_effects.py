@@ -140,10 +140,16 @@ class Spring(AbstractEffect):
 MAX_POSITION_DEGREE = 3
 
 
-def _position_signal_names(k: int) -> tuple[str, str]:
-    """Raw signal names of the degree-k terms: (ℓξᵏ⁺¹/(k+1), ξᵏ·F); degree 1 keeps the names
-    ``g_pos``/``xiF``."""
-    return ("g_pos", "xiF") if k == 1 else (f"g_pos{k}", f"xi{k}F")
+def position_terms(k: int) -> tuple[str, str, str]:
+    """Raw signal names of :class:`PolynomialPosition`'s degree-k term: its a-signal
+    ℓξᵏ⁺¹/(k+1), its b-signal ξᵏ·F and that signal's multiplier ξᵏ of F (degree 1:
+    ``g_pos``, ``xiF``, ``xi``)."""
+    return ("g_pos", "xiF", "xi") if k == 1 else (f"g_pos{k}", f"xi{k}F", f"xi{k}")
+
+
+def position_values(xi, scale, k: int):
+    """(ℓξᵏ⁺¹/(k+1), ξᵏ) of the degree-k term, numpy or jax arrays (see :func:`position_terms`)."""
+    return scale * xi ** (k + 1) / (k + 1), xi**k
 
 
 def position_physical_names(degree: int) -> tuple[str, ...]:
@@ -200,7 +206,7 @@ class PolynomialPosition(AbstractEffect):
     def columns(self) -> tuple[Column, ...]:
         out = []
         for k in range(1, self.degree + 1):
-            g, f = _position_signal_names(k)
+            g, f, _ = position_terms(k)
             out += [Column(g, 1, 1.0), Column(f, 0, -1.0)]
         return tuple(out)
 
@@ -208,9 +214,10 @@ class PolynomialPosition(AbstractEffect):
         xi = (record.x - self.center) / self.scale
         out = {}
         for k in range(1, self.degree + 1):
-            g, f = _position_signal_names(k)
-            out[g] = (self.scale * xi ** (k + 1) / (k + 1), "foh")
-            out[f] = (xi**k * record.F, "zoh")
+            g, f, _ = position_terms(k)
+            gv, m = position_values(xi, self.scale, k)
+            out[g] = (gv, "foh")
+            out[f] = (m * record.F, "zoh")
         return out
 
     def physical(self, theta: Array, b: Array) -> dict[str, Array]:

@@ -15,6 +15,7 @@ A, B, F0, DT, T = 22.0, 1.916, 0.3, 1e-3, 800
 
 def _params(**kw):
     p = dict(a=A, b=B, Fc=0.0, F0=F0, k=0.0, xc=0.0, da_dx=0.0, db_dx=0.0)
+    p.update(a_x2=0.0, b_x2=0.0, a_x3=0.0, b_x3=0.0)
     p.update(kw)
     return {k: jnp.asarray(v, jnp.float64) for k, v in p.items()}
 

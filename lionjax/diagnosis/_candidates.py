@@ -47,7 +47,7 @@ class Context(eqx.Module):
         v_eps: velocity scale [m/s] of the smoothed sign.
         x_center, x_scale: mean and spread of the training positions [m].
         mode: (ω [rad/s], ζ) of the flexible-mode columns, once profiled (else ``()``).
-        position_degree: degree of the position-dependent a(x), b(x), once profiled (else 1).
+        position_degree: degree of the position-dependent a(x), b(x) (chosen by the diagnosis).
     """
 
     omega_v: float
@@ -254,8 +254,10 @@ class SpringCandidate(AbstractCandidate):
 
 class PositionCandidate(AbstractCandidate):
     """a(x), b(x) polynomial in position, degree 1 … 3 (exact §3-style columns,
-    :class:`~lionjax.PolynomialPosition`): the degree is profiled on the training record (least
-    BIC), two parameters per degree. Reports the coefficients of (x − x_c)ᵏ."""
+    :class:`~lionjax.PolynomialPosition`), two parameters per degree: each degree is fitted on
+    the training record and the one with the best validated score (its own 2K parameters
+    penalised) is kept (:func:`lionjax.diagnose`). Reports the coefficients of (x − x_c)ᵏ and
+    the expansion point x_c."""
 
     name: ClassVar[str] = "position_dependent"
     n_params: ClassVar[int] = 2  # per degree

@@ -44,7 +44,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._filters import FilterBank
-from .._model_effects import MAX_POSITION_DEGREE
+from .._model_effects import MAX_POSITION_DEGREE, position_terms, position_values
 from .._models import Augmented, MassDamper
 from .._record import Record
 from .._tables import jsonable
@@ -232,7 +232,7 @@ class _Fitter:
         self.rtr = Regressors(train, self.bank, self._known(train, v_train))
         self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
         self.mode: tuple[float, float] | None = None
-        self.degree: int | None = None  # of the position-dependent a(x), b(x), once profiled
+        self.degree = 1  # of the position-dependent a(x), b(x): chosen in diagnose(), then fixed
 
     def params(self, cand: AbstractCandidate) -> int:
         """``cand``'s parameter count under the profiled settings."""
@@ -241,24 +241,23 @@ class _Fitter:
     def _context(self, mode=None) -> Context:
         mode = self.mode if mode is None else mode
         ctx = self.ctx if not mode else dataclasses.replace(self.ctx, mode=tuple(mode))
-        return dataclasses.replace(ctx, position_degree=self.degree or 1)
+        return dataclasses.replace(ctx, position_degree=self.degree)
 
     def _known(self, rec: Record, v: np.ndarray) -> dict:
         """Raw signals of the library's effects, computed once (names as the effects use)."""
         x = np.asarray(rec.x, np.float64)
         xi = (x - self.st.x_center) / self.st.x_scale
-        return {
+        known = {
             "one": (np.ones_like(x), "zoh"),
             "x_spring": (x, "foh"),
             "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
             "abs_sgn_v": (np.abs(np.tanh(v / self.st.v_eps)), "foh"),
-            "g_pos": (0.5 * self.st.x_scale * xi**2, "foh"),
-            "g_pos2": (self.st.x_scale * xi**3 / 3.0, "foh"),
-            "g_pos3": (0.25 * self.st.x_scale * xi**4, "foh"),
-            "xi": xi,
-            "xi2": xi**2,
-            "xi3": xi**3,
         }
+        for k in range(1, MAX_POSITION_DEGREE + 1):  # in float64 (the effect's own: jax)
+            g, _, m = position_terms(k)
+            gv, known[m] = position_values(xi, self.st.x_scale, k)
+            known[g] = (gv, "foh")
+        return known
 
     def _model(self, cands, mode=None):
         return Augmented(MassDamper(), _effects_of(cands, self._context(mode)))
@@ -667,14 +666,13 @@ def diagnose(
     # validated score as the candidates (each degree pays its own parameters), then fixed
     alone: dict[str, tuple[EffectScore, Fitted]] = {}
     for c in candidates:
+        degrees = range(1, MAX_POSITION_DEGREE + 1) if c.profiled == "degree" else (fitter.degree,)
         tries = []
-        for deg in range(1, MAX_POSITION_DEGREE + 1) if c.profiled == "degree" else (None,):
-            fitter.degree = deg if deg is not None else fitter.degree
+        for deg in degrees:
+            fitter.degree = deg
             f = fitter.fit([c])
             tries.append((assess(base, f, c), f, deg))
-        s_best, f_best, deg = max(tries, key=lambda t: t[0].score)
-        if deg is not None:
-            fitter.degree = deg
+        s_best, f_best, fitter.degree = max(tries, key=lambda t: t[0].score)
         alone[c.name] = (s_best, f_best)
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
 

@@ -41,6 +41,7 @@ import numpy as np
 
 from .._filters import FilterBank, powers
 from .._least_squares import gram_lstsq
+from .._model_effects import MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
 from ..twin._windows import windowed_errors
@@ -53,7 +54,9 @@ GRID = 32
 BIG = 1 << 20
 #: Signals whose value is (a function of x) × F: the input map u replaces F in them; the value
 #: is the name of the multiplier's raw signal (``known``), None for F itself.
-F_DEP = {"F": None, "xiF": "xi", "xi2F": "xi2", "xi3F": "xi3"}
+F_DEP = {"F": None} | {
+    f: m for f, m in (position_terms(k)[1:] for k in range(1, MAX_POSITION_DEGREE + 1))
+}
 #: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
 #: compiled program per bucket; most structures have F and ξF only).
 K_BUCKETS = (2, 4)

@@ -66,19 +66,17 @@ def windowed_errors(
     """Windowed simulation error x_sim − x_meas [m]: 0 from sample ``n_valid`` on.
 
     Model: ẍ + a(x)ẋ = b(x)·(u + F₀ − F_c·sgn ẋ − k·x), a(x) = a + a'd + a₂d² + a₃d³,
-    b(x) = b + b'd + b₂d² + b₃d³, d = x − x_c, with ``p`` holding :data:`WINDOW_PARAMETERS`
-    (the polynomial terms ``a_x2`` … ``b_x3`` may be left out: 0); u the applied force
-    [N], held over each sample; each step is :func:`exact_hold_step` with the nonlinear terms held
-    over the sample. Coulomb friction sticks when the velocity would reverse within a step while
-    the other forces stay inside ±F_c. Every H samples (k % H == 0) the state restarts from
-    (x_start[k], v_start[k]). Everything is traced: one program per record length.
+    b(x) = b + b'd + b₂d² + b₃d³, d = x − x_c, with ``p`` holding :data:`WINDOW_PARAMETERS`;
+    u the applied force [N], held over each sample; each step is :func:`exact_hold_step` with the
+    nonlinear terms held over the sample. Coulomb friction sticks when the velocity would reverse
+    within a step while the other forces stay inside ±F_c. Every H samples (k % H == 0) the state
+    restarts from (x_start[k], v_start[k]). Everything is traced: one program per record length.
     """
     T = u.shape[0]
     k = jnp.arange(T)
     restart = (k % H) == 0
     a, b, Fc = p["a"], p["b"], p["Fc"]
-    zero = jnp.zeros((), u.dtype)
-    a2, a3, b2, b3 = (p.get(k, zero) for k in ("a_x2", "a_x3", "b_x2", "b_x3"))
+    a2, a3, b2, b3 = p["a_x2"], p["a_x3"], p["b_x2"], p["b_x3"]
 
     def body(carry, inp):
         x, v = carry
