@@ -151,10 +151,12 @@ def structure(r: np.ndarray, F: np.ndarray, st) -> dict[str, float]:
     if band.size >= 5:
         sm = np.convolve(band, np.ones(5) / 5, mode="same")
         peak = float(np.max(sm) / max(np.median(sm), 1e-300))
+        peak_power = float(np.max(sm)) / r.size
     else:
-        peak = 1.0
+        peak, peak_power = 1.0, 0.0
     return {
         "input_correlation": c["max_abs"] / c["bound_99"],
         "whiteness": w["max_abs"] / w["bound_99"],
         "peak": peak,
+        "peak_power": peak_power,
     }
