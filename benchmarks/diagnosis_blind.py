@@ -765,7 +765,10 @@ def _evidence(d) -> dict:
         "scores": {e.name: float(getattr(e, "score", math.nan)) for e in d.effects},
         "shares": {e.name: float(getattr(e, "share", math.nan)) for e in d.effects},
         "fits": {
-            e.name: {"reason": str(e.reason), **{k: float(v) for k, v in e.params.items()}}
+            e.name: {
+                "reason": str(getattr(e, "reason", "")),
+                **{k: float(v) for k, v in getattr(e, "params", {}).items()},
+            }
             for e in d.effects
         },
         "remaining_excess_share": final.get("remaining_excess_share"),
