@@ -129,13 +129,18 @@ class ModeColumns(AbstractEffect):
         return (Column(nx, 2, -1.0), Column(nF, 0, 1.0))[: 2 if self.input else 1]
 
     def signals(self, record: Record) -> dict:
-        bank = mode_bank(self.omega, self.zeta)
+        # the diagnosis' one implementation (hold-corrected x, bucketed batched filter)
+        from ._fit import mode_signals, padded_length
+
         nx, nF = mode_signal_names(self.omega, self.zeta)
-        out = {}
-        for nm, u, hold in ((nx, record.x, "foh"), (nF, record.F, "zoh")):
-            V = bank(u, record.dt, hold)
-            out[nm] = (mode_output(V, self.omega), hold)
-        return out
+        ((hx, hF),) = mode_signals(
+            record.x,
+            record.F,
+            float(record.dt),
+            [(self.omega, self.zeta)],
+            padded_length(record.n_samples),
+        )
+        return {nx: (hx, "foh"), nF: (hF, "zoh")}
 
     def physical(self, theta: Array, b: Array) -> dict:
         beta = theta[..., 1] if self.input else jnp.zeros_like(theta[..., 0])

@@ -234,11 +234,15 @@ class _Fitter:
         v_train = self.v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
         self.rtr = Regressors(train, self.bank, self._known(train, v_train))
         self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
-        self.mode: tuple[float, float] | None = None
         self.mode_input = True  # the flexible mode's κ column: chosen in diagnose(), then fixed
         self._modes: dict[bool, tuple[float, float]] = {}  # (ω, ζ) profiled per variant
         self._coarse: tuple | None = None  # the coarse mode grid and its RSS per variant
         self.degree = 1  # of the position-dependent a(x), b(x): chosen in diagnose(), then fixed
+
+    @property
+    def mode(self) -> tuple[float, float] | None:
+        """(ω, ζ) of the flexible mode's current variant, once profiled."""
+        return self._modes.get(self.mode_input)
 
     def params(self, cand: AbstractCandidate) -> int:
         """``cand``'s parameter count under the profiled settings."""
@@ -286,23 +290,23 @@ class _Fitter:
         base = self._model([c for c in cands if c.profiled != "mode"], mode=())
         regs = self.rtr
 
-        def rss_of(modes) -> dict[bool, np.ndarray]:
-            # training RSS at each mode, with (True) and without (False) the κ column
-            rss: dict[bool, list] = {True: [], False: []}
+        def rss_of(modes, variants) -> dict[bool, np.ndarray]:
+            # training RSS at each mode, with (True) and/or without (False) the κ column
+            rss: dict[bool, list] = {v: [] for v in variants}
             for i in range(0, len(modes), 8):
                 chunk = modes[i : i + 8]
                 hs = mode_signals(self.train.x, self.train.F, self.st.dt, chunk, regs.Tp)
                 U = np.stack([edge_pad(h, regs.Tp) for pair in hs for h in pair])
                 V = filter_signals(regs.dsc, U, np.tile([1.0, 0.0], len(chunk)))
                 cols = np.stack([-V[0::2, : regs.T, 2], V[1::2, : regs.T, 0]], 1)
-                rss[True].append(rss_with_columns(regs, base, cols))
-                rss[False].append(rss_with_columns(regs, base, cols[:, :1]))
+                for v in variants:
+                    rss[v].append(rss_with_columns(regs, base, cols if v else cols[:, :1]))
             return {k: np.concatenate(v) for k, v in rss.items()}
 
         ws = 2 * math.pi * np.asarray(self.st.mode_grid)
         if self._coarse is None:  # the coarse grid serves both variants
             grid = [(float(w), z) for w in ws for z in MODE_ZETAS]
-            self._coarse = (grid, rss_of(grid))
+            self._coarse = (grid, rss_of(grid, (True, False)))
         grid, coarse = self._coarse
         i = int(np.argmin(coarse[self.mode_input]))
         (w, z), best = grid[i], float(coarse[self.mode_input][i])
@@ -318,7 +322,7 @@ class _Fitter:
                 for j in (-1, 0, 1)
                 if i or j
             ]
-            r = rss_of(ring)[self.mode_input]
+            r = rss_of(ring, (self.mode_input,))[self.mode_input]
             if float(np.min(r)) < best:
                 (w, z), best = ring[int(np.argmin(r))], float(np.min(r))
             sw, sz = 0.5 * sw, 0.5 * sz
@@ -352,12 +356,10 @@ class _Fitter:
         if any(c.profiled == "mode" for c in cands):
             # profiled once per variant, on the first structure that holds it (the candidate
             # alone on the baseline), then fixed in stacks
-            if self.mode_input not in self._modes:
-                self.mode = None
+            if self.mode is None:
                 self._modes[self.mode_input] = self._profile_mode(cands)
                 for regs, rec in ((self.rtr, self.train), (self.rva, self.valid)):
-                    self._add_mode(regs, rec, [self._modes[self.mode_input]])
-            self.mode = self._modes[self.mode_input]
+                    self._add_mode(regs, rec, [self.mode])
         model = self._model(cands)
         prof = [c.profiled for c in cands if c.profiled in ("tau", "fmax")]
         tau, fmax = 0.0, math.inf
@@ -713,8 +715,6 @@ def diagnose(
             f = fitter.fit([c])
             tries.append((assess(base, f, c), f, (deg, inp)))
         s_best, f_best, (fitter.degree, fitter.mode_input) = max(tries, key=lambda t: t[0].score)
-        if c.profiled == "mode":
-            fitter.mode = fitter._modes[fitter.mode_input]
         alone[c.name] = (s_best, f_best)
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
 

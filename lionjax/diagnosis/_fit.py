@@ -232,10 +232,10 @@ def mode_signals(
     record_x, record_F, dt: float, modes, Tp: int
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(h_x, h_F) of a record for each mode (ω [rad/s], ζ) in ``modes``: h = (s²/D)[·],
-    D = s² + 2ζωs + ω², x under a first-order hold, F under a zero-order hold (as
-    :class:`~lionjax.diagnosis._candidates.ModeColumns` computes them, one record at a time,
-    through the same bank and :func:`~lionjax.diagnosis._candidates.mode_output`; here on
-    bucketed shapes, in fixed batches)."""
+    D = s² + 2ζωs + ω², x under the first-order hold of its :func:`hold_corrected` samples, F
+    under a zero-order hold, through :func:`~lionjax.diagnosis._candidates.mode_bank` and
+    :func:`~lionjax.diagnosis._candidates.mode_output`, on bucketed shapes in fixed batches
+    (:meth:`~lionjax.diagnosis._candidates.ModeColumns.signals` calls it)."""
     from ._candidates import mode_bank, mode_output
 
     T = np.asarray(record_x).size
