@@ -90,6 +90,8 @@ NUMBA_SRC = """
 @njit(parallel=True, fastmath=False, cache=False)
 def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
     B, T = x.shape
+    # h folded into the gain, as lionjax does (hS = W(hG)Wᵀ, Δθ = (hG)Wᵀ E ε)
+    G00 = h * Gm[0, 0]; G01 = h * Gm[0, 1]; G10 = h * Gm[1, 0]; G11 = h * Gm[1, 1]
     for bi in prange(B):
         zx0 = x[bi, 0] / lam[2]; zx1 = R(0.0); zx2 = R(0.0)
         zf0 = F[bi, 0] / lam[2]; zf1 = R(0.0); zf2 = R(0.0)
@@ -112,11 +114,11 @@ def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
             w12 = -cdc * mf0; w22 = -cdc * mf1
             y1 = cdc * mx2
             y2 = cdc * (mux - (lam[2] * mx0 + lam[1] * mx1 + lam[0] * mx2))
-            g11 = Gm[0, 0] * w11 + Gm[0, 1] * w12; g21 = Gm[1, 0] * w11 + Gm[1, 1] * w12
-            g12 = Gm[0, 0] * w21 + Gm[0, 1] * w22; g22 = Gm[1, 0] * w21 + Gm[1, 1] * w22
-            zp = h * (w11 * g11 + w12 * g21)
-            zq = h * (w11 * g12 + w12 * g22)
-            zr = h * (w21 * g12 + w22 * g22)
+            g11 = G00 * w11 + G01 * w12; g21 = G10 * w11 + G11 * w12
+            g12 = G00 * w21 + G01 * w22; g22 = G10 * w21 + G11 * w22
+            zp = w11 * g11 + w12 * g21
+            zq = w11 * g12 + w12 * g22
+            zr = w21 * g12 + w22 * g22
             e1 = w11 * th0 + w12 * th1 + y1
             e2 = w21 * th0 + w22 * th1 + y2
             m = R(0.5) * (zp + zr); hd = R(0.5) * (zp - zr)
@@ -130,11 +132,11 @@ def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
                 if m + d <= R(1.0):
                     nt = {nslow}
             if nt > 0:
-                a = R(1.0); b = R(0.0)
-                for kk in range(nt, 1, -1):
-                    rk = R(1.0) / R(kk)
-                    a, b = R(1.0) + (b * det) * rk, -(a + b * tr) * rk
-                ep = a + b * zp; eq = b * zq; er = a + b * zr
+                # Horner on Y = −Z with the constant coefficients CF[n] = 1/(n+1)!, as lionjax
+                a = CF[nt - 2]; b = CF[nt - 1]
+                for n in range(nt - 3, -1, -1):
+                    a, b = CF[n] - b * det, a - b * tr
+                ep = a - b * zp; eq = -b * zq; er = a - b * zr
             else:
                 if d < R({thr}) * m:
                     e = np.exp(-m); im = R(1.0) / m
@@ -147,7 +149,7 @@ def lion_numba(x, F, Phi, G0, G1, lam, cdc, Gm, h, theta_out):
                     em_ = R(1.0) - R(0.5) * lm if lm < R(1e-6) else -np.expm1(-lm) / lm
                     ebar = R(0.5) * (ep_ + em_); g = (ep_ - em_) / (R(2.0) * d)
                 ep = ebar + g * hd; eq = g * zq; er = ebar - g * hd
-            f1 = h * (ep * e1 + eq * e2); f2 = h * (eq * e1 + er * e2)
+            f1 = ep * e1 + eq * e2; f2 = eq * e1 + er * e2
             th0 = th0 - (g11 * f1 + g12 * f2)
             th1 = th1 - (g21 * f1 + g22 * f2)
             zx0 = nx0; zx1 = nx1; zx2 = nx2; zf0 = nf0; zf1 = nf1; zf2 = nf2
@@ -174,11 +176,24 @@ def phi_tiers(dtype) -> dict:
     }
 
 
+def series_coeffs(dtype) -> np.ndarray:
+    """cₙ = 1/(n+1)!, n = 0…19: the series' constant coefficients (E = Σ cₙ(−Z)ⁿ)."""
+    import math
+
+    return np.array([1.0 / math.factorial(n + 1) for n in range(20)], dtype)
+
+
 def build_numba(dtype):
     import numba  # noqa: F401
     from numba import njit, prange
 
-    ns = {"njit": njit, "prange": prange, "np": np, "R": getattr(np, dtype)}
+    ns = {
+        "njit": njit,
+        "prange": prange,
+        "np": np,
+        "R": getattr(np, dtype),
+        "CF": series_coeffs(dtype),
+    }
     src = NUMBA_SRC.format(**phi_tiers(dtype))
     exec(src, ns)  # noqa: S102 — the kernel is written once above, typed per dtype
     return ns["lion_numba"]
@@ -206,7 +221,9 @@ extern "C" __global__ void lion_cuda(const R* __restrict__ xt, const R* __restri
     const R p20 = P[6], p21 = P[7], p22 = P[8];
     const R a0 = P[9], a1 = P[10], a2 = P[11], c0 = P[12], c1 = P[13], c2 = P[14];
     const R l0 = P[15], l1 = P[16], l2 = P[17], cdc = P[18];
-    const R G00 = P[19], G01 = P[20], G10 = P[21], G11 = P[22], h = P[23];
+    const R h = P[23];  // h folded into the gain, as lionjax does
+    const R G00 = h * P[19], G01 = h * P[20], G10 = h * P[21], G11 = h * P[22];
+    const R CF[20] = {{{coeffs}}};  // 1/(n+1)!
     R ux = xt[bi], uf = Ft[bi];
     R zx0 = ux / l2, zx1 = (R)0, zx2 = (R)0;
     R zf0 = uf / l2, zf1 = (R)0, zf2 = (R)0;
@@ -230,9 +247,9 @@ extern "C" __global__ void lion_cuda(const R* __restrict__ xt, const R* __restri
         const R y2 = cdc * (mux - (l2 * mx0 + l1 * mx1 + l0 * mx2));
         const R g11 = G00 * w11 + G01 * w12, g21 = G10 * w11 + G11 * w12;
         const R g12 = G00 * w21 + G01 * w22, g22 = G10 * w21 + G11 * w22;
-        const R zp = h * (w11 * g11 + w12 * g21);
-        const R zq = h * (w11 * g12 + w12 * g22);
-        const R zr = h * (w21 * g12 + w22 * g22);
+        const R zp = w11 * g11 + w12 * g21;
+        const R zq = w11 * g12 + w12 * g22;
+        const R zr = w21 * g12 + w22 * g22;
         const R e1 = w11 * th0 + w12 * th1 + y1;
         const R e2 = w21 * th0 + w22 * th1 + y2;
         const R m = (R)0.5 * (zp + zr), hd = (R)0.5 * (zp - zr);
@@ -246,14 +263,13 @@ extern "C" __global__ void lion_cuda(const R* __restrict__ xt, const R* __restri
             if (m + d <= (R)1) nt = {nslow};
         }}
         if (nt > 0) {{
-            R a = (R)1, b = (R)0;
-            for (int kk = nt; kk > 1; --kk) {{
-                const R rk = (R)1 / (R)kk;
-                const R an = (R)1 + (b * det) * rk;
-                b = -(a + b * tr) * rk;
+            R a = CF[nt - 2], b = CF[nt - 1];  // Horner on Y = -Z, as lionjax
+            for (int n = nt - 3; n >= 0; --n) {{
+                const R an = CF[n] - b * det;
+                b = a - b * tr;
                 a = an;
             }}
-            ep = a + b * zp; eq = b * zq; er = a + b * zr;
+            ep = a - b * zp; eq = -b * zq; er = a - b * zr;
         }} else {{
             R ebar, g;
             if (d < (R){thr} * m) {{
@@ -269,7 +285,7 @@ extern "C" __global__ void lion_cuda(const R* __restrict__ xt, const R* __restri
             }}
             ep = ebar + g * hd; eq = g * zq; er = ebar - g * hd;
         }}
-        const R f1 = h * (ep * e1 + eq * e2), f2 = h * (eq * e1 + er * e2);
+        const R f1 = ep * e1 + eq * e2, f2 = eq * e1 + er * e2;
         th0 = th0 - (g11 * f1 + g12 * f2);
         th1 = th1 - (g21 * f1 + g22 * f2);
         zx0 = nx0; zx1 = nx1; zx2 = nx2; zf0 = nf0; zf1 = nf1; zf2 = nf2;
@@ -293,6 +309,7 @@ def build_cuda(dtype):
         exp="expf" if f32 else "exp",
         expm1="expm1f" if f32 else "expm1",
         sqrt="sqrtf" if f32 else "sqrt",
+        coeffs=", ".join(repr(float(c)) for c in series_coeffs(dtype)),
         **phi_tiers(dtype),
     )
     kern = cp.RawKernel(src, "lion_cuda", options=("--std=c++14",))  # fast-math off (default)
@@ -342,13 +359,14 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, tiers):
         w12, w22 = -cdc * mf[0], -cdc * mf[1]
         y1 = cdc * mx[2]
         y2 = cdc * (mux - (lam[2] * mx[0] + lam[1] * mx[1] + lam[0] * mx[2]))
-        g11 = Gm[0, 0] * w11 + Gm[0, 1] * w12
-        g21 = Gm[1, 0] * w11 + Gm[1, 1] * w12
-        g12 = Gm[0, 0] * w21 + Gm[0, 1] * w22
-        g22 = Gm[1, 0] * w21 + Gm[1, 1] * w22
-        zp = h * (w11 * g11 + w12 * g21)
-        zq = h * (w11 * g12 + w12 * g22)
-        zr = h * (w21 * g12 + w22 * g22)
+        Gh = h * Gm  # h folded into the gain, as lionjax does
+        g11 = Gh[0, 0] * w11 + Gh[0, 1] * w12
+        g21 = Gh[1, 0] * w11 + Gh[1, 1] * w12
+        g12 = Gh[0, 0] * w21 + Gh[0, 1] * w22
+        g22 = Gh[1, 0] * w21 + Gh[1, 1] * w22
+        zp = w11 * g11 + w12 * g21
+        zq = w11 * g12 + w12 * g22
+        zr = w21 * g12 + w22 * g22
         e1 = w11 * th0 + w12 * th1 + y1
         e2 = w21 * th0 + w22 * th1 + y2
         m = half * (zp + zr)
@@ -358,12 +376,12 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, tiers):
         tr = zp + zr
         det = zp * zr - zq * zq
         nt = tiers["nfast"] if (tr <= tiers["bound"]).all() else tiers["nslow"]
-        a = np.ones_like(zp)
-        b = np.zeros_like(zp)
-        for kk in range(nt, 1, -1):
-            rk = R(1.0 / kk)
-            a, b = R(1.0) + (b * det) * rk, -(a + b * tr) * rk
-        ep, eq, er = a + b * zp, b * zq, a + b * zr
+        CF = series_coeffs(x.dtype)  # Horner on Y = −Z, as lionjax
+        a = np.full_like(zp, CF[nt - 2])
+        b = np.full_like(zp, CF[nt - 1])
+        for n in range(nt - 3, -1, -1):
+            a, b = CF[n] - b * det, a - b * tr
+        ep, eq, er = a - b * zp, -b * zq, a - b * zr
         if not small.all():
             with np.errstate(all="ignore"):
                 e = np.exp(-m)
@@ -381,8 +399,8 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, tiers):
             ep = np.where(small, ep, ebar + g * hd)
             eq = np.where(small, eq, g * zq)
             er = np.where(small, er, ebar - g * hd)
-        f1 = h * (ep * e1 + eq * e2)
-        f2 = h * (eq * e1 + er * e2)
+        f1 = ep * e1 + eq * e2
+        f2 = eq * e1 + er * e2
         th0 = th0 - (g11 * f1 + g12 * f2)
         th1 = th1 - (g21 * f1 + g22 * f2)
         zx, zf = nx, nf

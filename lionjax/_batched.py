@@ -22,18 +22,20 @@ Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kerne
   transposed in cache (C = ``Execution.chunk``, 128): the batch is never transposed as a whole;
 - the carry is flat (B,) arrays in typed Modules; the filter update and the regressors at the
   step's midpoint come from linear maps of (z_k, u_k, u_{k+1}) precomputed per filter
-  (:func:`_maps`), so the θ step never recomputes the filter;
+  (:func:`_maps`), so the θ step never recomputes the filter; with a shared filter the states
+  are carried in the midpoint basis w = λₙ(I + Φ)z/2, where each midpoint output V₁…V_n is
+  wⱼ plus its input terms (two products instead of n + 2);
 - XLA:CPU has no multi-output fusion and re-computes a shared value inside every consumer; the
   θ increments are therefore packed in complex pairs and divided by a runtime 1 (it never
   duplicates an expensive producer, :func:`lionjax._phi.materialise`), and θ itself is carried
   in complex pairs, so the whole step is one fusion updated in place. Where no accumulator
-  reads θ the increments' guard divides as reals (XLA's complex division costs about ten vector
-  divisions per record and sample);
+  reads θ the increments' guard multiplies them as reals (XLA's complex division costs about
+  ten vector divisions per record and sample);
 - one filter per record (``FilterBank`` coeffs ``(B, n)``, or one ``dt`` per record): the
   kernel reads the compact per-record filter (Φ, Γ₀, Γ₁, λ: :class:`_Filter`) and forms the
   outputs at the step's start, midpoint and end from z_k and z_{k+1}, instead of the composed
   maps of every signal (free as shared scalars; as per-record arrays five times the reads);
-- E(hS) by its series alone while tr(hS) ≤ 1/2 (a free guard: beyond it the divisor is 0 and
+- E(hS) by its series alone while tr(hS) ≤ 1/2 (a free guard: beyond it the guard is NaN and
   the record comes back non-finite), the records that fail re-run with the closed form
   (``Execution(phi="series")``, the default);
 - one CPU device runs independent loops concurrently, so the batch is split into one loop per
@@ -41,8 +43,9 @@ Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kerne
   over several devices with :func:`shard_records` are sharded with ``jax.shard_map``
   (``Execution.shard``).
 
-Together: 107 M sample-updates/s on one device, 164 with the records placed over two host
-devices (the previous design: 64–79).
+Together (2026-11-24, one run of ``benchmarks/throughput.py``): 179 M sample-updates/s on one
+device, 302 with the records placed over two host devices; numba's scalar kernel of the same
+law and algebra, 82.
 
 The exact step (:mod:`lionjax._phi`). With S = W G Wᵀ (2×2 symmetric PSD), over one interval h
 with frozen W: θ ← θ − h·G Wᵀ E(hS) (Wθ + W₀), E(Z) = (I − e^{−Z}) Z⁻¹, the same function
@@ -84,7 +87,7 @@ from ._outputs import (
     TailStatistics,
     Trajectory,
 )
-from ._phi import fast_series_terms, materialise, phi_sym2, real_divisions
+from ._phi import fast_series_terms, materialise, phi_sym2, real_guard
 from ._record import Record
 from ._scan import affine_scan, filter_states
 from ._solution_tools import by_name, finish
@@ -382,6 +385,8 @@ class _Plan(eqx.Module):
     midpoint: bool = eqx.field(static=True, default=True)  # the stepper's regressors
     save_blocks: int = eqx.field(static=True, default=0)  # 0: no snapshots; else slabs between
     series_terms: int = eqx.field(static=True, default=0)  # 0: closed-form E (phi_sym2)
+    # carry the midpoint basis w = λₙ(I + Φ)z/2 instead of z (:func:`_maps`)
+    aligned: bool = eqx.field(static=True, default=False)
 
 
 class _Maps(eqx.Module):
@@ -454,9 +459,10 @@ class _Out(eqx.Module):
     snapshots: Array | None  # (K, p, Bs)
 
 
-def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
+def _maps(bank: FilterBank, dt: Array, foh: bool, aligned: bool = False) -> tuple[_Maps, Array]:
     """Linear maps from (z_k, u_k, u_{k+1}) — columns ``n + 2`` — to the filter's next state and
-    outputs, for one signal under its hold (exact discretisation, :meth:`FilterBank.discretise`).
+    outputs, for one signal under its hold (exact discretisation, :meth:`FilterBank.discretise`),
+    and the change of basis of the carried state (identity, or A below).
 
     - ``next`` (n, n+2): z_{k+1} = Φ z_k + Γ₀ u_k + Γ₁ (u_{k+1} − u_k) (Γ₁ only under foh);
     - ``start``, ``mid``, ``end`` (n+1, n+2): the outputs V₁…V_{n+1} (Vⱼ = sʲ⁻¹/Λ u,
@@ -465,6 +471,13 @@ def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
 
     Precomputing them keeps the per-sample work of the kernel to one dot product per output
     (the θ step never recomputes the filter update).
+
+    ``aligned``: the state carried is w = A z, A = λₙ(I + Φ)/2 (λₙ → 1 without unit DC gain):
+    the z-part of the midpoint outputs V₁…V_n. A commutes with Φ, so w_{k+1} = Φ w_k + AΓ(…)
+    (the same Φ, no rounding from a similarity transform), the midpoint outputs are
+    V_j = w_{j−1} + (input terms) and V_{n+1} = −Σ λ w + (input terms), with exact coefficients
+    (1 and the λ's): the θ step reads each of V₁…V_n with two products at most instead of n + 2.
+    The outputs at the start and end of a step read w through A⁻¹ (dense).
     """
     f = _filter(bank, dt)  # Φ, Γ₀, Γ₁, λ reversed and the scale, as the per-record form
     n = bank.order
@@ -479,16 +492,36 @@ def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
         return V if f.scale is None else V * f.scale
 
     unit = lambda a, b: jnp.concatenate([jnp.zeros((n,), dtype), jnp.array([a, b], dtype)])
-    return _Maps(
+    maps = _Maps(
         next=nxt,
         start=outputs(start, unit(1.0, 0.0)),
         mid=outputs(0.5 * (start + nxt), unit(0.5, 0.5)),
         end=outputs(nxt, unit(0.0, 1.0)),
     )
+    if not aligned:
+        return maps, jnp.eye(n, dtype=dtype)
+    A = maps.mid[:n, :n]  # λₙ(I + Φ)/2
+    Ainv = jnp.linalg.inv(A)
+    in_w = lambda M: jnp.concatenate([matmul(M[:, :n], Ainv), M[:, n:]], -1)
+    mid_z = jnp.concatenate([jnp.eye(n, dtype=dtype), -f.lam_rev[None]], 0)
+    return (
+        _Maps(
+            next=jnp.concatenate([f.Phi, matmul(A, nxt[:, n:])], -1),
+            start=in_w(maps.start),
+            mid=jnp.concatenate([mid_z, maps.mid[:, n:]], -1),
+            end=in_w(maps.end),
+        ),
+        A,
+    )
 
 
-def _structural(mode: str, foh: bool, n: int, row: int, col: int) -> bool:
-    """Whether entry (row, col) of a :func:`_maps` matrix can be non-zero (static sparsity)."""
+def _structural(mode: str, foh: bool, n: int, row: int, col: int, aligned: bool = False) -> bool:
+    """Whether entry (row, col) of a :func:`_maps` matrix can be non-zero (static sparsity);
+    ``aligned``: the maps of the midpoint basis (:func:`_maps`)."""
+    if aligned and mode == "mid" and row < n and col < n:  # Vⱼ = w_{j−1} + inputs
+        return col == row
+    if aligned and mode == "start":  # Vⱼ = (A⁻¹w)_{j−1}·λₙ, dense in w; V_{n+1} also reads u_k
+        return col < n or (col == n and row == n)
     if mode == "start":  # Vⱼ = z_{j−1}; V_{n+1} = u_k − Σ λ z
         return col == row if row < n else col <= n
     if col == n + 1 and not foh:  # a zoh state never sees u_{k+1}; V_{n+1} at mid/end does
@@ -580,10 +613,13 @@ class _Core:
             return self.compact(s, mode, row, z, uk, uk1)
         M = self.maps[s][mode][row]
         n = self.n
+        al = self.plan.aligned
         terms = [
-            M[c] * (z[c] if c < n else uk if c == n else uk1)
+            (z[c] if al and mode == "mid" and row < n else M[c] * z[c])  # coefficient 1
+            if c < n
+            else M[c] * (uk if c == n else uk1)
             for c in range(n + 2)
-            if _structural(mode, self.foh[s], n, row, c)
+            if _structural(mode, self.foh[s], n, row, c, al)
         ]
         return sum(terms[1:], terms[0])
 
@@ -676,11 +712,11 @@ class _Core:
         theta, valid, theta_new = c.theta, c.valid, None
         if plan.estimate:
             W1, W2, y1, y2 = self.regressors("mid" if plan.midpoint else "start", z, uk, uk1)
-            # the increments feed the θ pairs only (one fusion whatever the divisions): real
-            # divisions by the runtime 1 (two per record, not XLA's complex division); complex
-            # ones where accumulators read θ too (there they keep the step from being duplicated
-            # into every consumer)
-            cheap = real_divisions() if not self.outputs else contextlib.nullcontext()
+            # the increments feed the θ pairs only (one fusion): the guard (a runtime 1, NaN past
+            # the series bound) multiplies them as reals; where accumulators read θ too they are
+            # divided by it as complex pairs (that keeps the step from being duplicated into
+            # every consumer)
+            cheap = real_guard() if not self.outputs else contextlib.nullcontext()
             with cheap:
                 d, ok = self.stepper.increment(
                     self.from_pairs(c.theta),
@@ -794,7 +830,12 @@ def _kernel(plan: _Plan, X, shared: _Inputs, per: _Inputs, rows=None) -> _Out:
 # The stream: a batch prepared for the kernel
 
 
-def _plan_for(model: AbstractModel, record0: Record, bank: FilterBank, **flags) -> _Plan:
+def _plan_for(
+    model: AbstractModel, record0: Record, bank: FilterBank, align: bool = False, **flags
+) -> _Plan:
+    """The :class:`_Plan` of ``model``'s signals and columns; ``align``: carry the filter states
+    in the midpoint basis (:func:`_maps`) when the pass estimates θ with
+    midpoint regressors (shared filter maps only: the compact per-record filter stays in z)."""
     sigs = model.signals(record0)
     if "x" not in sigs:
         raise InputError(f"{type(model).__name__}.signals must provide 'x' (for W₀).")
@@ -808,11 +849,14 @@ def _plan_for(model: AbstractModel, record0: Record, bank: FilterBank, **flags) 
             f"lion_batched: the filter must have order n ≥ 3 (V₄ = s³/Λ·x must be proper), "
             f"got n = {bank.order}."
         )
+    x_index = names.index("x")
+    aligned = align and flags.get("estimate", False) and flags.get("midpoint", True)
     return _Plan(
         signals=tuple((k, sigs[k][1]) for k in names),
         columns=cols,
-        x_index=names.index("x"),
+        x_index=x_index,
         n=bank.order,
+        aligned=aligned,
         **flags,
     )
 
@@ -881,8 +925,14 @@ class _Stream:
         holds = [sigs0[k][1] == "foh" for k in order]
         per_bank = bool(bank.batch_shape)
         shared_coeffs = not per_bank and jnp.ndim(records.dt) == 0
+        self.aligned = None  # (maps, A) per signal in the midpoint basis (shared maps only)
         if shared_coeffs:  # scalars in the kernel: the composed maps cost nothing to read
-            maps = tuple(_maps(bank, jnp.asarray(records.dt, dtype), f) for f in holds)
+            dt0 = jnp.asarray(records.dt, dtype)
+            maps = tuple(_maps(bank, dt0, f)[0] for f in holds)
+            self.aligned = tuple(
+                jax.tree.map(lambda a: jnp.asarray(a, dtype), _maps(bank, dt0, f, aligned=True))
+                for f in holds
+            )
         else:  # per-record arrays: the compact form, a quarter of the values read per sample
             maps = jax.vmap(_filter, in_axes=(0 if per_bank else None, 0))(bank, dt)
         maps = jax.tree.map(lambda a: jnp.asarray(a, dtype), maps)
@@ -915,7 +965,9 @@ class _Stream:
             length=length,
             bank=bank,
         )
-        self.plan = lambda **kw: _plan_for(model, rec0, bank, masked=self.masked, **kw)
+        self.plan = lambda **kw: _plan_for(
+            model, rec0, bank, align=shared_coeffs, masked=self.masked, **kw
+        )
         self.execution = execution
 
     def run(
@@ -927,8 +979,14 @@ class _Stream:
         inputs (batch first); ``G``: per-record gains ``(B, p, p)`` or ``G_shared`` ``(p, p)``."""
         dtype = self.ctx.dtype
         per = dataclasses.replace(self.per, G=G, theta0=theta0, outputs=tuple(inputs))
+        maps = self.shared.maps
+        if plan.aligned:  # the states carried in the midpoint basis w = A z
+            maps = tuple(m for m, _ in self.aligned)
+            z0 = jnp.stack([matvec(A, per.z0[:, s]) for s, (_, A) in enumerate(self.aligned)], 1)
+            per = dataclasses.replace(per, z0=z0)
         shared = dataclasses.replace(
             self.shared,
+            maps=maps,
             G=G_shared,
             outputs=tuple(_kernel_view(o, dtype) for o in outputs),
             stepper=None if stepper is None else _kernel_view(stepper, dtype),

@@ -339,12 +339,12 @@ class ExactStep(AbstractSampleStepper):
 
     def increment(self, theta, W1, W2, y1, y2, G, h, *, series=0, one=None):
         c = _scale(self.normalisation, W1, W2)
-        if series:  # valid while tr(hS) ≤ bound; else the divisor is 0 and the element inf
+        if series:  # valid while tr(hS) ≤ bound; else the guard is NaN and so is the element
             phi = lambda zp, zq, zr: _phi_series(zp, zq, zr, series)
-            divisor = lambda tr_hs: jnp.where(tr_hs <= SERIES_BOUND, one, 0.0)
+            guard = lambda tr_hs: jnp.where(tr_hs <= SERIES_BOUND, one, jnp.nan)
         else:
-            phi, divisor = phi_sym2, one
-        return exact_step(theta, W1, W2, y1, y2, G, h, c, phi=phi, divisor=divisor), None
+            phi, guard = phi_sym2, one
+        return exact_step(theta, W1, W2, y1, y2, G, h, c, phi=phi, guard=guard), None
 
 
 class EulerStep(AbstractSampleStepper):
@@ -365,19 +365,20 @@ class EulerStep(AbstractSampleStepper):
     def increment(self, theta, W1, W2, y1, y2, G, h, *, series=0, one=None):
         p = len(theta)
         c = _scale(self.normalisation, W1, W2)
-        GW1 = [sum(G[i][j] * W1[j] for j in range(p)) for i in range(p)]
-        GW2 = [sum(G[i][j] * W2[j] for j in range(p)) for i in range(p)]
+        Gh = [[h * G[i][j] for j in range(p)] for i in range(p)]  # h folded into the gain
+        GW1 = [sum(Gh[i][j] * W1[j] for j in range(p)) for i in range(p)]
+        GW2 = [sum(Gh[i][j] * W2[j] for j in range(p)) for i in range(p)]
         if c is not None:
             GW1, GW2 = [c * v for v in GW1], [c * v for v in GW2]
         e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
         e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
-        S11 = sum(W1[i] * GW1[i] for i in range(p))
+        S11 = sum(W1[i] * GW1[i] for i in range(p))  # hS
         S12 = sum(W1[i] * GW2[i] for i in range(p))
         S22 = sum(W2[i] * GW2[i] for i in range(p))
-        # ‖G WᵀW‖ = the largest eigenvalue of S = W G Wᵀ (2×2 symmetric PSD)
+        # h‖G WᵀW‖ = the largest eigenvalue of hS = W(hG)Wᵀ (2×2 symmetric PSD)
         rho = 0.5 * (S11 + S22) + jnp.sqrt(0.25 * (S11 - S22) ** 2 + S12 * S12)
-        d = materialise([h * (GW1[i] * e1 + GW2[i] * e2) for i in range(p)], one)
-        return d, h * rho <= 2.0
+        d = materialise([GW1[i] * e1 + GW2[i] * e2 for i in range(p)], one, multiply=True)
+        return d, rho <= 2.0
 
 
 def _check_mu(mu, what: str) -> None:

@@ -10,8 +10,8 @@ and auto gain (one per record too), per-record filters and sampling intervals, `
 :class:`~lionjax.TailStatistics`, :class:`~lionjax.Trajectory`, both steppers, the
 series/closed-form evaluation of E. Differences from the XLA loop, all for GPU kernels:
 
-- θ is carried as p real arrays (no complex pairs) and the increments' guard divides as real
-  numbers (:func:`lionjax._phi.real_divisions`);
+- θ is carried as p real arrays (no complex pairs) and the increments' guard multiplies as a real
+  number (:func:`lionjax._phi.real_guard`);
 - the records are transposed once to ``(T, B)`` outside the kernel, so a program reads each
   sample of its block of records as one contiguous row (``x_ref[k, :]``);
 - values common to the batch (the shared filter maps, G, the accumulators' scalars) are read as
@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
 
-from ._phi import real_divisions
+from ._phi import real_guard
 
 #: Records per program on a GPU (the lane block; a power of two).
 ROWS_GPU = 128
@@ -115,7 +115,7 @@ def pallas_kernel(plan, X, shared, per, parts=1, *, rows: int | None = None, int
     # the structure of the kernel's results: one small step of the same core, traced only
     def probe():
         per_r = jax.tree.map(lambda a: a[..., :R], per)
-        with real_divisions():
+        with real_guard():
             core = _Core(plan, shared, per_r, dtype, pairs=False)
             c = core.init(jnp.zeros((R,), dtype))
             row = lambda k: [Xs[:R, k] for Xs in X]
@@ -137,7 +137,7 @@ def pallas_kernel(plan, X, shared, per, parts=1, *, rows: int | None = None, int
         i += len(sh_leaves)
         orefs = refs[i : i + len(out_leaves_sd)]
         snap_ref = refs[i + len(out_leaves_sd)] if g else None
-        with real_divisions():
+        with real_guard():
             loaded = [_load(r, False, r.ndim) for r in pr]
             per_v = jax.tree.unflatten(per_def, loaded[:-1])
             u_end_rows = loaded[-1]

@@ -11,6 +11,7 @@ kernel of :func:`lionjax.lion_batched` (elementwise over the batch).
 from __future__ import annotations
 
 import contextlib
+import math
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +21,7 @@ from jaxtyping import Array, ArrayLike
 # (tr ≥ ρ for the PSD hS): the remainder is ≤ rᴷ/(K+1)! — 1.1e-8 (float32, K = 8) and 4.7e-17
 # (float64, K = 14) for r = 1/2, below the unit roundoff. Gains in practice stay below it
 # (AutoGain(1) on the twin: tr(hS) ≈ 0.02; the benchmark's gain: ≤ 0.5 on all 4096 records).
-# A sample beyond the bound turns its record non-finite on purpose (exact_step's divisor) and
+# A sample beyond the bound turns its record non-finite on purpose (exact_step's guard) and
 # lionjax.lion_batched re-runs those records with the closed form (phi_sym2): results never
 # depend on the bound, only the run time does.
 SERIES_BOUND = 0.5
@@ -110,50 +111,61 @@ def _phi_series(zp, zq, zr, terms: int):
 
 
 def _series(tr, det, terms: int):
-    """E(Z) = αI + βZ from Σ_{n<terms} (−Z)ⁿ/(n+1)! in Horner form (Cayley–Hamilton)."""
-    a = jnp.ones_like(tr)
-    b = jnp.zeros_like(tr)
-    for k in range(terms, 1, -1):
-        # (−Z)(aI + bZ) = −aZ − b(tr Z − det I) = b·det I − (a + b·tr) Z
-        a, b = 1.0 + (b * det) * (1.0 / k), (a + b * tr) * (-1.0 / k)
-    return a, b
+    """E(Z) = αI + βZ from Σ_{n<terms} cₙ(−Z)ⁿ, cₙ = 1/(n+1)!, in Horner form (Cayley–Hamilton).
+
+    With Y = −Z (tr Y = −tr Z, det Y = det Z) and M = aI + bY: cₙI + YM = (cₙ − b·det)I +
+    (a + b·tr Y)Y, so each term costs two products and two sums (the coefficients are constants;
+    no division by n). Starts from M = c_{K−2}I + c_{K−1}Y (terms ≥ 2)."""
+    c = [1.0 / math.factorial(n + 1) for n in range(terms)]
+    a = jnp.full_like(tr, c[terms - 2])
+    b = jnp.full_like(tr, c[terms - 1])
+    for n in range(terms - 3, -1, -1):
+        a, b = c[n] - b * det, a - b * tr  # tr Y = −tr Z
+    return a, -b  # E = aI + bY = aI − bZ
 
 
-_REAL_DIVISIONS = [False]
+_REAL_GUARD = [False]
 
 
 @contextlib.contextmanager
-def real_divisions():
-    """While tracing inside this context, :func:`materialise` divides each value by the divisor
-    as a real number (no complex pairs): for kernels without complex arithmetic (the Pallas
-    kernel of :mod:`lionjax._pallas`; GPU kernels have no fusion problem to work around), and
-    in the XLA kernel where the values have one consumer (no accumulator reads θ: XLA expands a
-    complex division into about ten real ones). The guard is kept: a divisor of 0 still turns
-    the element non-finite."""
-    old = _REAL_DIVISIONS[0]
-    _REAL_DIVISIONS[0] = True
+def real_guard():
+    """While tracing inside this context, :func:`materialise` applies the guard to each value as
+    a real number (no complex pairs): for kernels without complex arithmetic
+    (the Pallas kernel of :mod:`lionjax._pallas`; GPU kernels have no fusion problem to work
+    around), and in the XLA kernel where the values have one consumer (no accumulator reads θ:
+    there is no duplication to prevent, and XLA expands a complex division into about ten real
+    ones). The guard is kept: a NaN guard still turns the element non-finite."""
+    old = _REAL_GUARD[0]
+    _REAL_GUARD[0] = True
     try:
         yield
     finally:
-        _REAL_DIVISIONS[0] = old
+        _REAL_GUARD[0] = old
 
 
-def materialise(values: list, divisor) -> list:
-    """The same ``values`` (arrays), computed once per element by XLA:CPU.
+def materialise(values: list, guard, multiply: bool = False) -> list:
+    """The same ``values`` (arrays), computed once per element by XLA:CPU, times ``guard``.
+
+    ``guard``: a runtime 1 (exact: v·1 = v, (a + ib)/(1 + 0i) = a + ib) that XLA cannot fold
+    away, or NaN where some validity check fails, which turns those elements non-finite on
+    purpose (see :func:`exact_step`); None leaves the values as they are.
 
     XLA:CPU has no multi-output loop fusion: a value used by several outputs of a loop step is
     re-computed inside each consumer (``optimization_barrier`` does not stop that on CPU). It
     never duplicates an expensive producer, though, so the values are packed in complex pairs
-    and divided by ``divisor`` — a runtime 1 (exact: (a + ib)/(1 + 0i) = a + ib) that XLA cannot
-    fold away. A divisor of 0 where some guard fails turns those elements non-finite on purpose
-    (see :func:`exact_step`). Measured: the exact step's work per sample ≈ halved for p = 2.
+    and divided by the guard. Measured: the exact step's work per sample ≈ halved for p = 2.
+    Under :func:`real_guard` they are divided by it as reals, or multiplied by it where
+    ``multiply`` (the θ increments: no division at all). The LS statistics keep the division:
+    with a product LLVM may contract the surrounding arithmetic differently, and their
+    cancellation-prone residual moments then differed between the XLA and Pallas kernels by
+    5e-5 relative in float64 (tests/test_pallas.py).
     """
-    if divisor is None:
+    if guard is None:
         return values
-    if _REAL_DIVISIONS[0]:
-        return [v / divisor for v in values]
+    if _REAL_GUARD[0]:
+        return [v * guard for v in values] if multiply else [v / guard for v in values]
     vals = list(values) + ([jnp.zeros_like(values[-1])] if len(values) % 2 else [])
-    den = jax.lax.complex(divisor, jnp.zeros_like(divisor))
+    den = jax.lax.complex(guard, jnp.zeros_like(guard))
     out = []
     for a, b in zip(vals[::2], vals[1::2], strict=True):
         c = jax.lax.complex(a, b) / den
@@ -161,31 +173,35 @@ def materialise(values: list, divisor) -> list:
     return out[: len(values)]
 
 
-def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, divisor=None):
+def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, guard=None):
     """One exact step of θ̇ = −c·G Wᵀ(Wθ + W₀) over h, elementwise over any batch shape:
     θ ← θ − h·cGWᵀ E(hS) (Wθ + W₀), S = c·WGWᵀ, E(Z) = (I − e^{−Z})Z⁻¹.
 
     Arguments (lists of arrays, all broadcastable): ``theta`` (p entries), ``W1``/``W2`` the
     two rows of W (p entries each), ``y1``/``y2`` = W₀, ``G`` a p×p nested list (symmetric),
     ``h`` the interval [s], ``c`` the normalisation 1/(1 + μ‖W‖²) or None, ``phi`` E's
-    evaluation (default :func:`phi_sym2`), ``divisor`` see :func:`materialise` (the increments
+    evaluation (default :func:`phi_sym2`), ``guard`` see :func:`materialise` (the increments
     are materialised once per sample), or a function of tr(hS) returning it. Returns the increments
     Δθ (p entries): the new θ is θ − Δθ.
+
+    h is folded into the gain first (hG: scalars when G and h are shared, hoisted out of the
+    per-record work), so hS = c·W(hG)Wᵀ and Δθ = c(hG)Wᵀ E(hS) ε take no further products by h.
     """
     p = len(theta)
-    GW1 = [sum(G[i][j] * W1[j] for j in range(p)) for i in range(p)]
-    GW2 = [sum(G[i][j] * W2[j] for j in range(p)) for i in range(p)]
+    Gh = [[h * G[i][j] for j in range(p)] for i in range(p)]
+    GW1 = [sum(Gh[i][j] * W1[j] for j in range(p)) for i in range(p)]
+    GW2 = [sum(Gh[i][j] * W2[j] for j in range(p)) for i in range(p)]
     if c is not None:
         GW1 = [c * v for v in GW1]
         GW2 = [c * v for v in GW2]
-    S11 = sum(W1[i] * GW1[i] for i in range(p))
+    S11 = sum(W1[i] * GW1[i] for i in range(p))  # hS
     S12 = sum(W1[i] * GW2[i] for i in range(p))
     S22 = sum(W2[i] * GW2[i] for i in range(p))
     e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
     e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
-    ep, eq, er = (phi_sym2 if phi is None else phi)(h * S11, h * S12, h * S22)
-    f1 = h * (ep * e1 + eq * e2)
-    f2 = h * (eq * e1 + er * e2)
-    if callable(divisor):
-        divisor = divisor(h * (S11 + S22))
-    return materialise([GW1[i] * f1 + GW2[i] * f2 for i in range(p)], divisor)
+    ep, eq, er = (phi_sym2 if phi is None else phi)(S11, S12, S22)
+    f1 = ep * e1 + eq * e2
+    f2 = eq * e1 + er * e2
+    if callable(guard):
+        guard = guard(S11 + S22)
+    return materialise([GW1[i] * f1 + GW2[i] * f2 for i in range(p)], guard, multiply=True)

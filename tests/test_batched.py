@@ -56,6 +56,40 @@ def test_phi_sym2_against_scipy_expm(scale):
     if small.any():
         fast = np.stack(_phi_series(Z[small, 0, 0], Z[small, 0, 1], Z[small, 1, 1], 14), -1)
         np.testing.assert_allclose(fast, np.array(ref)[small], rtol=1e-14, atol=1e-15)
+        # float32's 8 terms: the truncation bound (1/2)⁸/9! = 1.1e-8 (lionjax._phi.SERIES_BOUND)
+        f32 = np.stack(_phi_series(Z[small, 0, 0], Z[small, 0, 1], Z[small, 1, 1], 8), -1)
+        np.testing.assert_allclose(f32, np.array(ref)[small], rtol=0, atol=1.1e-8)
+
+
+@pytest.mark.parametrize("unit_dc_gain", [True, False])
+@pytest.mark.parametrize("dt", [1e-4, 1e-3, 2e-2])
+def test_midpoint_basis_maps_equal_the_filter_maps(unit_dc_gain, dt):
+    """The kernel's midpoint basis w = A z (lionjax._batched._maps(aligned=True)) against the
+    filter's own maps: the same next state (A·next(z) = next_w(Az)) and the same outputs at the
+    start, midpoint and end, for random states and inputs, both holds, float64; the midpoint
+    rows read w with exact coefficients (1 and −λ)."""
+    from lionjax._batched import _maps
+
+    bank = lj.FilterBank.from_poles([-3.0, -5.0, -40.0], unit_dc_gain=unit_dc_gain)
+    rng = np.random.default_rng(3)
+    z = rng.normal(size=(3, 5))
+    u = rng.normal(size=(2, 5))
+    for foh in (True, False):
+        mz, I3 = _maps(bank, jax.numpy.asarray(dt), foh)
+        mw, A = _maps(bank, jax.numpy.asarray(dt), foh, aligned=True)
+        np.testing.assert_array_equal(I3, np.eye(3))
+        A = np.asarray(A)
+        zu, wu = np.concatenate([z, u]), np.concatenate([A @ z, u])
+        scale = lambda M: np.abs(np.asarray(M) @ zu).max()
+        np.testing.assert_allclose(
+            np.asarray(mw.next) @ wu, A @ (np.asarray(mz.next) @ zu), atol=1e-12 * scale(mz.next)
+        )
+        for mode in ("start", "mid", "end"):
+            Mz, Mw = np.asarray(getattr(mz, mode)), np.asarray(getattr(mw, mode))
+            np.testing.assert_allclose(Mw @ wu, Mz @ zu, atol=1e-12 * scale(Mz))
+        mid = np.asarray(mw.mid)
+        np.testing.assert_array_equal(mid[:3, :3], np.eye(3))
+        np.testing.assert_array_equal(mid[3, :3], -np.asarray(bank.coeffs)[::-1])
 
 
 def test_phi_sym2_gradient_finite_at_zero():
