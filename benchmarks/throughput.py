@@ -342,6 +342,8 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, tiers):
     th0 = np.zeros(B, x.dtype)
     th1 = np.zeros(B, x.dtype)
     half = R(0.5)
+    Gh = h * Gm  # h folded into the gain, as lionjax does
+    CF = series_coeffs(x.dtype)  # Horner on Y = −Z with constant coefficients, as lionjax
     for k in range(T - 1):
         ux, ux1, uf = xt[k], xt[k + 1], Ft[k]
         dux = ux1 - ux
@@ -359,7 +361,6 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, tiers):
         w12, w22 = -cdc * mf[0], -cdc * mf[1]
         y1 = cdc * mx[2]
         y2 = cdc * (mux - (lam[2] * mx[0] + lam[1] * mx[1] + lam[0] * mx[2]))
-        Gh = h * Gm  # h folded into the gain, as lionjax does
         g11 = Gh[0, 0] * w11 + Gh[0, 1] * w12
         g21 = Gh[1, 0] * w11 + Gh[1, 1] * w12
         g12 = Gh[0, 0] * w21 + Gh[0, 1] * w22
@@ -376,7 +377,6 @@ def lion_numpy(x, F, Phi, G0, G1, lam, cdc, Gm, h, tiers):
         tr = zp + zr
         det = zp * zr - zq * zq
         nt = tiers["nfast"] if (tr <= tiers["bound"]).all() else tiers["nslow"]
-        CF = series_coeffs(x.dtype)  # Horner on Y = −Z, as lionjax
         a = np.full_like(zp, CF[nt - 2])
         b = np.full_like(zp, CF[nt - 1])
         for n in range(nt - 3, -1, -1):

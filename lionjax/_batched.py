@@ -385,7 +385,7 @@ class _Plan(eqx.Module):
     midpoint: bool = eqx.field(static=True, default=True)  # the stepper's regressors
     save_blocks: int = eqx.field(static=True, default=0)  # 0: no snapshots; else slabs between
     series_terms: int = eqx.field(static=True, default=0)  # 0: closed-form E (phi_sym2)
-    # carry the midpoint basis w = λₙ(I + Φ)z/2 instead of z (:func:`_maps`)
+    # carry the midpoint basis w = λₙ(I + Φ)z/2 instead of z (:func:`_midpoint_basis`)
     aligned: bool = eqx.field(static=True, default=False)
 
 
@@ -459,10 +459,9 @@ class _Out(eqx.Module):
     snapshots: Array | None  # (K, p, Bs)
 
 
-def _maps(bank: FilterBank, dt: Array, foh: bool, aligned: bool = False) -> tuple[_Maps, Array]:
+def _maps(bank: FilterBank, dt: Array, foh: bool) -> _Maps:
     """Linear maps from (z_k, u_k, u_{k+1}) — columns ``n + 2`` — to the filter's next state and
-    outputs, for one signal under its hold (exact discretisation, :meth:`FilterBank.discretise`),
-    and the change of basis of the carried state (identity, or A below).
+    outputs, for one signal under its hold (exact discretisation, :meth:`FilterBank.discretise`).
 
     - ``next`` (n, n+2): z_{k+1} = Φ z_k + Γ₀ u_k + Γ₁ (u_{k+1} − u_k) (Γ₁ only under foh);
     - ``start``, ``mid``, ``end`` (n+1, n+2): the outputs V₁…V_{n+1} (Vⱼ = sʲ⁻¹/Λ u,
@@ -471,13 +470,6 @@ def _maps(bank: FilterBank, dt: Array, foh: bool, aligned: bool = False) -> tupl
 
     Precomputing them keeps the per-sample work of the kernel to one dot product per output
     (the θ step never recomputes the filter update).
-
-    ``aligned``: the state carried is w = A z, A = λₙ(I + Φ)/2 (λₙ → 1 without unit DC gain):
-    the z-part of the midpoint outputs V₁…V_n. A commutes with Φ, so w_{k+1} = Φ w_k + AΓ(…)
-    (the same Φ, no rounding from a similarity transform), the midpoint outputs are
-    V_j = w_{j−1} + (input terms) and V_{n+1} = −Σ λ w + (input terms), with exact coefficients
-    (1 and the λ's): the θ step reads each of V₁…V_n with two products at most instead of n + 2.
-    The outputs at the start and end of a step read w through A⁻¹ (dense).
     """
     f = _filter(bank, dt)  # Φ, Γ₀, Γ₁, λ reversed and the scale, as the per-record form
     n = bank.order
@@ -492,21 +484,33 @@ def _maps(bank: FilterBank, dt: Array, foh: bool, aligned: bool = False) -> tupl
         return V if f.scale is None else V * f.scale
 
     unit = lambda a, b: jnp.concatenate([jnp.zeros((n,), dtype), jnp.array([a, b], dtype)])
-    maps = _Maps(
+    return _Maps(
         next=nxt,
         start=outputs(start, unit(1.0, 0.0)),
         mid=outputs(0.5 * (start + nxt), unit(0.5, 0.5)),
         end=outputs(nxt, unit(0.0, 1.0)),
     )
-    if not aligned:
-        return maps, jnp.eye(n, dtype=dtype)
+
+
+def _midpoint_basis(maps: _Maps, lam_rev: Array) -> tuple[_Maps, Array]:
+    """``maps`` (:func:`_maps`, the filter's own states z) in the midpoint basis w = A z, and A.
+
+    A = λₙ(I + Φ)/2 (λₙ → 1 without unit DC gain) is the z-part of the midpoint outputs
+    V₁…V_n (``lam_rev``: the filter's λ reversed). A commutes with Φ, so
+    w_{k+1} = Φ w_k + AΓ(…) (the same Φ, no rounding from a similarity transform), and the
+    midpoint outputs are V_j = w_{j−1} + (input terms) and V_{n+1} = −Σ λ w + (input terms),
+    with exact coefficients (1 and the λ's): the θ step reads each of V₁…V_n with two products
+    at most instead of n + 2. The outputs at the start and end of a step read w through A⁻¹
+    (dense).
+    """
+    n = maps.next.shape[0]
     A = maps.mid[:n, :n]  # λₙ(I + Φ)/2
     Ainv = jnp.linalg.inv(A)
     in_w = lambda M: jnp.concatenate([matmul(M[:, :n], Ainv), M[:, n:]], -1)
-    mid_z = jnp.concatenate([jnp.eye(n, dtype=dtype), -f.lam_rev[None]], 0)
+    mid_z = jnp.concatenate([jnp.eye(n, dtype=A.dtype), -lam_rev[None]], 0)
     return (
         _Maps(
-            next=jnp.concatenate([f.Phi, matmul(A, nxt[:, n:])], -1),
+            next=jnp.concatenate([maps.next[:, :n], matmul(A, maps.next[:, n:])], -1),
             start=in_w(maps.start),
             mid=jnp.concatenate([mid_z, maps.mid[:, n:]], -1),
             end=in_w(maps.end),
@@ -517,7 +521,7 @@ def _maps(bank: FilterBank, dt: Array, foh: bool, aligned: bool = False) -> tupl
 
 def _structural(mode: str, foh: bool, n: int, row: int, col: int, aligned: bool = False) -> bool:
     """Whether entry (row, col) of a :func:`_maps` matrix can be non-zero (static sparsity);
-    ``aligned``: the maps of the midpoint basis (:func:`_maps`)."""
+    ``aligned``: the maps of the midpoint basis (:func:`_midpoint_basis`)."""
     if aligned and mode == "mid" and row < n and col < n:  # Vⱼ = w_{j−1} + inputs
         return col == row
     if aligned and mode == "start":  # Vⱼ = (A⁻¹w)_{j−1}·λₙ, dense in w; V_{n+1} also reads u_k
@@ -834,8 +838,8 @@ def _plan_for(
     model: AbstractModel, record0: Record, bank: FilterBank, align: bool = False, **flags
 ) -> _Plan:
     """The :class:`_Plan` of ``model``'s signals and columns; ``align``: carry the filter states
-    in the midpoint basis (:func:`_maps`) when the pass estimates θ with
-    midpoint regressors (shared filter maps only: the compact per-record filter stays in z)."""
+    in the midpoint basis (:func:`_midpoint_basis`) when the pass estimates θ with midpoint
+    regressors (shared filter maps only: the compact per-record filter stays in z)."""
     sigs = model.signals(record0)
     if "x" not in sigs:
         raise InputError(f"{type(model).__name__}.signals must provide 'x' (for W₀).")
@@ -849,12 +853,11 @@ def _plan_for(
             f"lion_batched: the filter must have order n ≥ 3 (V₄ = s³/Λ·x must be proper), "
             f"got n = {bank.order}."
         )
-    x_index = names.index("x")
     aligned = align and flags.get("estimate", False) and flags.get("midpoint", True)
     return _Plan(
         signals=tuple((k, sigs[k][1]) for k in names),
         columns=cols,
-        x_index=x_index,
+        x_index=names.index("x"),
         n=bank.order,
         aligned=aligned,
         **flags,
@@ -925,14 +928,8 @@ class _Stream:
         holds = [sigs0[k][1] == "foh" for k in order]
         per_bank = bool(bank.batch_shape)
         shared_coeffs = not per_bank and jnp.ndim(records.dt) == 0
-        self.aligned = None  # (maps, A) per signal in the midpoint basis (shared maps only)
         if shared_coeffs:  # scalars in the kernel: the composed maps cost nothing to read
-            dt0 = jnp.asarray(records.dt, dtype)
-            maps = tuple(_maps(bank, dt0, f)[0] for f in holds)
-            self.aligned = tuple(
-                jax.tree.map(lambda a: jnp.asarray(a, dtype), _maps(bank, dt0, f, aligned=True))
-                for f in holds
-            )
+            maps = tuple(_maps(bank, jnp.asarray(records.dt, dtype), f) for f in holds)
         else:  # per-record arrays: the compact form, a quarter of the values read per sample
             maps = jax.vmap(_filter, in_axes=(0 if per_bank else None, 0))(bank, dt)
         maps = jax.tree.map(lambda a: jnp.asarray(a, dtype), maps)
@@ -945,6 +942,14 @@ class _Stream:
             ],
             axis=1,
         ).astype(dtype)  # (B, S, n)
+        # the same in the midpoint basis w = A z (shared maps only; passes that estimate θ with
+        # midpoint regressors, :func:`_plan_for`)
+        self.aligned = None
+        if shared_coeffs:
+            lam_rev = bank.coeffs[::-1].astype(dtype)
+            basis = [_midpoint_basis(m, lam_rev) for m in maps]
+            w0 = jnp.stack([matvec(A, z0[:, s]) for s, (_, A) in enumerate(basis)], 1)
+            self.aligned = (tuple(m for m, _ in basis), w0)
         self.per = _Inputs(
             maps=None if shared_coeffs else maps,
             h=None if shared_coeffs else dt,
@@ -981,9 +986,8 @@ class _Stream:
         per = dataclasses.replace(self.per, G=G, theta0=theta0, outputs=tuple(inputs))
         maps = self.shared.maps
         if plan.aligned:  # the states carried in the midpoint basis w = A z
-            maps = tuple(m for m, _ in self.aligned)
-            z0 = jnp.stack([matvec(A, per.z0[:, s]) for s, (_, A) in enumerate(self.aligned)], 1)
-            per = dataclasses.replace(per, z0=z0)
+            maps, w0 = self.aligned
+            per = dataclasses.replace(per, z0=w0)
         shared = dataclasses.replace(
             self.shared,
             maps=maps,

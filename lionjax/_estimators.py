@@ -43,7 +43,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from ._errors import RESULTS, InputError
 from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
-from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2
+from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2, step_products
 from ._record import Record
 from ._solution_tools import by_name, check_duration, convergence_time, finish, transient_mask
 
@@ -363,22 +363,12 @@ class EulerStep(AbstractSampleStepper):
         _check_mu(self.normalisation, "EulerStep")
 
     def increment(self, theta, W1, W2, y1, y2, G, h, *, series=0, one=None):
-        p = len(theta)
         c = _scale(self.normalisation, W1, W2)
-        Gh = [[h * G[i][j] for j in range(p)] for i in range(p)]  # h folded into the gain
-        GW1 = [sum(Gh[i][j] * W1[j] for j in range(p)) for i in range(p)]
-        GW2 = [sum(Gh[i][j] * W2[j] for j in range(p)) for i in range(p)]
-        if c is not None:
-            GW1, GW2 = [c * v for v in GW1], [c * v for v in GW2]
-        e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
-        e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
-        S11 = sum(W1[i] * GW1[i] for i in range(p))  # hS
-        S12 = sum(W1[i] * GW2[i] for i in range(p))
-        S22 = sum(W2[i] * GW2[i] for i in range(p))
+        GW1, GW2, (S11, S12, S22), (e1, e2) = step_products(theta, W1, W2, y1, y2, G, h, c)
         # h‖G WᵀW‖ = the largest eigenvalue of hS = W(hG)Wᵀ (2×2 symmetric PSD)
         rho = 0.5 * (S11 + S22) + jnp.sqrt(0.25 * (S11 - S22) ** 2 + S12 * S12)
-        d = materialise([GW1[i] * e1 + GW2[i] * e2 for i in range(p)], one, multiply=True)
-        return d, rho <= 2.0
+        d = [a * e1 + b * e2 for a, b in zip(GW1, GW2, strict=True)]
+        return materialise(d, one, multiply=True), rho <= 2.0
 
 
 def _check_mu(mu, what: str) -> None:

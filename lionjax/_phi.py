@@ -173,6 +173,27 @@ def materialise(values: list, guard, multiply: bool = False) -> list:
     return out[: len(values)]
 
 
+def step_products(theta, W1, W2, y1, y2, G, h, c=None):
+    """The products every per-sample step of θ̇ = −c·G Wᵀ(Wθ + W₀) starts from, elementwise:
+    the columns K₁ = c(hG)W₁ and K₂ = c(hG)W₂ (p entries each; Δθ is K₁f₁ + K₂f₂ for some f),
+    hS = W·c(hG)·Wᵀ as (S11, S12, S22), and ε = Wθ + W₀ as (e1, e2). Arguments as in
+    :func:`exact_step`. h is folded into the gain first (hG: scalars when G and h are shared,
+    hoisted out of the per-record work), so nothing after takes a product by h."""
+    p = len(theta)
+    Gh = [[h * G[i][j] for j in range(p)] for i in range(p)]
+    GW1 = [sum(Gh[i][j] * W1[j] for j in range(p)) for i in range(p)]
+    GW2 = [sum(Gh[i][j] * W2[j] for j in range(p)) for i in range(p)]
+    if c is not None:
+        GW1 = [c * v for v in GW1]
+        GW2 = [c * v for v in GW2]
+    S11 = sum(W1[i] * GW1[i] for i in range(p))
+    S12 = sum(W1[i] * GW2[i] for i in range(p))
+    S22 = sum(W2[i] * GW2[i] for i in range(p))
+    e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
+    e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
+    return GW1, GW2, (S11, S12, S22), (e1, e2)
+
+
 def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, guard=None):
     """One exact step of θ̇ = −c·G Wᵀ(Wθ + W₀) over h, elementwise over any batch shape:
     θ ← θ − h·cGWᵀ E(hS) (Wθ + W₀), S = c·WGWᵀ, E(Z) = (I − e^{−Z})Z⁻¹.
@@ -184,21 +205,10 @@ def exact_step(theta, W1, W2, y1, y2, G, h, c=None, phi=None, guard=None):
     are materialised once per sample), or a function of tr(hS) returning it. Returns the increments
     Δθ (p entries): the new θ is θ − Δθ.
 
-    h is folded into the gain first (hG: scalars when G and h are shared, hoisted out of the
-    per-record work), so hS = c·W(hG)Wᵀ and Δθ = c(hG)Wᵀ E(hS) ε take no further products by h.
+    h is folded into the gain first (:func:`step_products`).
     """
     p = len(theta)
-    Gh = [[h * G[i][j] for j in range(p)] for i in range(p)]
-    GW1 = [sum(Gh[i][j] * W1[j] for j in range(p)) for i in range(p)]
-    GW2 = [sum(Gh[i][j] * W2[j] for j in range(p)) for i in range(p)]
-    if c is not None:
-        GW1 = [c * v for v in GW1]
-        GW2 = [c * v for v in GW2]
-    S11 = sum(W1[i] * GW1[i] for i in range(p))  # hS
-    S12 = sum(W1[i] * GW2[i] for i in range(p))
-    S22 = sum(W2[i] * GW2[i] for i in range(p))
-    e1 = sum(W1[i] * theta[i] for i in range(p)) + y1
-    e2 = sum(W2[i] * theta[i] for i in range(p)) + y2
+    GW1, GW2, (S11, S12, S22), (e1, e2) = step_products(theta, W1, W2, y1, y2, G, h, c)
     ep, eq, er = (phi_sym2 if phi is None else phi)(S11, S12, S22)
     f1 = ep * e1 + eq * e2
     f2 = eq * e1 + er * e2
