@@ -112,7 +112,10 @@ def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
 class ModeColumns(AbstractEffect):
     """A flexible mode at (ω [rad/s], ζ): columns −(s²/Λ)[h_x], +(1/Λ)[h_F], h = (s²/D)[·]
     (module docstring); parameters μ (mass ratio) and β = κ·b. With ``input=False`` the
-    collocated mode alone (κ = 0: the h_x column and μ only)."""
+    collocated mode alone (κ = 0: the h_x column and μ only). :meth:`signals` gives h's samples
+    for a generic design (filtered again under a hold: approximate); the diagnosis puts the
+    exact columns (:func:`~._fit.mode_columns`) in its regressors instead, and adds the mode's
+    free response (:meth:`free_response`) to the refitted initial-state columns."""
 
     acts_on_force: ClassVar[bool] = False  # μ multiplies an acceleration: not divided by b
 
@@ -141,6 +144,12 @@ class ModeColumns(AbstractEffect):
             padded_length(record.n_samples),
         )
         return {nx: (hx, "foh"), nF: (hF, "zoh")}
+
+    def free_response(self, dt: float, Tp: int):
+        """The mode's initial-state columns (Tp, 2) (:func:`~._fit.mode_free_response`)."""
+        from ._fit import mode_free_response
+
+        return mode_free_response(self.omega, self.zeta, dt, Tp)
 
     def physical(self, theta: Array, b: Array) -> dict:
         beta = theta[..., 1] if self.input else jnp.zeros_like(theta[..., 0])

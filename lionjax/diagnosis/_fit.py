@@ -257,6 +257,68 @@ def mode_signals(
     return out
 
 
+@jax.jit
+def _mode_discretes(omega, zeta, lam, dt) -> Discrete:
+    """The exact sampled filters (a batch over ``omega``, ``zeta`` (m,)) of
+    λ³·s²/((s + λ)³·D(s)), D = s² + 2ζωs + ω², with outputs λ³·s^(k+2)/((s + λ)³D), k = 0…3:
+    the diagnosis filter's V₁…V₄ (unit DC gain) of the mode signal h = (s²/D)[u], each in one
+    filter of order 5."""
+
+    def one(w, z):
+        wd = w * jnp.sqrt(jnp.maximum(1.0 - z * z, 0.0))
+        p = jnp.stack([-lam + 0j, -lam + 0j, -lam + 0j, -z * w + 1j * wd, -z * w - 1j * wd])
+        bank = FilterBank.from_poles(p)
+        Phi, G0, G1 = bank.discretise(dt)
+        c = bank.coeffs
+        eye = jnp.eye(5, dtype=c.dtype)
+        C = jnp.stack([eye[2], eye[3], eye[4], -c[::-1]]) * lam**3  # s⁵/(ΛD)u = u − Σ λⱼzⱼ
+        D = jnp.zeros((4,), c.dtype).at[3].set(lam**3)
+        return Discrete(Phi, G0, G1, C, D, c[-1])
+
+    return jax.vmap(one)(omega, zeta)
+
+
+def mode_free_response(omega: float, zeta: float, dt: float, Tp: int) -> np.ndarray:
+    """(Tp, 2) samples of e^(−ζωt)·(cos ω_d t, sin ω_d t), ω_d = ω√(1 − ζ²): the mode's own
+    free response. The mode's columns start from a steady state (the record constant before
+    t = 0); a record that starts with the mode deflected carries this transient in them
+    (time constant 1/ζω: 0.4 s at 17 Hz, ζ = 0.02), which only these two columns, refitted on
+    each record like the filter's initial state, absorb."""
+    t = np.arange(Tp) * float(dt)
+    wd = omega * math.sqrt(max(1.0 - zeta * zeta, 0.0))
+    env = np.exp(-zeta * omega * t)
+    return np.stack([env * np.cos(wd * t), env * np.sin(wd * t)], 1)
+
+
+def mode_columns(
+    record_x, record_F, dt: float, modes, lam: float, Tp: int
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(V[h_x], V[h_F]), each ``(Tp, 4)``, for each mode (ω [rad/s], ζ) in ``modes``: the
+    diagnosis filter's outputs λ³s^(j−1)/(s + λ)³, j = 1…4, of h = (s²/D)[·], computed as ONE
+    exact sampled filter λ³s^(j+1)/((s + λ)³D) of x under the first-order hold of its
+    :func:`hold_corrected` samples and of F under the zero-order hold.
+
+    Filtering h's samples again (:func:`mode_signals`, then the diagnosis filter under a hold)
+    is not exact: h_F jumps with every step of F and then rings at the mode, so neither hold
+    describes it, and the non-collocated mode's input path b(1 − s²/D)F = b·(2ζωs + ω²)/D·F is
+    the small difference of two such columns: on a noise-free 905 Hz record (f_mode 17 Hz)
+    the two-stage columns left a quarter of the excess error at the true (ω, ζ)."""
+    xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
+    out = []
+    per = S_BATCH // 2
+    for i in range(0, len(modes), per):
+        chunk = list(modes[i : i + per])
+        m = len(chunk)
+        chunk += [chunk[-1]] * (per - m)
+        wz = np.repeat(np.asarray(chunk, np.float64), 2, axis=0)  # (x, F) of each mode
+        dsc = _mode_discretes(_f(wz[:, 0]), _f(wz[:, 1]), _f(lam), _f(dt))
+        U = np.stack([u for _ in chunk for u in (xp, Fp)])
+        foh = np.tile([1.0, 0.0], per)
+        V = np.asarray(_filter_systems(dsc, jnp.asarray(U), jnp.asarray(foh)), np.float64)
+        out += [(V[2 * j], V[2 * j + 1]) for j in range(m)]
+    return out
+
+
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
     """Σh² of ε₁'s response to unit white noise on x (foh) and on b·F (zoh).
 
@@ -432,6 +494,17 @@ class Regressors:
             if any(c.signal in names for c in k[1]):
                 del self.cache[k]
 
+    def nuisance(self, model: AbstractModel) -> np.ndarray:
+        """(Tp, n) initial-state columns of a structure, refitted on every record: the filter's
+        free response :attr:`N`, plus each effect's own (``free_response``: a flexible mode's
+        decaying oscillation, which its columns carry from an unknown initial deflection)."""
+        extra = [
+            np.asarray(e.free_response(self.dt, self.Tp), np.float64)
+            for e in getattr(model, "effects", ())
+            if hasattr(e, "free_response")
+        ]
+        return np.concatenate([self.N, *extra], 1) if extra else self.N
+
     def _raw(self, model: AbstractModel, names: Sequence[str]) -> dict:
         missing = {n for n in names if n not in self.known and n not in self.cache}
         for e in getattr(model, "effects", ()):  # signals the diagnosis does not precompute:
@@ -449,7 +522,8 @@ class Regressors:
         of unused slots, the column count and the design for u = F."""
         cols = model.columns()
         p = len(cols)
-        n_nuis = self.N.shape[1]
+        nuis = self.nuisance(model)
+        n_nuis = nuis.shape[1]
         if p + n_nuis > P_MAX:
             raise ValueError(f"structure with {p} columns exceeds P_MAX = {P_MAX}")
         fixed = sorted({c.signal for c in cols if c.signal not in F_DEP})
@@ -477,7 +551,7 @@ class Regressors:
                 kk += 1
             else:
                 Wfix[:, j] = c.sign * filt[c.signal][:, c.order]
-        Wfix[:, p : p + n_nuis] = self.N
+        Wfix[:, p : p + n_nuis] = nuis
         pad = np.zeros((self.Tp, P_MAX))
         for j in range(p + n_nuis, P_MAX):
             pad[self.T + j, j] = 1.0
@@ -561,7 +635,7 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
     """
     Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
     coef, rss, gi, cond = _solve_grid(regs, Wfix, mult, onehot, pad, regs.W0, inputs, Wdef)
-    n_cols = p + regs.N.shape[1]
+    n_cols = p + regs.nuisance(model).shape[1]
     s2 = rss / max(regs.T - n_cols, 1)
     cov = s2[:, None, None] * gi[:, :p, :p]
     return coef[:, :p], rss, cov, cond
@@ -574,7 +648,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -
     columns take the K first unused slots (whose unit pad columns leave the design); only their
     Gram blocks are new."""
     Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
-    n = p + regs.N.shape[1]
+    n = p + regs.nuisance(model).shape[1]
     m, K, _ = cols.shape
     if n + K > P_MAX:
         raise ValueError(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
@@ -599,15 +673,16 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
         V = filter_signals(regs.dsc, mult * u[None, :], np.zeros(mult.shape[0]))[:, :, 0]
         W += (V.T @ onehot)[:, :p]
     r0 = W @ np.asarray(theta) + regs.W0
-    n = regs.N.shape[1]
+    nuis = regs.nuisance(model)
+    n = nuis.shape[1]
     Nfix = np.zeros((regs.Tp, P_MAX))
-    Nfix[:, :n] = regs.N
+    Nfix[:, :n] = nuis
     padn = np.zeros((regs.Tp, P_MAX))
     for j in range(n, P_MAX):
         padn[regs.T + j, j] = 1.0
     zk = np.zeros((K_BUCKETS[0], regs.Tp)), np.zeros((K_BUCKETS[0], P_MAX))
     eta = _solve_grid(regs, Nfix, *zk, padn, r0, [(0.0, math.inf)], Nfix)[0][0, :n]
-    return (r0 + regs.N @ eta)[: regs.T]
+    return (r0 + nuis @ eta)[: regs.T]
 
 
 # ----------------------------------------------------------------------------- simulation
