@@ -145,6 +145,20 @@ def test_strong_evidence_is_not_none():
     assert d.verdict == "unexplained"
 
 
+def test_quantisation_fed_back_is_no_mode():
+    """A clean closed-loop record (independent simulator, 1.3 kHz, 4 µm encoder, PD on the
+    measured position) whose quantisation the loop feeds back into F: a "mode" at 82 Hz fits
+    it (score > threshold) but deflects the axis by a quarter of the position noise, so it is
+    not plausible and the verdict is ``none`` (it was ``flexible_mode`` at confidence 1.0)."""
+    train, valid, info = blind.make_case("none", 2001001, source="scipy")
+    assert info["closed_loop"] and info["q"] > 3e-6
+    d = lj.diagnose(train, valid)
+    mode = next(e for e in d.effects if e.name == "flexible_mode")
+    assert mode.score > 10 and not mode.plausible and "position noise" in mode.reason
+    assert mode.params["deflection"] < 0.5 * d.noise["position_std"]
+    assert d.verdict == "none"
+
+
 def test_gram_solve_is_float64_without_x64():
     """The diagnosis' solve (augmented Gram → lj's gram_lstsq) against numpy's lstsq (an
     independent SVD reference) at 1e-9, with jax_enable_x64 switched off by the caller."""

@@ -63,6 +63,7 @@ from ._fit import (
     impulse_gains,
     mode_columns,
     mode_free_response,
+    mode_signals,
     residual,
     rss_with_columns,
     simulate_windows,
@@ -238,6 +239,7 @@ class _Fitter:
         self.mode_input = True  # the flexible mode's κ column: chosen in diagnose(), then fixed
         self._modes: dict[bool, tuple[float, float]] = {}  # (ω, ζ) profiled per variant
         self._coarse: tuple | None = None  # the coarse mode grid and its RSS per variant
+        self._h_valid: dict = {}  # rms((s²/D)[x]) on validation per mode (ω, ζ)
         self.degree = 1  # of the position-dependent a(x), b(x): chosen in diagnose(), then fixed
 
     @property
@@ -400,6 +402,11 @@ class _Fitter:
             phys["x0"] = phys["F0"] / phys["k"] if phys["k"] != 0 else math.nan
         if any(c.profiled == "mode" for c in cands):
             phys["f_mode"], phys["zeta_mode"] = self.mode[0] / (2 * math.pi), self.mode[1]
+            # the mode's deflection μ·(s²/D)[x] on validation, against the position noise
+            if self.mode not in self._h_valid:
+                ((hx, _),) = mode_signals(self.valid.x, self.valid.F, dt, [self.mode], self.rva.Tp)
+                self._h_valid[self.mode] = float(np.std(hx[: self.valid.n_samples]))
+            phys["deflection"] = abs(phys.get("mass_ratio", 0.0)) * self._h_valid[self.mode]
         if any(c.profiled == "degree" for c in cands):
             phys["x_center"] = self.st.x_center
         sim = self._simulate(phys, u_va, cands)
@@ -662,7 +669,7 @@ def diagnose(
     gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     n_eff = _n_eff(base.residual)
-    limits = Limits(float(np.max(np.abs(np.asarray(train.F)))), st.dt)
+    limits = Limits(float(np.max(np.abs(np.asarray(train.F)))), st.dt, sx)
 
     def excess(ms):
         return max(ms - floor**2, 0.0)
