@@ -322,9 +322,11 @@ class _Fitter:
         grid, coarse = self._coarse
         i = int(np.argmin(coarse[self.mode_input]))
         (w, z), best = grid[i], float(coarse[self.mode_input][i])
-        # pattern search: the 8 neighbours of the best on a 3×3 grid in (ln ω, ln ζ); move while
-        # a neighbour is better, halve the steps when none is (MODE_ROUNDS halvings, at most
-        # MODE_STEPS rings). A lightly damped mode's valley is narrow and curved in (ω, ζ): a
+        # pattern search: the 8 neighbours of the best on a 3×3 grid in (ln ω, ln ζ), within the
+        # grid's frequencies and MODE_ZETA_RANGE; move while a neighbour is better, halve the
+        # steps when none is (MODE_ROUNDS halvings, at most MODE_STEPS rings). Unbounded, it
+        # walked to 0.34 Hz on a 4 s record, where the mode's free response is a slow trend.
+        # A lightly damped mode's valley is narrow and curved in (ω, ζ): a
         # zoom that halved every round stopped on its flank (17.6 Hz, ζ 0.047 for a true
         # 16.9 Hz, 0.023, from the coarse best at 20 Hz, 0.1), and at ζ = 0.02 the half-power
         # band is ±2 % where the coarse grid's step is ±13 %
@@ -333,7 +335,10 @@ class _Fitter:
         halvings = 0
         for _ in range(MODE_STEPS):
             ring = [
-                (w * math.exp(i * sw), min(max(z * math.exp(j * sz), lo), hi))
+                (
+                    min(max(w * math.exp(i * sw), ws[0]), ws[-1]),
+                    min(max(z * math.exp(j * sz), lo), hi),
+                )
                 for i in (-1, 0, 1)
                 for j in (-1, 0, 1)
                 if i or j
