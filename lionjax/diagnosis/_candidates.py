@@ -204,6 +204,9 @@ MAX_MODE_MASS = 0.6
 MODE_OVER_HOLD = 3.0
 #: Smallest ratio of a mode's deflection rms(μ·(s²/D)[x]) to the position noise.
 MODE_OVER_NOISE = 2.0
+#: Damping ratios a flexible mode's profile searches (a flexible mode is lightly damped); a fit
+#: that ends at the upper limit has not found a resonance.
+MODE_ZETA_RANGE = (0.005, 0.4)
 
 
 def _b_positive(phys) -> str:
@@ -364,7 +367,9 @@ class FlexibleModeCandidate(AbstractCandidate):
     also fits the feedback of position noise into F, and biases μ). Plausible when
     0 < μ ≤ :data:`MAX_MODE_MASS`, −0.5 ≤ κ ≤ 1.5, μ ≥ :data:`MODE_OVER_HOLD`·(ωh)²/12 and
     its deflection rms(μ·(s²/D)[x]) on the validation record (``deflection`` [m]) at least
-    :data:`MODE_OVER_NOISE` times the position noise: a "mode" carrying most of the mass may be
+    :data:`MODE_OVER_NOISE` times the position noise, with ζ below the upper limit of
+    :data:`MODE_ZETA_RANGE` (held-out cogging and backlash records were fitted as "modes" at
+    ζ = 0.4, the limit, one named at confidence 0.95): a "mode" carrying most of the mass may be
     friction's pre-sliding stiffness, one far above the excitation with μ/ω² ≈ h²/12 reproduces
     the sampling's hold error (h the sample interval), and one whose deflection is below an
     encoder count fits the quantisation that a position loop feeds back into F, not the device
@@ -412,6 +417,11 @@ class FlexibleModeCandidate(AbstractCandidate):
             )
         if not -0.5 <= r.get("input_share", 0) <= 1.5:
             return "no flexible mode: input share outside [−0.5, 1.5]"
+        if r.get("zeta_mode", 0.0) >= 0.99 * MODE_ZETA_RANGE[1]:
+            return (
+                f"no flexible mode: its damping ratio ends at the search's limit "
+                f"{MODE_ZETA_RANGE[1]:g} (a broadband filter, not a resonance)"
+            )
         if r.get("deflection", math.inf) < MODE_OVER_NOISE * lim.position_noise:
             return (
                 f"no flexible mode: its deflection μ·(s²/D)[x] (rms {r['deflection']:.3g} m) is "

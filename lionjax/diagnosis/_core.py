@@ -51,6 +51,7 @@ from .._tables import jsonable
 from ..twin._windows import WINDOW_PARAMETERS
 from ._candidates import (
     DEFAULT_CANDIDATES,
+    MODE_ZETA_RANGE,
     AbstractCandidate,
     Context,
     Limits,
@@ -108,9 +109,8 @@ MAX_DELAY_S = 0.03
 MODE_BAND = (0.1, 4.0)
 MODE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 MODE_N = 16
-#: Damping ratios the refinement may reach (a flexible mode is lightly damped), the halvings
-#: of its pattern search's steps and its most rings of 8 evaluations.
-MODE_ZETA_RANGE = (0.005, 0.4)
+#: The halvings of the mode's pattern search's steps and its most rings of 8 evaluations (the
+#: damping ratios it may reach: MODE_ZETA_RANGE).
 MODE_ROUNDS = 4
 MODE_STEPS = 16
 #: Soft-saturation levels in the F_max grid.
