@@ -228,6 +228,26 @@ def _filter_systems(dsc: Discrete, U, foh):
     return jax.vmap(_filt)(dsc, U, foh)
 
 
+def _mode_filters(record_x, record_F, modes, Tp: int, discretes) -> list[np.ndarray]:
+    """x (first-order hold) and F (zero-order hold) of a record through one filter per mode,
+    ``discretes(chunk)`` giving the batch of :class:`Discrete` (x's, F's) of each (ω, ζ) of a
+    chunk; on bucketed shapes in fixed batches of :data:`S_BATCH` signals. Returns, per mode,
+    the outputs ``(2, Tp, 4)`` of x and F."""
+    xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
+    out = []
+    per = S_BATCH // 2
+    for i in range(0, len(modes), per):
+        chunk = list(modes[i : i + per])
+        m = len(chunk)
+        chunk += [chunk[-1]] * (per - m)
+        U = np.stack([u for _ in chunk for u in (xp, Fp)])
+        foh = np.tile([1.0, 0.0], per)
+        dsc = discretes(chunk)
+        V = np.asarray(_filter_systems(dsc, jnp.asarray(U), jnp.asarray(foh)), np.float64)
+        out += [V[2 * j : 2 * j + 2] for j in range(m)]
+    return out
+
+
 def mode_signals(
     record_x, record_F, dt: float, modes, Tp: int
 ) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -238,22 +258,17 @@ def mode_signals(
     (:meth:`~lionjax.diagnosis._candidates.ModeColumns.signals` calls it)."""
     from ._candidates import mode_bank, mode_output
 
-    T = np.asarray(record_x).size
-    xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
-    out = []
-    per = S_BATCH // 2
-    for i in range(0, len(modes), per):
-        chunk = list(modes[i : i + per])
-        m = len(chunk)
-        chunk += [chunk[-1]] * (per - m)
+    def discretes(chunk):
         ds = [Discrete.of(mode_bank(w, z), dt) for w, z in chunk for _ in (0, 1)]
-        dsc = jax.tree.map(lambda *a: jnp.stack(a), *ds)
-        U = np.stack([u for _ in chunk for u in (xp, Fp)])
-        foh = np.tile([1.0, 0.0], per)
-        V = np.asarray(_filter_systems(dsc, jnp.asarray(U), jnp.asarray(foh)), np.float64)
-        w = np.repeat([float(w) for w, _ in chunk], 2)
-        h = mode_output(V[:, :T], w[:, None])
-        out += [(h[2 * j], h[2 * j + 1]) for j in range(m)]
+        return jax.tree.map(lambda *a: jnp.stack(a), *ds)
+
+    T = np.asarray(record_x).size
+    out = []
+    for (w, _), V in zip(
+        modes, _mode_filters(record_x, record_F, modes, Tp, discretes), strict=True
+    ):
+        h = mode_output(V[:, :T], float(w))
+        out.append((h[0], h[1]))
     return out
 
 
@@ -303,20 +318,12 @@ def mode_columns(
     describes it, and the non-collocated mode's input path b(1 − s²/D)F = b·(2ζωs + ω²)/D·F is
     the small difference of two such columns: on a noise-free 905 Hz record (f_mode 17 Hz)
     the two-stage columns left a quarter of the excess error at the true (ω, ζ)."""
-    xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
-    out = []
-    per = S_BATCH // 2
-    for i in range(0, len(modes), per):
-        chunk = list(modes[i : i + per])
-        m = len(chunk)
-        chunk += [chunk[-1]] * (per - m)
+
+    def discretes(chunk):
         wz = np.repeat(np.asarray(chunk, np.float64), 2, axis=0)  # (x, F) of each mode
-        dsc = _mode_discretes(_f(wz[:, 0]), _f(wz[:, 1]), _f(lam), _f(dt))
-        U = np.stack([u for _ in chunk for u in (xp, Fp)])
-        foh = np.tile([1.0, 0.0], per)
-        V = np.asarray(_filter_systems(dsc, jnp.asarray(U), jnp.asarray(foh)), np.float64)
-        out += [(V[2 * j], V[2 * j + 1]) for j in range(m)]
-    return out
+        return _mode_discretes(_f(wz[:, 0]), _f(wz[:, 1]), _f(lam), _f(dt))
+
+    return [(V[0], V[1]) for V in _mode_filters(record_x, record_F, modes, Tp, discretes)]
 
 
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
