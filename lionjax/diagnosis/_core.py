@@ -333,6 +333,7 @@ class _Fitter:
         sw, sz = 0.5 * math.log(ws[1] / ws[0]), 0.5 * math.log(3.0)
         lo, hi = MODE_ZETA_RANGE
         halvings = 0
+        seen: dict[tuple[float, float], float] = {}  # successive rings (and clamps) share points
         for _ in range(MODE_STEPS):
             ring = [
                 (
@@ -343,7 +344,11 @@ class _Fitter:
                 for j in (-1, 0, 1)
                 if i or j
             ]
-            r = rss_of(ring, (self.mode_input,))[self.mode_input]
+            todo = list(dict.fromkeys(q for q in ring if q not in seen))
+            if todo:
+                r = rss_of(todo, (self.mode_input,))[self.mode_input]
+                seen.update(zip(todo, r, strict=True))
+            r = np.array([seen[q] for q in ring])
             if float(np.min(r)) < best:
                 (w, z), best = ring[int(np.argmin(r))], float(np.min(r))
                 continue

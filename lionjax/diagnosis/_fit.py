@@ -491,26 +491,31 @@ class Regressors:
         return {n: self.cache[n] for n in raw}
 
     def drop(self, names) -> None:
-        """Forget raw and filtered signals ``names`` and every cached layout that uses them
-        (profiled columns: one structure per grid point would otherwise stay in memory)."""
+        """Forget raw and filtered signals ``names`` and every cached layout and nuisance that
+        uses them (profiled columns: one structure per grid point would otherwise stay in
+        memory)."""
         names = set(names)
         for n in names:
             self.known.pop(n, None)
             self.cache.pop(n, None)
-        for k in [k for k in self.cache if isinstance(k, tuple) and k[0] == "layout"]:
+        for k in [k for k in self.cache if isinstance(k, tuple) and k[0] in ("layout", "nuisance")]:
             if any(c.signal in names for c in k[1]):
                 del self.cache[k]
 
     def nuisance(self, model: AbstractModel) -> np.ndarray:
         """(Tp, n) initial-state columns of a structure, refitted on every record: the filter's
         free response :attr:`N`, plus each effect's own (``free_response``: a flexible mode's
-        decaying oscillation, which its columns carry from an unknown initial deflection)."""
-        extra = [
-            np.asarray(e.free_response(self.dt, self.Tp), np.float64)
-            for e in getattr(model, "effects", ())
-            if hasattr(e, "free_response")
-        ]
-        return np.concatenate([self.N, *extra], 1) if extra else self.N
+        decaying oscillation, which its columns carry from an unknown initial deflection);
+        cached per structure."""
+        key = ("nuisance", _model_key(model))
+        if key not in self.cache:
+            extra = [
+                np.asarray(e.free_response(self.dt, self.Tp), np.float64)
+                for e in getattr(model, "effects", ())
+                if hasattr(e, "free_response")
+            ]
+            self.cache[key] = np.concatenate([self.N, *extra], 1) if extra else self.N
+        return self.cache[key]
 
     def _raw(self, model: AbstractModel, names: Sequence[str]) -> dict:
         missing = {n for n in names if n not in self.known and n not in self.cache}
