@@ -510,6 +510,8 @@ class EffectScore:
     significant: bool
     reason: str
     plausible: bool = True
+    #: rms of ε₁ removed on validation over the rms of the input's term b·F/Λ
+    size: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -600,6 +602,7 @@ def diagnose(
     window_s: float | None = None,
     threshold: float = 10.0,
     min_share: float = 0.3,
+    min_size: float = 0.005,
     floor_factor: float = 1.5,
     max_effects: int = 3,
 ) -> Diagnosis:
@@ -618,6 +621,9 @@ def diagnose(
             effect is significant.
         min_share: least fraction of the excess gap (above the noise floor, in mean square) an
             effect must remove to be named.
+        min_size: least size of a named effect: the rms of ε₁ it removes on validation over
+            the rms of the input's term b·F/Λ there (0.5 %) — with a precise encoder and no noise,
+            a spring of 10⁻⁵ of the force is statistically significant and of no consequence.
         floor_factor: the gap is "at the noise floor" when ε₁'s rms ≤ floor_factor × floor.
         max_effects: largest stack.
 
@@ -652,10 +658,15 @@ def diagnose(
             f"diagnose: train and valid must share the sample interval, got dt = "
             f"{float(train.dt)!r} s and {float(valid.dt)!r} s; resample one of them."
         )
-    if not 0 <= min_share < 1 or not threshold >= 0 or not floor_factor >= 1:
+    if (
+        not 0 <= min_share < 1
+        or not threshold >= 0
+        or not floor_factor >= 1
+        or not 0 <= min_size < 1
+    ):
         raise InputError(
-            "diagnose: expected 0 ≤ min_share < 1, threshold ≥ 0, floor_factor ≥ 1, got "
-            f"{min_share!r}, {threshold!r}, {floor_factor!r}."
+            "diagnose: expected 0 ≤ min_share < 1, threshold ≥ 0, floor_factor ≥ 1, "
+            f"0 ≤ min_size < 1, got {min_share!r}, {threshold!r}, {floor_factor!r}, {min_size!r}."
         )
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
@@ -679,21 +690,36 @@ def diagnose(
     gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     n_eff = _n_eff(base.residual)
+    # the scale of ε₁'s input term b·F/Λ on validation, against which an effect's size counts
+    Fv = np.asarray(valid.F, np.float64)
+    hF = fitter.rva.filtered({"F scale": (Fv - np.mean(Fv), "zoh")})["F scale"]
+    force_rms = max(abs(b) * float(np.sqrt(np.mean(hF[: valid.n_samples, 0] ** 2))), 1e-300)
     limits = Limits(float(np.max(np.abs(np.asarray(train.F)))), st.dt, sx)
 
-    def excess(ms):
-        return max(ms - floor**2, 0.0)
+    # the floor the scores and shares count from (set below, once every candidate is fitted):
+    # the estimate above is an upper bound only for white, independent noise on x and F — in
+    # closed loop F carries the controller's response to the position noise, which partly
+    # cancels the noise's path through x in ε₁, and a quantised position is not white at high
+    # sample rates; the validation error of any fitted model bounds the true floor from above
+    fl = {"fit": floor}
 
-    def score_of(cur: Fitted, new: Fitted, p: int) -> float:
+    def excess(ms):
+        return max(ms - fl["fit"] ** 2, 0.0)
+
+    def has_mode(cands) -> bool:
+        return any(k.profiled == "mode" for k in cands)
+
+    def score_of(cur: Fitted, new: Fitted, p: int, mode: bool = False) -> float:
         # mean squares below the noise floor count as the floor: ε₁ carries the position noise
         # through s²/Λ, and a column with high-frequency content of x (a flexible mode) can
-        # cancel part of that noise — a gain on noise, not on the gap
-        lo = max(floor**2, 1e-300)
+        # cancel part of that noise — a gain on noise, not on the gap; so a fit with the mode's
+        # columns counts from the estimated floor, the others from the fitted one
+        lo = max((floor if mode else fl["fit"]) ** 2, 1e-300)
         gain = math.log(max(cur.ms_valid, lo) / max(new.ms_valid, lo))
         return n_eff * gain - p * math.log(n_eff)
 
-    def assess(cur, new, cand) -> EffectScore:
-        sc = score_of(cur, new, fitter.params(cand))
+    def assess(cur, new, cand, with_mode: bool) -> EffectScore:
+        sc = score_of(cur, new, fitter.params(cand), with_mode)
         ex0 = excess(cur.ms_valid)
         share = 1 - excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
         why = cand.implausible(new.physical, limits)
@@ -707,7 +733,8 @@ def diagnose(
             and math.isfinite(cur.gap)
             and not new.gap <= (1 + MAX_WORSENING) * cur.gap
         )
-        sig = sc > threshold and share >= min_share and plausible and not worse
+        size = math.sqrt(max(cur.ms_valid - new.ms_valid, 0.0)) / force_rms
+        sig = sc > threshold and share >= min_share and size >= min_size and plausible and not worse
         if plausible:
             why = (
                 "significant"
@@ -716,6 +743,8 @@ def diagnose(
                 if sc <= threshold
                 else "removes too little"
                 if share < min_share
+                else f"too small ({size:.2g} of the input's term, least {min_size})"
+                if size < min_size
                 else f"makes the simulated gap worse ({new.gap:.3g} m against {cur.gap:.3g} m)"
             )
         return EffectScore(
@@ -730,13 +759,14 @@ def diagnose(
             significant=bool(sig),
             reason=why,
             plausible=plausible,
+            size=size,
         )
 
     # every candidate alone; the position-dependent degree is chosen here, by the same
     # validated score as the candidates (each degree pays its own parameters), then fixed
-    alone: dict[str, tuple[EffectScore, Fitted]] = {}
+    fitted: dict[str, Fitted] = {}
     for c in candidates:
-        # variants chosen by the validated score, each paying its own parameters: the degree of
+        # variants chosen by their validated BIC, each paying its own parameters: the degree of
         # the position dependence, the flexible mode with or without its input-share column
         if c.profiled == "degree":
             variants = [(d, fitter.mode_input) for d in range(1, MAX_POSITION_DEGREE + 1)]
@@ -748,9 +778,20 @@ def diagnose(
         for deg, inp in variants:
             fitter.degree, fitter.mode_input = deg, inp
             f = fitter.fit([c])
-            tries.append((assess(base, f, c), f, (deg, inp)))
-        s_best, f_best, (fitter.degree, fitter.mode_input) = max(tries, key=lambda t: t[0].score)
-        alone[c.name] = (s_best, f_best)
+            lo = floor**2 if c.profiled == "mode" else 1e-300  # (the mode: see score_of)
+            bic = n_eff * math.log(max(f.ms_valid, lo)) + fitter.params(c) * math.log(n_eff)
+            tries.append((bic, f, (deg, inp)))
+        _, fitted[c.name], (fitter.degree, fitter.mode_input) = min(tries, key=lambda t: t[0])
+    fl["fit"] = math.sqrt(
+        min(
+            floor**2,
+            base.ms_valid,
+            *(fitted[c.name].ms_valid for c in candidates if c.profiled != "mode"),
+        )
+    )
+    alone = {
+        c.name: (assess(base, fitted[c.name], c, has_mode([c])), fitted[c.name]) for c in candidates
+    }
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
 
     # greedy stacking
@@ -762,7 +803,7 @@ def diagnose(
         trials = []
         for c in pool:
             f = alone[c.name][1] if not stack else fitter.fit([*stack, c])
-            trials.append((assess(cur, f, c), f, c))
+            trials.append((assess(cur, f, c, has_mode([*stack, c])), f, c))
         trials.sort(key=lambda t: -t[0].score)
         best = next((t for t in trials if t[0].significant), None)
         if best is None:
@@ -794,8 +835,8 @@ def diagnose(
         # the stand-in must itself explain the gap (significant where c stood), and c's extra
         # parameters must not be significant over it
         if (
-            score_of(prev, f_alt, n_simple) > threshold
-            and score_of(f_alt, cur, fitter.params(c) - n_simple) <= threshold
+            score_of(prev, f_alt, n_simple, has_mode(alt)) > threshold
+            and score_of(f_alt, cur, fitter.params(c) - n_simple, has_mode(stack)) <= threshold
         ):
             stack, cur = alt, f_alt
             stands_for[simpler[0].name] = c.name
@@ -825,23 +866,33 @@ def diagnose(
     peak_grew = s_final["peak"] > max(PEAK_GROWTH * s_base["peak"], NOISE_PEAK) and (
         s_final["peak_power"] > PEAK_POWER_KEPT * s_base["peak_power"]
     )
+    # "none" needs a residual without structure, at the floor or not (a gap under an
+    # overestimated floor — closed loop, a quantised position — can still follow the input),
+    # or a whole gap smaller than the least effect worth naming (structured or not)
+    negligible = base.equation_gap / force_rms < min_size
     if stack:
         verdict = "unexplained" if peak_grew else stack[0].name
-    elif at_floor or noise_like:
+    elif noise_like or negligible:
         verdict = "none"
     else:
         verdict = "unexplained"
 
-    # evidence: BIC weights exp(score/2) of "no effect" (score 0) and each plausible candidate
-    # alone (score = validated 2·log-likelihood gain − p·ln N_eff = −ΔBIC)
-    plausible = {s.name: s.score for s in effects if s.plausible}
-    top = max([0.0, *plausible.values()])
-    raw = {"none": math.exp(-top / 2)} | {k: math.exp((v - top) / 2) for k, v in plausible.items()}
+    # evidence: BIC weights exp(score/2) of each plausible candidate alone large enough to be
+    # named (score = validated 2·log-likelihood gain − p·ln N_eff = −ΔBIC) and of "no effect",
+    # whose prior odds are the significance threshold: at score = threshold the two tie
+    plausible = {s.name: s.score for s in effects if s.plausible and s.size >= min_size}
+    top = max([threshold, *plausible.values()])
+    raw = {"none": math.exp((threshold - top) / 2)} | {
+        k: math.exp((v - top) / 2) for k, v in plausible.items()
+    }
     total = sum(raw.values())
     weights = {k: v / total for k, v in raw.items()}
     explained = 1.0 - (
         excess(cur.ms_valid) / excess(base.ms_valid) if excess(base.ms_valid) > 0 else 0.0
     )
+    # the smallest effect (size as in min_size, one parameter) that would have reached the
+    # threshold: ΔMS > (threshold + ln N_eff)·MS₀/N_eff
+    detection = math.sqrt((threshold + math.log(n_eff)) * base.ms_valid / n_eff) / force_rms
     if verdict == "none" and weights["none"] < 1.0 / TIE_RATIO:
         # a plausible candidate beats "no effect" by more than the tie ratio on validation data
         # yet removes too little of the gap to be named: there is an effect, and the library
@@ -857,10 +908,15 @@ def diagnose(
         if len(near) > 1:
             ambiguous = sorted(near, key=lambda k: -weights[k])
     if verdict == "none":
-        confidence = weights["none"]
+        # "nothing named" is only as sure as the record is sensitive: the share (log scale) of
+        # the sizes worth naming, min_size … 1, below this record's detection limit is where an
+        # effect could hide
+        hidden = math.log(max(detection, min_size) / min_size) / math.log(1.0 / min_size)
+        confidence = weights["none"] * (1.0 - min(hidden, 1.0))
     elif verdict == "unexplained":
-        # an implausible fit that removes much of the gap still resembles the effect
-        best_share = max([s.share for s in effects], default=0.0)
+        # an implausible fit that removes much of the gap still resembles the effect (one
+        # that does not beat "no effect" by its BIC does not)
+        best_share = max([s.share for s in effects if s.score > 0], default=0.0)
         confidence = float(np.clip(1.0 - best_share, 0.0, 1.0))
     else:
         confidence = weights.get(verdict, 0.0) * min(1.0, max(explained, 0.0) / EXPLAINED_FULL)
@@ -932,6 +988,7 @@ def diagnose(
             "force_std": sF,
             "equation_floor": floor,
             "n_effective": n_eff,
+            "detection_limit": detection,
         },
         settings={
             "dt": st.dt,
@@ -945,6 +1002,7 @@ def diagnose(
             ),
             "threshold": threshold,
             "min_share": min_share,
+            "min_size": min_size,
             "floor_factor": floor_factor,
         },
         steps=steps,
