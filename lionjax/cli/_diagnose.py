@@ -65,14 +65,19 @@ def run(args) -> int:
             e["score"],
             e["shrink"],
             e["equation_shrink"],
+            e["size"],
             "yes" if e["significant"] else "no",
         ]
         for e in out["effects"]
     ]
-    print(format_table(["effect", "score", "shrink", "eq. shrink", "significant"], rows))
+    print(format_table(["effect", "score", "shrink", "eq. shrink", "size", "significant"], rows))
     print(f"stack: {', '.join(out['stack']) or '(empty)'}")
     tie = f"; near-tie: {', '.join(out['ambiguous'])}" if out["ambiguous"] else ""
     print(f"verdict: {out['verdict']} (confidence {out['confidence']:.2f}{tie})")
+    print(
+        f"detection limit: {out['noise']['detection_limit']:.2g} (the least effect this record "
+        "would name, as a share of the input's term b·F)"
+    )
     fin = out["final"]
     print(
         "final: "

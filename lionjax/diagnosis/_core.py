@@ -15,21 +15,27 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    with θ fixed from training, and the noise floor of ε₁ from the position/force noise estimated
    by robust third differences (σ² = Var(Δ³)/20 for white noise).
 4. **Which**: every candidate fitted on training, scored on validation by
-   score = N_eff·ln(RSS_before/RSS_after) − p·ln N_eff (a validated likelihood ratio with a BIC
+   score = N_eff·ln(MS_before/MS_after) − p·ln N_eff (a validated likelihood ratio with a BIC
    parsimony penalty; N_eff corrects the sample count for the residual's autocorrelation).
+   Mean squares count from the *fitted* floor, the smaller of the estimated floor and the
+   validation error of every fitted model (the estimate is an upper bound only for white,
+   independent noise on x and F: in closed loop F carries the controller's answer to the
+   position noise, which partly cancels it in ε₁), except for fits with the flexible mode's
+   columns, which can cancel position noise and count from the estimated floor.
    A candidate is *significant* when its score exceeds ``threshold``, its parameters are physical
    (F_c > 0, F_max inside the force range …), it removes at least ``min_share`` of the gap in
-   excess of the noise floor and, if the windowed simulation models it, it does not make the
-   simulated gap worse (by more than :data:`MAX_WORSENING`). Greedy stacking adds the best
-   significant candidate until none is.
+   excess of the fitted floor, its size (the rms of ε₁ it removes over the rms of the input's
+   term b·F/Λ) is at least ``min_size`` and, if the windowed simulation models it, it does not
+   make the simulated gap worse (by more than :data:`MAX_WORSENING`). Greedy stacking adds the
+   best significant candidate until none is.
 5. **Verdict**: the first of the stack, provided the stack explains the residual's structure
    as well as its size (its residual's spectral peak is not sharper than the baseline's:
-   :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the gap is within
-   ``floor_factor`` of the noise floor or the residual is noise-like (input correlation within
-   its 99 % bound and no spectral peak, :func:`._where.structure`), unless some plausible
-   candidate's validated evidence beats "no effect" by more than :data:`TIE_RATIO`;
-   ``unexplained`` when a structured gap remains that no candidate removes, or that the named
-   stack leaves sharper, or in that exception.
+   :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the residual is noise-like
+   (input correlation within its 99 % bound and no spectral peak, :func:`._where.structure`) or
+   the whole gap is below ``min_size``, unless some plausible candidate's validated evidence
+   beats "no effect" by more than :data:`TIE_RATIO`; ``unexplained`` when a structured gap
+   remains that no candidate removes, or that the named stack leaves sharper, or in that
+   exception.
 """
 
 from __future__ import annotations
@@ -624,7 +630,8 @@ def diagnose(
         min_size: least size of a named effect: the rms of ε₁ it removes on validation over
             the rms of the input's term b·F/Λ there (0.5 %) — with a precise encoder and no noise,
             a spring of 10⁻⁵ of the force is statistically significant and of no consequence.
-        floor_factor: the gap is "at the noise floor" when ε₁'s rms ≤ floor_factor × floor.
+        floor_factor: the gap is reported "at the noise floor" (``baseline["at_noise_floor"]``)
+            when ε₁'s rms ≤ floor_factor × the estimated floor.
         max_effects: largest stack.
 
     Returns:
@@ -632,14 +639,18 @@ def diagnose(
         ``effects``, ``stack``, ``verdict``, ``confidence``, ``ambiguous``, ``weights``,
         ``final``, ``steps``, ``noise``, ``settings``).
 
-    Confidence: each candidate alone has the score sᵢ = −ΔBIC against the baseline, so its BIC
-    weight among "no effect" (s = 0) and the plausible candidates is wᵢ ∝ exp(sᵢ/2). A named
-    verdict's confidence is its weight times min(1, explained/0.9), explained being the share
-    of the excess validation error (above the noise floor) that the final stack removes; ``none``
-    gets the weight of "no effect"; ``unexplained`` gets 1 − the best candidate's share.
-    ``ambiguous`` lists every name (``"none"`` included) within a weight ratio of 1/20 of the
-    verdict, so a near-tie (an offset vs a spring with equilibrium in closed loop) is reported
-    rather than decided by library order.
+    Confidence: each candidate alone has the score sᵢ = −ΔBIC against the baseline; "no effect"
+    has the score ``threshold`` (the significance threshold as prior odds: a candidate at the
+    threshold ties with it). The BIC weights over "no effect" and the plausible candidates of at
+    least ``min_size`` are wᵢ ∝ exp(sᵢ/2). A named verdict's confidence is its weight times
+    min(1, explained/0.9), explained being the share of the excess validation error (above the
+    fitted floor) that the final stack removes; ``none`` gets the weight of "no effect" times
+    1 − h, h = ln(D/min_size)/ln(1/min_size) the share (log scale) of the sizes worth naming
+    below the record's detection limit D (``noise["detection_limit"]``: the least one-parameter
+    effect that would have reached ``threshold``); ``unexplained`` gets 1 − the largest share
+    of a candidate that beats "no effect". ``ambiguous`` lists every name (``"none"``
+    included) within a weight ratio of 1/20 of the verdict, so a near-tie (an offset vs a spring
+    with equilibrium in closed loop) is reported rather than decided by library order.
     """
     for nm, rec in (("train", train), ("valid", valid)):
         if rec is not None and not isinstance(rec, Record):
