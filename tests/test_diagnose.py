@@ -192,6 +192,20 @@ def test_negligible_effect_is_not_named():
     assert d.verdict == "none" and d.noise["detection_limit"] < 0.005
 
 
+def test_line_at_the_floor_is_none():
+    """A clean open-loop record from the independent simulator (1.1 kHz), its baseline error at
+    the noise floor: the residual does not follow the input (within its 99 % bound) but its
+    spectrum has a line above the noise-like limit. At the floor a line alone is no structure:
+    ``none``, not ``unexplained`` (it was ``unexplained`` at confidence 1.0)."""
+    train, valid, info = blind.make_case("none", 6001004, source="scipy")
+    assert not info["effects"] and not info["closed_loop"]
+    d = lj.diagnose(train, valid)
+    b = d.baseline
+    assert b["at_noise_floor"] and not b["noise_like"]
+    assert b["structure"]["input_correlation"] <= 1.0
+    assert d.verdict == "none"
+
+
 def test_gram_solve_is_float64_without_x64():
     """The diagnosis' solve (augmented Gram → lj's gram_lstsq) against numpy's lstsq (an
     independent SVD reference) at 1e-9, with jax_enable_x64 switched off by the caller."""

@@ -31,8 +31,9 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
 5. **Verdict**: the first of the stack, provided the stack explains the residual's structure
    as well as its size (its residual's spectral peak is not sharper than the baseline's:
    :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the residual is noise-like
-   (input correlation within its 99 % bound and no spectral peak, :func:`._where.structure`) or
-   the whole gap is below ``min_size``, unless some plausible candidate's validated evidence
+   (input correlation within its 99 % bound and no spectral peak, :func:`._where.structure`;
+   within ``floor_factor`` of the estimated floor the input correlation alone decides) or the
+   whole gap is below ``min_size``, unless some plausible candidate's validated evidence
    beats "no effect" by more than :data:`TIE_RATIO`; ``unexplained`` when a structured gap
    remains that no candidate removes, or that the named stack leaves sharper, or in that
    exception.
@@ -630,8 +631,9 @@ def diagnose(
         min_size: least size of a named effect: the rms of ε₁ it removes on validation over
             the rms of the input's term b·F/Λ there (0.5 %) — with a precise encoder and no noise,
             a spring of 10⁻⁵ of the force is statistically significant and of no consequence.
-        floor_factor: the gap is reported "at the noise floor" (``baseline["at_noise_floor"]``)
-            when ε₁'s rms ≤ floor_factor × the estimated floor.
+        floor_factor: the gap is "at the noise floor" (``baseline["at_noise_floor"]``) when
+            ε₁'s rms ≤ floor_factor × the estimated floor; there a residual within its input
+            correlation bound is ``none`` even with a spectral line.
         max_effects: largest stack.
 
     Returns:
@@ -877,13 +879,15 @@ def diagnose(
     peak_grew = s_final["peak"] > max(PEAK_GROWTH * s_base["peak"], NOISE_PEAK) and (
         s_final["peak_power"] > PEAK_POWER_KEPT * s_base["peak_power"]
     )
-    # "none" needs a residual without structure, at the floor or not (a gap under an
-    # overestimated floor — closed loop, a quantised position — can still follow the input),
-    # or a whole gap smaller than the least effect worth naming (structured or not)
+    # "none" needs a residual without structure (a gap under an overestimated floor — closed
+    # loop, a quantised position — can still follow the input; at the floor a spectral line
+    # alone is no structure: a clean open-loop record's ε₁ at the floor carries lines of its
+    # excitation), or a whole gap smaller than the least effect worth naming
     negligible = base.equation_gap / force_rms < min_size
+    quiet = at_floor and s_base["input_correlation"] <= 1.0
     if stack:
         verdict = "unexplained" if peak_grew else stack[0].name
-    elif noise_like or negligible:
+    elif noise_like or quiet or negligible:
         verdict = "none"
     else:
         verdict = "unexplained"
