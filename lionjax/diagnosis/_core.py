@@ -219,6 +219,11 @@ class Fitted:
         return float(np.sqrt(self.ms_valid))
 
 
+def _has_mode(cands: Sequence[AbstractCandidate]) -> bool:
+    """Whether a structure holds the flexible mode's columns."""
+    return any(c.profiled == "mode" for c in cands)
+
+
 def _effects_of(cands: Sequence[AbstractCandidate], ctx: Context):
     out, seen = [], set()
     for c in cands:
@@ -300,7 +305,7 @@ class _Fitter:
         (:data:`MODE_ROUNDS` step halvings, at most :data:`MODE_STEPS` rings); the other
         columns' Gram is shared (:func:`rss_with_columns`). Each point's columns are exact
         (:func:`mode_columns`) and carry the mode's free response as two refitted columns."""
-        base = self._model([c for c in cands if c.profiled != "mode"], mode=())
+        base = self._model([c for c in cands if not _has_mode([c])], mode=())
         regs = self.rtr
         lam = 2 * math.pi * self.st.filter_hz
 
@@ -390,7 +395,7 @@ class _Fitter:
 
     def fit(self, cands: Sequence[AbstractCandidate]) -> Fitted:
         dt = self.st.dt
-        if any(c.profiled == "mode" for c in cands):
+        if _has_mode(cands):
             # profiled once per variant, on the first structure that holds it (the candidate
             # alone on the baseline), then fixed in stacks
             if self.mode is None:
@@ -417,7 +422,7 @@ class _Fitter:
             phys["Fmax"] = fmax
         if "k" in phys and "F0" in phys:
             phys["x0"] = phys["F0"] / phys["k"] if phys["k"] != 0 else math.nan
-        if any(c.profiled == "mode" for c in cands):
+        if _has_mode(cands):
             phys["f_mode"], phys["zeta_mode"] = self.mode[0] / (2 * math.pi), self.mode[1]
             # the mode's deflection μ·(s²/D)[x] on validation, against the position noise
             if self.mode not in self._h_valid:
@@ -709,30 +714,55 @@ def diagnose(
     force_rms = max(abs(b) * float(np.sqrt(np.mean(hF[: valid.n_samples, 0] ** 2))), 1e-300)
     limits = Limits(float(np.max(np.abs(np.asarray(train.F)))), st.dt, sx)
 
-    # the floor the scores and shares count from (set below, once every candidate is fitted):
-    # the estimate above is an upper bound only for white, independent noise on x and F — in
-    # closed loop F carries the controller's response to the position noise, which partly
-    # cancels the noise's path through x in ε₁, and a quantised position is not white at high
-    # sample rates; the validation error of any fitted model bounds the true floor from above
-    fl = {"fit": floor}
-
-    def excess(ms):
-        return max(ms - fl["fit"] ** 2, 0.0)
-
-    def has_mode(cands) -> bool:
-        return any(k.profiled == "mode" for k in cands)
-
-    def score_of(cur: Fitted, new: Fitted, p: int, mode: bool = False) -> float:
-        # mean squares below the noise floor count as the floor: ε₁ carries the position noise
-        # through s²/Λ, and a column with high-frequency content of x (a flexible mode) can
-        # cancel part of that noise — a gain on noise, not on the gap; so a fit with the mode's
-        # columns counts from the estimated floor, the others from the fitted one
-        lo = max((floor if mode else fl["fit"]) ** 2, 1e-300)
+    def score_of(cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
+        # mean squares below lo_rms² (a floor) count as lo_rms²: a gain there is on noise
+        lo = max(lo_rms**2, 1e-300)
         gain = math.log(max(cur.ms_valid, lo) / max(new.ms_valid, lo))
         return n_eff * gain - p * math.log(n_eff)
 
-    def assess(cur, new, cand, with_mode: bool) -> EffectScore:
-        sc = score_of(cur, new, fitter.params(cand), with_mode)
+    # every candidate alone, its variants (the degree of the position dependence, the flexible
+    # mode with or without its input-share column) chosen by their validated score, each paying
+    # its own parameters, then fixed; the mode counts from the estimated floor (see below), the
+    # others from nothing yet
+    fitted: dict[str, Fitted] = {}
+    for c in candidates:
+        if c.profiled == "degree":
+            variants = [(d, fitter.mode_input) for d in range(1, MAX_POSITION_DEGREE + 1)]
+        elif c.profiled == "mode":
+            variants = [(fitter.degree, False), (fitter.degree, True)]
+        else:
+            variants = [(fitter.degree, fitter.mode_input)]
+        tries = []
+        for deg, inp in variants:
+            fitter.degree, fitter.mode_input = deg, inp
+            f = fitter.fit([c])
+            lo = floor if _has_mode([c]) else 0.0
+            tries.append((score_of(base, f, fitter.params(c), lo), f, (deg, inp)))
+        _, fitted[c.name], (fitter.degree, fitter.mode_input) = max(tries, key=lambda t: t[0])
+
+    # the floor scores and shares count from: the estimate above is an upper bound only for
+    # white, independent noise on x and F — in closed loop F carries the controller's response
+    # to the position noise, which partly cancels the noise's path through x in ε₁, and a
+    # quantised position is not white at high sample rates — while the validation error of any
+    # fitted model bounds the true floor from above. A fit with the flexible mode's columns
+    # counts from the estimate: a column with high-frequency content of x can cancel part of the
+    # position noise that ε₁ carries through s²/Λ — a gain on noise, not on the gap.
+    fit_floor = math.sqrt(
+        min(
+            floor**2,
+            base.ms_valid,
+            *(fitted[c.name].ms_valid for c in candidates if not _has_mode([c])),
+        )
+    )
+
+    def floor_of(cands) -> float:
+        return floor if _has_mode(cands) else fit_floor
+
+    def excess(ms):
+        return max(ms - fit_floor**2, 0.0)
+
+    def assess(cur, new, cand, lo_rms: float) -> EffectScore:
+        sc = score_of(cur, new, fitter.params(cand), lo_rms)
         ex0 = excess(cur.ms_valid)
         share = 1 - excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
         why = cand.implausible(new.physical, limits)
@@ -775,35 +805,8 @@ def diagnose(
             size=size,
         )
 
-    # every candidate alone; the position-dependent degree is chosen here, by the same
-    # validated score as the candidates (each degree pays its own parameters), then fixed
-    fitted: dict[str, Fitted] = {}
-    for c in candidates:
-        # variants chosen by their validated BIC, each paying its own parameters: the degree of
-        # the position dependence, the flexible mode with or without its input-share column
-        if c.profiled == "degree":
-            variants = [(d, fitter.mode_input) for d in range(1, MAX_POSITION_DEGREE + 1)]
-        elif c.profiled == "mode":
-            variants = [(fitter.degree, False), (fitter.degree, True)]
-        else:
-            variants = [(fitter.degree, fitter.mode_input)]
-        tries = []
-        for deg, inp in variants:
-            fitter.degree, fitter.mode_input = deg, inp
-            f = fitter.fit([c])
-            lo = floor**2 if c.profiled == "mode" else 1e-300  # (the mode: see score_of)
-            bic = n_eff * math.log(max(f.ms_valid, lo)) + fitter.params(c) * math.log(n_eff)
-            tries.append((bic, f, (deg, inp)))
-        _, fitted[c.name], (fitter.degree, fitter.mode_input) = min(tries, key=lambda t: t[0])
-    fl["fit"] = math.sqrt(
-        min(
-            floor**2,
-            base.ms_valid,
-            *(fitted[c.name].ms_valid for c in candidates if c.profiled != "mode"),
-        )
-    )
     alone = {
-        c.name: (assess(base, fitted[c.name], c, has_mode([c])), fitted[c.name]) for c in candidates
+        c.name: (assess(base, fitted[c.name], c, floor_of([c])), fitted[c.name]) for c in candidates
     }
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
 
@@ -816,7 +819,7 @@ def diagnose(
         trials = []
         for c in pool:
             f = alone[c.name][1] if not stack else fitter.fit([*stack, c])
-            trials.append((assess(cur, f, c, has_mode([*stack, c])), f, c))
+            trials.append((assess(cur, f, c, floor_of([*stack, c])), f, c))
         trials.sort(key=lambda t: -t[0].score)
         best = next((t for t in trials if t[0].significant), None)
         if best is None:
@@ -848,8 +851,8 @@ def diagnose(
         # the stand-in must itself explain the gap (significant where c stood), and c's extra
         # parameters must not be significant over it
         if (
-            score_of(prev, f_alt, n_simple, has_mode(alt)) > threshold
-            and score_of(f_alt, cur, fitter.params(c) - n_simple, has_mode(stack)) <= threshold
+            score_of(prev, f_alt, n_simple, floor_of(alt)) > threshold
+            and score_of(f_alt, cur, fitter.params(c) - n_simple, floor_of(stack)) <= threshold
         ):
             stack, cur = alt, f_alt
             stands_for[simpler[0].name] = c.name
