@@ -175,6 +175,22 @@ def test_effect_under_an_overstated_floor_is_named():
     assert d.final["Fmax"] == pytest.approx(info["effects"][0]["params"]["f_max"], rel=0.3)
 
 
+def test_second_effect_gains_below_the_first_ones_fit():
+    """A closed-loop twin record (2.06 kHz, PD on the measured position) with a spring (3 %
+    response change alone) and a delay (22 %): the delay alone leaves no excess over the fitted
+    floor when that floor is its own validation error, so the spring (scored −5 alone) could
+    gain nothing on top of it and was missed. Each stacking step's fits bound the floor too: both
+    are stacked, with k and τ near the simulator's values."""
+    train, valid, info = blind.make_case("spring+delay", 6100003, source="twin")
+    truth = {e["name"]: e["params"] for e in info["effects"]}
+    assert info["closed_loop"]
+    d = lj.diagnose(train, valid)
+    assert d.stack == ["delay", "spring"]
+    # stated tolerances: k within 5 %, τ within 10 % (a fractional delay on a ZOH input)
+    assert d.final["k"] == pytest.approx(truth["spring"]["k"], rel=0.05)
+    assert d.final["tau"] == pytest.approx(truth["delay"]["tau"], rel=0.10)
+
+
 def test_negligible_effect_is_not_named():
     """A clean, noise-free open-loop record from the independent simulator with a 1 µm
     encoder, diagnosed in JAX's default float32 (as a user runs it): a spring of about 10⁻⁵ of
