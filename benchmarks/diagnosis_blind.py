@@ -785,6 +785,7 @@ def _evidence(d) -> dict:
         "structure_base": base.get("structure"),
         "structure_final": final.get("structure"),
         "noise_ratio": (base["equation_gap"] / base["noise_floor"]) if base else None,
+        "valid_outside_train": base.get("valid_outside_train"),
     }
 
 

@@ -16,6 +16,8 @@ from ._common import format_table
 
 NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: which unmodelled effect, where, how much it explains"
+#: Share of validation samples outside the training record's range above which the CLI warns.
+OUTSIDE_WARN = 0.05
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -78,6 +80,13 @@ def run(args) -> int:
         f"detection limit: {out['noise']['detection_limit']:.2g} (the least effect this record "
         "would name, as a share of the input's term b·F)"
     )
+    out_of = {k: v for k, v in base["valid_outside_train"].items() if v > OUTSIDE_WARN}
+    if out_of:
+        print(
+            "warning: the validation record leaves the training record's range ("
+            + ", ".join(f"{k}: {v:.0%} of the samples" for k, v in out_of.items())
+            + "); the model extrapolates there — record a training run that covers it"
+        )
     fin = out["final"]
     print(
         "final: "

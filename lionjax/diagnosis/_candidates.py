@@ -63,12 +63,15 @@ class Context(eqx.Module):
 
 class Limits(eqx.Module):
     """What plausibility is judged against: the largest |F| of the training record [N], its
-    sample interval [s] and the validation record's position noise [m] (the robust spread of
-    its third differences, encoder quantisation included)."""
+    sample interval [s], the validation record's position noise [m] (the robust spread of its
+    third differences, encoder quantisation included) and ``loop_noise``: the record is closed
+    loop (F answers the position noise) and the baseline's error is at or below the estimated
+    noise floor."""
 
     F_abs_max: float
     dt: float
     position_noise: float = 0.0
+    loop_noise: bool = False
 
 
 class DirectionalFriction(AbstractEffect):
@@ -330,6 +333,13 @@ class DelayCandidate(AbstractCandidate):
     def implausible(self, phys, lim):
         if not phys.get("tau", 0) > 0:
             return "no positive delay"
+        if lim.loop_noise:
+            # F(t − τ) − F(t) ≈ −τḞ, and Ḟ carries the controller's answer to the position
+            # noise, which cancels the noise's path through x in ε₁
+            return (
+                "closed loop at the noise floor: a delay cancels the position noise the "
+                "controller feeds into F"
+            )
         return _b_positive(phys)
 
 

@@ -246,6 +246,7 @@ class _Fitter:
         wv = 2 * math.pi * st.velocity_hz
         self.x_valid_smooth, self.v_valid = zero_phase(valid.x, dt, wv)
         v_train = self.v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
+        self.v_train = v_train
         self.rtr = Regressors(train, self.bank, self._known(train, v_train))
         self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
         self.mode_input = True  # the flexible mode's κ column: chosen in diagnose(), then fixed
@@ -491,6 +492,45 @@ def _robust_diff_std(u: np.ndarray) -> float:
     return float(max(mad, trimmed) / math.sqrt(20.0))
 
 
+def _feedback_share(x: np.ndarray, F: np.ndarray, lags: int = 4) -> float:
+    """R² of Δ³F regressed on Δ³x at lags 0…``lags``: near 1 when a controller on the measured
+    position sets the force (its answer to the position noise dominates F's third difference),
+    near 0 in open loop (the excitation is smooth at the sample scale)."""
+    dx = np.diff(np.asarray(x, np.float64), 3)
+    dF = np.diff(np.asarray(F, np.float64), 3)
+    n = dx.size
+    if n <= 4 * (lags + 1):
+        return 0.0
+    A = np.stack([dx[lags - j : n - j] for j in range(lags + 1)], axis=1)
+    y = dF[lags:]
+    ss = float(np.sum(y * y))
+    if not ss > 0:
+        return 0.0
+    th = np.linalg.lstsq(A, y, rcond=None)[0]
+    return float(max(0.0, 1.0 - np.sum((y - A @ th) ** 2) / ss))
+
+
+def _lattice_step(u: np.ndarray) -> float:
+    """The step q of the lattice a quantised signal's samples lie on (an encoder's count), or 0.
+
+    q₀ is the smallest nonzero |Δu| (its 1 % quantile), refined by least squares over every
+    step as a whole number k of counts (q = Σ|Δu|·k/Σk²: a float32 record's q₀ is off by 10⁻⁴,
+    a count after 10⁴ counts); the samples lie on the lattice when 99 % of them are within 1 % of
+    q from a multiple of it (offset by u₀)."""
+    u = np.asarray(u, np.float64)
+    du = np.abs(np.diff(u))
+    nz = du[du > 0]
+    if nz.size < 20:
+        return 0.0
+    q = float(np.quantile(nz, 0.01))
+    if not q > 0:
+        return 0.0
+    k = np.round(nz / q)
+    q = float(np.sum(nz * k) / np.sum(k * k))
+    r = (u - u[0]) / q
+    return q if float(np.quantile(np.abs(r - np.round(r)), 0.99)) < 0.01 else 0.0
+
+
 def _n_eff(r: np.ndarray) -> float:
     """Effective number of independent samples of a correlated residual (Bartlett sum)."""
     r = r - np.mean(r)
@@ -595,6 +635,14 @@ MAX_WORSENING = 0.1
 EXPLAINED_FULL = 0.9
 #: Spectral peak ratio (:func:`._where.structure`) up to which a residual counts as noise.
 NOISE_PEAK = 100.0
+#: Share of the force's third difference explained by the position's (lags 0–4) above which a
+#: record is taken as closed loop: the force answers the position noise (measured on twelve
+#: blind-benchmark records: 0.43–1.00 closed loop, ≤ 0.006 open loop).
+FEEDBACK_SHARE = 0.2
+#: Input-correlation bound of a residual at the floor in closed loop: the force carries the
+#: position noise that ε₁ also carries, so MATLAB resid's 99 % bound (1) is exceeded by noise
+#: alone (1.2–1.6 on clean closed-loop records).
+CLOSED_LOOP_CORRELATION = 2.0
 #: A named stack whose residual's spectral peak exceeds this multiple of the baseline's (and
 #: NOISE_PEAK), while keeping more than PEAK_POWER_KEPT of the baseline's peak power, does not
 #: explain the residual's structure: the verdict is ``unexplained``.
@@ -704,7 +752,13 @@ def diagnose(
     a, b = base.physical["a"], base.physical["b"]
 
     # noise floor of ε₁ on the validation record
-    sx = _robust_diff_std(np.asarray(valid.x))
+    # a quantised position's error is uniform over one count, σ = q/√12, when the axis moves
+    # several counts per sample; the third-difference estimate then misses it (a 2.3 µm encoder
+    # at 3.1 kHz: 0.46 µm for 0.66), and a clean record's gap is taken for an effect
+    sx = max(
+        _robust_diff_std(np.asarray(valid.x)),
+        _lattice_step(np.asarray(valid.x)) / math.sqrt(12.0),
+    )
     sF = _robust_diff_std(np.asarray(valid.F))
     gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
@@ -713,7 +767,17 @@ def diagnose(
     Fv = np.asarray(valid.F, np.float64)
     hF = fitter.rva.filtered({"F scale": (Fv - np.mean(Fv), "zoh")})["F scale"]
     force_rms = max(abs(b) * float(np.sqrt(np.mean(hF[: valid.n_samples, 0] ** 2))), 1e-300)
-    limits = Limits(float(np.max(np.abs(np.asarray(train.F)))), st.dt, sx)
+    # in closed loop the controller feeds the position noise into F, so a regressor built from
+    # F can cancel the noise's path through x in ε₁: at or below the estimated floor a delay of
+    # a few samples does (clean records named `delay` at 1.00), and is not taken as the device's
+    feedback = _feedback_share(np.asarray(valid.x), np.asarray(valid.F))
+    closed_loop = feedback >= FEEDBACK_SHARE
+    limits = Limits(
+        float(np.max(np.abs(np.asarray(train.F)))),
+        st.dt,
+        sx,
+        loop_noise=closed_loop and base.ms_valid <= floor**2,
+    )
 
     def score_of(cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
         # mean squares below lo_rms² (a floor) count as lo_rms²: a gain there is on noise
@@ -892,7 +956,9 @@ def diagnose(
     # alone is no structure: a clean open-loop record's ε₁ at the floor carries lines of its
     # excitation), or a whole gap smaller than the least effect worth naming
     negligible = base.equation_gap / force_rms < min_size
-    quiet = at_floor and s_base["input_correlation"] <= 1.0
+    quiet = at_floor and s_base["input_correlation"] <= (
+        CLOSED_LOOP_CORRELATION if closed_loop else 1.0
+    )
     if stack:
         verdict = "unexplained" if peak_grew else stack[0].name
     elif noise_like or quiet or negligible:
@@ -1001,6 +1067,7 @@ def diagnose(
         "noise_like": bool(noise_like),
         "condition": base.condition,
         "structure": s_base,
+        "valid_outside_train": _outside(train, valid, fitter.v_train, fitter.v_valid),
     }
     return Diagnosis(
         baseline=baseline,
@@ -1015,6 +1082,8 @@ def diagnose(
             "equation_floor": floor,
             "n_effective": n_eff,
             "detection_limit": detection,
+            "feedback_share": feedback,
+            "closed_loop": bool(closed_loop),
         },
         settings={
             "dt": st.dt,
@@ -1037,6 +1106,27 @@ def diagnose(
         weights=weights,
         series=series,
     )
+
+
+def _outside(train: Record, valid: Record, v_train, v_valid) -> dict[str, float]:
+    """Shares of the validation samples outside the training record's range: position x [m]
+    and velocity v̂ [m/s] outside [min, max] of train, force with |F| above train's largest.
+
+    A model fitted on train extrapolates there: an effect that acts only where train never went
+    (a clip above its largest force, a position dependence beyond its positions) cannot be
+    fitted on train, and its validation error is reported as ``unexplained``."""
+
+    def share(tr, va, absolute=False):
+        tr, va = np.asarray(tr, np.float64), np.asarray(va, np.float64)
+        if absolute:
+            return float(np.mean(np.abs(va) > np.max(np.abs(tr))))
+        return float(np.mean((va < np.min(tr)) | (va > np.max(tr))))
+
+    return {
+        "position": share(train.x, valid.x),
+        "velocity": share(v_train, v_valid),
+        "force": share(train.F, valid.F, absolute=True),
+    }
 
 
 def _std_physical(f: Fitted) -> dict[str, float]:
