@@ -246,6 +246,17 @@ def test_clean_closed_loop_record_at_the_floor_is_none():
     assert d.verdict == "none"
 
 
+def test_stand_in_without_weight_of_its_own():
+    """Asymmetric friction (twin, open loop, 1.1 kHz) is stacked, then replaced by its simpler
+    stand-in Coulomb + offset (its extra parameter not significant over them); Coulomb alone
+    held no evidence weight, and pooling the weights raised a KeyError (a crash in a fresh
+    held-out run). The verdict is the stand-in, with the pooled weight."""
+    train, valid, info = blind.make_case("asymmetric_friction", 8020001, source="twin")
+    d = lj.diagnose(train, valid)
+    assert d.stack[:2] == ["coulomb_friction", "offset"]
+    assert d.verdict == "coulomb_friction" and d.confidence > 0.5
+
+
 def test_negligible_effect_is_not_named():
     """A clean, noise-free open-loop record from the independent simulator with a 1 µm
     encoder, diagnosed in JAX's default float32 (as a user runs it): a spring of about 10⁻⁵ of

@@ -990,7 +990,8 @@ def diagnose(
         verdict = "unexplained"
     if verdict in stands_for and stands_for[verdict] in weights:
         # the stand-in and the candidate it replaced are one explanation: pool their evidence
-        weights[verdict] += weights.pop(stands_for[verdict])
+        # (the stand-in alone may hold no weight: implausible or below min_size alone)
+        weights[verdict] = weights.get(verdict, 0.0) + weights.pop(stands_for[verdict])
     ambiguous: list[str] = []
     if verdict in weights:
         near = [k for k in weights if weights[k] >= weights[verdict] / TIE_RATIO]
