@@ -769,7 +769,7 @@ def diagnose(
     force_rms = max(abs(b) * float(np.sqrt(np.mean(hF[: valid.n_samples, 0] ** 2))), 1e-300)
     # in closed loop the controller feeds the position noise into F, so a regressor built from
     # F can cancel the noise's path through x in ε₁: at or below the estimated floor a delay of
-    # a few samples does (clean records named `delay` at 1.00), and is not taken as the device's
+    # a few samples does (a clean record named `delay` at 1.00), and is not taken as the device's
     feedback = _feedback_share(np.asarray(valid.x), np.asarray(valid.F))
     closed_loop = feedback >= FEEDBACK_SHARE
     limits = Limits(
