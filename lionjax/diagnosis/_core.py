@@ -492,22 +492,30 @@ def _robust_diff_std(u: np.ndarray) -> float:
     return float(max(mad, trimmed) / math.sqrt(20.0))
 
 
-def _feedback_share(x: np.ndarray, F: np.ndarray, lags: int = 4) -> float:
-    """R² of Δ³F regressed on Δ³x at lags 0…``lags``: near 1 when a controller on the measured
-    position sets the force (its answer to the position noise dominates F's third difference),
-    near 0 in open loop (the excitation is smooth at the sample scale)."""
-    dx = np.diff(np.asarray(x, np.float64), 3)
-    dF = np.diff(np.asarray(F, np.float64), 3)
+def _feedback(x: np.ndarray, F: np.ndarray, lags: int = 4) -> tuple[float, np.ndarray]:
+    """(share, F_ref): a controller on the measured position read from the record.
+
+    Δ³F is regressed on Δ³x at lags 0…``lags`` (a causal FIR C); ``share`` is the R², near 1 when
+    the controller sets the force (its answer to the position noise dominates F's third
+    difference), near 0 in open loop (the excitation is smooth at the sample scale).
+    F_ref = F − C∗x [N] is the force less the controller's answer to the measured position: the
+    excitation, up to a slow drift — what a closed-loop residual test correlates against, since
+    F itself carries the position noise that ε₁ also carries."""
+    x = np.asarray(x, np.float64)
+    F = np.asarray(F, np.float64)
+    dx, dF = np.diff(x, 3), np.diff(F, 3)
     n = dx.size
     if n <= 4 * (lags + 1):
-        return 0.0
+        return 0.0, F
     A = np.stack([dx[lags - j : n - j] for j in range(lags + 1)], axis=1)
     y = dF[lags:]
     ss = float(np.sum(y * y))
     if not ss > 0:
-        return 0.0
+        return 0.0, F
     th = np.linalg.lstsq(A, y, rcond=None)[0]
-    return float(max(0.0, 1.0 - np.sum((y - A @ th) ** 2) / ss))
+    share = float(max(0.0, 1.0 - np.sum((y - A @ th) ** 2) / ss))
+    lagged = [np.concatenate([np.full(j, x[0]), x[: x.size - j]]) for j in range(lags + 1)]
+    return share, F - sum(t * xl for t, xl in zip(th, lagged, strict=True))
 
 
 def _lattice_step(u: np.ndarray) -> float:
@@ -639,10 +647,6 @@ NOISE_PEAK = 100.0
 #: record is taken as closed loop: the force answers the position noise (measured on twelve
 #: blind-benchmark records: 0.43–1.00 closed loop, ≤ 0.006 open loop).
 FEEDBACK_SHARE = 0.2
-#: Input-correlation bound of a residual at the floor in closed loop: the force carries the
-#: position noise that ε₁ also carries, so MATLAB resid's 99 % bound (1) is exceeded by noise
-#: alone (1.2–1.6 on clean closed-loop records).
-CLOSED_LOOP_CORRELATION = 2.0
 #: A named stack whose residual's spectral peak exceeds this multiple of the baseline's (and
 #: NOISE_PEAK), while keeping more than PEAK_POWER_KEPT of the baseline's peak power, does not
 #: explain the residual's structure: the verdict is ``unexplained``.
@@ -770,8 +774,11 @@ def diagnose(
     # in closed loop the controller feeds the position noise into F, so a regressor built from
     # F can cancel the noise's path through x in ε₁: at or below the estimated floor a delay of
     # a few samples does (a clean record named `delay` at 1.00), and is not taken as the device's
-    feedback = _feedback_share(np.asarray(valid.x), np.asarray(valid.F))
+    feedback, F_ref = _feedback(np.asarray(valid.x), np.asarray(valid.F))
     closed_loop = feedback >= FEEDBACK_SHARE
+    # the input a residual's correlation is tested against: in closed loop the excitation
+    # (F less the controller's answer to x), as MATLAB resid tests against the reference
+    F_test = F_ref if closed_loop else np.asarray(valid.F)
     limits = Limits(
         float(np.max(np.abs(np.asarray(train.F)))),
         st.dt,
@@ -939,12 +946,12 @@ def diagnose(
     # a named stack must explain the residual's structure, not only its size: a stack that
     # leaves a sharper spectral peak than the baseline's fits a resonance-like shape to an
     # effect it does not describe (cogging or backlash taken for a flexible mode)
-    s_final = structure(cur.residual, np.asarray(valid.F), st)
+    s_final = structure(cur.residual, F_test, st)
     # "unexplained" needs a residual with structure (MATLAB resid's cross-correlation with the
     # input beyond its 99 % bound, or a spectral peak): a gap above the estimated floor whose
     # residual is white and input-independent means the floor was underestimated (a coarse
     # encoder at a high sample rate hides its steps from the third-difference estimator)
-    s_base = structure(base.residual, np.asarray(valid.F), st)
+    s_base = structure(base.residual, F_test, st)
     noise_like = s_base["input_correlation"] <= 1.0 and s_base["peak"] <= NOISE_PEAK
     # (relative to the median, a line sharpens whenever the broadband rest is removed: the
     # line itself must not have shrunk, else the stack did remove the structure)
@@ -956,9 +963,7 @@ def diagnose(
     # alone is no structure: a clean open-loop record's ε₁ at the floor carries lines of its
     # excitation), or a whole gap smaller than the least effect worth naming
     negligible = base.equation_gap / force_rms < min_size
-    quiet = at_floor and s_base["input_correlation"] <= (
-        CLOSED_LOOP_CORRELATION if closed_loop else 1.0
-    )
+    quiet = at_floor and s_base["input_correlation"] <= 1.0
     if stack:
         verdict = "unexplained" if peak_grew else stack[0].name
     elif noise_like or quiet or negligible:
