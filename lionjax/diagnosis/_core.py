@@ -776,9 +776,6 @@ def diagnose(
     # a few samples does (a clean record named `delay` at 1.00), and is not taken as the device's
     feedback, F_ref = _feedback(np.asarray(valid.x), np.asarray(valid.F))
     closed_loop = feedback >= FEEDBACK_SHARE
-    # the input a residual's correlation is tested against: in closed loop the excitation
-    # (F less the controller's answer to x), as MATLAB resid tests against the reference
-    F_test = F_ref if closed_loop else np.asarray(valid.F)
     limits = Limits(
         float(np.max(np.abs(np.asarray(train.F)))),
         st.dt,
@@ -946,12 +943,12 @@ def diagnose(
     # a named stack must explain the residual's structure, not only its size: a stack that
     # leaves a sharper spectral peak than the baseline's fits a resonance-like shape to an
     # effect it does not describe (cogging or backlash taken for a flexible mode)
-    s_final = structure(cur.residual, F_test, st)
+    s_final = structure(cur.residual, np.asarray(valid.F), st)
     # "unexplained" needs a residual with structure (MATLAB resid's cross-correlation with the
     # input beyond its 99 % bound, or a spectral peak): a gap above the estimated floor whose
     # residual is white and input-independent means the floor was underestimated (a coarse
     # encoder at a high sample rate hides its steps from the third-difference estimator)
-    s_base = structure(base.residual, F_test, st)
+    s_base = structure(base.residual, np.asarray(valid.F), st)
     noise_like = s_base["input_correlation"] <= 1.0 and s_base["peak"] <= NOISE_PEAK
     # (relative to the median, a line sharpens whenever the broadband rest is removed: the
     # line itself must not have shrunk, else the stack did remove the structure)
@@ -963,7 +960,17 @@ def diagnose(
     # alone is no structure: a clean open-loop record's ε₁ at the floor carries lines of its
     # excitation), or a whole gap smaller than the least effect worth naming
     negligible = base.equation_gap / force_rms < min_size
-    quiet = at_floor and s_base["input_correlation"] <= 1.0
+    # At the floor the residual is mostly the position noise's path, which F also carries in
+    # closed loop: there the test is against F_ref, F less the controller's answer to x (the
+    # excitation), as MATLAB resid tests against the reference. Above the floor it stays
+    # against F: a closed-loop backlash 4× above the floor looked input-independent against
+    # F_ref (0.86) and was called noise.
+    ic_floor = (
+        structure(base.residual, F_ref, st)["input_correlation"]
+        if closed_loop
+        else s_base["input_correlation"]
+    )
+    quiet = at_floor and ic_floor <= 1.0
     if stack:
         verdict = "unexplained" if peak_grew else stack[0].name
     elif noise_like or quiet or negligible:
