@@ -618,8 +618,8 @@ def make_case(
     # a hard clip must lie within both records' force range: the diagnosis fits on the train
     # record, and a clip it never reaches cannot be identified there (before this, 8 of 8
     # hard-saturation misses in four runs of 140 had a train record 0.0 % changed)
-    F0_train = simulate(st, [], 0)[1]
-    stats["F_max_both"] = min(stats["F_max"], float(np.max(np.abs(F0_train))))
+    train0 = simulate(st, [], 0)  # (x, F, x_true, v_true) of the train record without effects
+    stats["F_max_both"] = min(stats["F_max"], float(np.max(np.abs(train0[1]))))
     names = [] if cls == "none" else cls.split("+")
     draws, in_band = [], []
     for nm in names:
@@ -633,7 +633,7 @@ def make_case(
     recs, changes = [], []
     for j in range(2):
         x, F, _, v = simulate(st, draws, j)
-        ref = v0 if j == 1 else simulate(st, [], 0)[3]
+        ref = v0 if j == 1 else train0[3]
         changes.append(_change(v, ref))
         recs.append(lj.Record(x, F, st.dt))
     info = {

@@ -32,7 +32,8 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    as well as its size (its residual's spectral peak is not sharper than the baseline's:
    :data:`PEAK_GROWTH`); ``none`` when nothing is significant and the residual is noise-like
    (input correlation within its 99 % bound and no spectral peak, :func:`._where.structure`;
-   within ``floor_factor`` of the estimated floor the input correlation alone decides) or the
+   within ``floor_factor`` of the estimated floor the input correlation alone decides, tested in
+   closed loop against F less the controller's answer to x, :func:`_feedback`) or the
    whole gap is below ``min_size``, unless some plausible candidate's validated evidence
    beats "no effect" by more than :data:`TIE_RATIO`; ``unexplained`` when a structured gap
    remains that no candidate removes, or that the named stack leaves sharper, or in that
@@ -816,13 +817,11 @@ def diagnose(
     # fitted model bounds the true floor from above. A fit with the flexible mode's columns
     # counts from the estimate: a column with high-frequency content of x can cancel part of the
     # position noise that ε₁ carries through s²/Λ — a gain on noise, not on the gap.
-    fit_floor = math.sqrt(
-        min(
-            floor**2,
-            base.ms_valid,
-            *(fitted[c.name].ms_valid for c in candidates if not _has_mode([c])),
-        )
-    )
+    def lowered(rms: float, fits) -> float:
+        # the floor rms bounded by the validation error of each (structure, fit) without the mode
+        return math.sqrt(min([rms**2, *(f.ms_valid for cands, f in fits if not _has_mode(cands))]))
+
+    fit_floor = lowered(min(floor, base.equation_gap), [([c], fitted[c.name]) for c in candidates])
 
     def floor_of(cands) -> float:
         return floor if _has_mode(cands) else fit_floor
@@ -889,9 +888,7 @@ def diagnose(
         # every validated fit bounds the floor from above, this step's too: else the first
         # effect's fit is the floor and no second effect can gain on it (a spring under a
         # closed-loop delay, k within 11 % of the truth, scored −5)
-        fit_floor = math.sqrt(
-            min([fit_floor**2, *(f.ms_valid for c, f in fits if not _has_mode([*stack, c]))])
-        )
+        fit_floor = lowered(fit_floor, [([*stack, c], f) for c, f in fits])
         trials = [(assess(cur, f, c, floor_of([*stack, c])), f, c) for c, f in fits]
         trials.sort(key=lambda t: -t[0].score)
         best = next((t for t in trials if t[0].significant), None)
