@@ -240,6 +240,43 @@ def test_feedback_share_tells_closed_from_open_loop():
     assert np.sqrt(np.mean(e**2)) < 0.02 * np.sqrt(np.mean(exc**2))
 
 
+def test_feedback_share_reads_a_low_rate_open_loop_as_open():
+    """At 117 Hz a rough excitation is partly predicted from the plant's response to it: the R²
+    of Δ³F on Δ³x alone read these open loops as 0.84–0.97 (closed). The share of F's
+    innovation that the position just measured explains is ≈ 0 in open loop and ≈ 1 under a PD
+    on that position. Plant x'' = −a x' + b F discretised exactly (zoh) by scipy; 20 µm
+    encoder and 20 µm white position noise; twelve sines up to 47 Hz in open loop, six up to
+    5 Hz as the closed loop's feed-forward."""
+    import scipy.signal as sg
+
+    from lionjax.diagnosis._core import FEEDBACK_SHARE, _feedback
+
+    fs, n, a, b, q = 117.0, 1200, 3.0, 50.0, 2e-5
+    dt = 1 / fs
+    Ad, Bd, *_ = sg.cont2discrete(
+        (np.array([[0, 1], [0, -a]]), np.array([[0], [b]]), np.eye(2), np.zeros((2, 1))), dt, "zoh"
+    )
+    t = np.arange(n) * dt
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        sines = lambda hi, m: sum(
+            np.sin(2 * np.pi * f * t + rng.uniform(0, 6.3)) for f in rng.uniform(0.2, hi, m)
+        )
+        rough, smooth = sines(47.0, 12), sines(5.0, 6)
+        noise = rng.normal(0, 2e-5, n)
+
+        def run(exc, kp, kd):
+            s, xm, F = np.zeros(2), np.zeros(n), np.zeros(n)
+            for k in range(n):
+                xm[k] = q * np.round(s[0] / q) + noise[k]
+                F[k] = exc[k] - kp * xm[k] - kd * (xm[k] - xm[max(k - 1, 0)]) / dt
+                s = Ad @ s + Bd[:, 0] * F[k]
+            return xm, F
+
+        assert _feedback(*run(rough, 0.0, 0.0))[0] < 0.05
+        assert _feedback(*run(smooth, 100.0, 1.0))[0] > max(0.9, FEEDBACK_SHARE)
+
+
 def test_clean_closed_loop_record_at_the_floor_is_none():
     """A clean closed-loop twin record (2.7 kHz, 8 µm encoder, PD on the measured position):
     its baseline error lies at 0.44 of the estimated floor, and the residual follows F beyond
