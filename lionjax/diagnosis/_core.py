@@ -493,7 +493,9 @@ def _robust_diff_std(u: np.ndarray) -> float:
     return float(max(mad, trimmed) / math.sqrt(20.0))
 
 
-def _feedback(x: np.ndarray, F: np.ndarray, lags: int = 4, past: int = 8) -> tuple[float, np.ndarray]:
+def _feedback(
+    x: np.ndarray, F: np.ndarray, lags: int = 4, past: int = 8
+) -> tuple[float, np.ndarray]:
     """(share, F_ref): a controller on the measured position read from the record.
 
     ``share`` is the part of the force's innovation that the position just measured explains:
