@@ -517,13 +517,14 @@ def main(argv=None) -> dict:
         kernel="xla",  # Execution(kernel="auto") resolves to XLA on every backend today
     )
 
-    def unplaced(name, bank_used, **extra):
-        """Time lion_batched on one device, records as they come (no placement): the batch
-        split into one loop per core inside one program. Returns θ."""
+    def unplaced(name, bank_used, run_with=None, **extra):
+        """Time lion_batched on records as they come (one device's arrays, not placed by the
+        caller): by default on one device, the batch split into one loop per core inside one
+        program (``Execution(shard=False)``). Returns θ."""
         recs1 = lj.Record(jnp.asarray(x), jnp.asarray(F), jnp.asarray(dt, dtype))
-        one_device = lj.Execution(shard=False)
+        ex = lj.Execution(shard=False) if run_with is None else run_with
         run1 = lambda: lj.lion_batched(
-            model, recs1, bank=bank_used, gain=gain, execution=one_device, throw=False
+            model, recs1, bank=bank_used, gain=gain, execution=ex, throw=False
         ).theta.block_until_ready()
         t0 = time.perf_counter()
         th1 = np.asarray(run1())
@@ -547,6 +548,12 @@ def main(argv=None) -> dict:
         out[name]["max_rel_diff_vs_lionjax"] = err
         out[name]["agrees"] = bool(err <= rtol)
         print(f"{'':>10}  max relative difference to lionjax {err:.2e} (tolerance {rtol:g})")
+
+    # --- lionjax with its defaults on records as they come: on CPU with several host devices it
+    # lays them out over the devices as views of their memory (no copy) and shards
+    if "unplaced" not in skip:
+        thu = unplaced("lionjax_unplaced", bank, run_with=lj.Execution(), execution="defaults, unplaced")
+        check("lionjax_unplaced", thu)
 
     # --- lionjax on one device with the shared filter
     if "one_device" not in skip:
@@ -828,10 +835,12 @@ def main(argv=None) -> dict:
     out["roofline_msps"] = ROOFLINE_MSPS
     out["peak_rss_mb"] = rss_mb()
     print("ratios: " + ", ".join(f"lionjax/{k} = {v:.2f}x" for k, v in ratios.items()))
-    if "lionjax_one_device" in out:
-        one = out["lionjax_one_device"]["msps"]
+    if "lionjax_one_device" in out or "lionjax_unplaced" in out:
         r1 = {
-            f"lionjax_one_device/{k}": one / out[k]["msps"] for k in ("numba", "numpy") if k in out
+            f"{u}/{k}": out[u]["msps"] / out[k]["msps"]
+            for u in ("lionjax_unplaced", "lionjax_one_device")
+            for k in ("numba", "numpy")
+            if k in out and u in out
         }
         out["ratios"].update(r1)
         print("ratios without placement: " + ", ".join(f"{k} = {v:.2f}x" for k, v in r1.items()))

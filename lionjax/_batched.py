@@ -39,13 +39,15 @@ Performance (measured on the 2-core CPU, B = 4096, T = 8000, float32). One kerne
   the record comes back non-finite), the records that fail re-run with the closed form
   (``Execution(phi="series")``, the default);
 - one CPU device runs independent loops concurrently, so the batch is split into one loop per
-  core over its own rows (:func:`_split_kernel`, no copy; ``Execution.split``); records placed
-  over several devices with :func:`shard_records` are sharded with ``jax.shard_map``
-  (``Execution.shard``).
+  core over its own rows (:func:`_split_kernel`, no copy; ``Execution.split``); with several
+  host devices the records are laid out over them as views of their memory
+  (:func:`shard_records`, done by :func:`lion_batched` itself for unplaced records) and
+  sharded with ``jax.shard_map`` (``Execution.shard``) — on the 2-core machine of 2026-11-24
+  2.6–3.1× the one-device loops, which lose time handing each step's fusions between threads.
 
-Together (2026-11-24, one run of ``benchmarks/throughput.py``): 179 M sample-updates/s on one
-device, 302 with the records placed over two host devices; numba's scalar kernel of the same
-law and algebra, 82.
+Together (2026-11-24, one run of ``benchmarks/throughput.py``, 2-core Xeon with AVX-512):
+402 M sample-updates/s on records as they come over two host devices, 130 on one device;
+numba's scalar kernel of the same law and algebra, 132.
 
 The exact step (:mod:`lionjax._phi`). With S = W G Wᵀ (2×2 symmetric PSD), over one interval h
 with frozen W: θ ← θ − h·G Wᵀ E(hS) (Wθ + W₀), E(Z) = (I − e^{−Z}) Z⁻¹, the same function
@@ -116,10 +118,12 @@ def shard_records(records: Record) -> Record:
     """Place a batch of records in the layout :func:`lion_batched` shards it into: the batch axis
     of ``x``, ``F`` (and of ``(B,)`` ``dt``/``t0``) split over ``jax.local_devices()``.
 
-    Do it once for data that is estimated several times (a study, a benchmark): otherwise every
-    call copies the records onto the devices (measured 0.06–0.17 s per 131 MB signal on a
-    2-core CPU). With one device, or a batch that is not a multiple of the device count, the
-    records come back unchanged.
+    On CPU host devices share the memory, so each device's rows are a view of the batch where
+    the rows start on 64-byte boundaries (no copy: 0.2 ms for a 131 MB signal, against
+    0.07–0.3 s copied); :func:`lion_batched` places unplaced records this way itself. Elsewhere
+    the records are copied onto the devices: do it once for data that is estimated several
+    times. With one device, or a batch that is not a multiple of the device count, the records
+    come back unchanged.
     """
     if not isinstance(records, Record) or records.x.ndim != 2:
         raise InputError(
@@ -128,13 +132,23 @@ def shard_records(records: Record) -> Record:
             + (f" with x of shape {records.x.shape}" if isinstance(records, Record) else "")
             + ". Stack records with lionjax.stack_records."
         )
+    placed = _place_views(records)
+    if placed is not None:
+        return placed
     mesh = _mesh()
     if mesh is None or records.x.shape[0] % mesh.size:
         return records
     from jax.sharding import NamedSharding
 
+    return _by_batch(
+        records,
+        lambda a, spec: jax.device_put(a, NamedSharding(mesh, spec)),
+    )
+
+
+def _by_batch(records: Record, place) -> Record:
+    """``place(leaf, spec)`` on the leaves with the batch axis first ((B, T) and (B,))."""
     B = records.x.shape[0]
-    place = lambda a, spec: jax.device_put(a, NamedSharding(mesh, spec))
     row = PartitionSpec("batch", None)
     return jax.tree.map(
         lambda a: (
@@ -148,16 +162,66 @@ def shard_records(records: Record) -> Record:
     )
 
 
-def _shard_here(records: Record, shard: bool) -> bool:
-    """Whether to shard this call: on CPU only records already laid out over the devices
-    (:func:`shard_records`) are sharded — copying them there costs more than the split loops of
-    one device save; on accelerators always (one device would leave the others idle)."""
+def _place_views(records: Record) -> Record | None:
+    """``records`` over the host devices as views of their memory (CPU), or None where that is
+    not possible without a copy: not CPU, fewer than two devices, a batch that is not a multiple
+    of the device count, arrays that are traced, already spread over devices, or whose
+    per-device rows would not start on 64-byte boundaries (the host buffer's alignment, below
+    which the runtime copies). Each device's rows are checked to alias the batch's memory."""
+    mesh = _mesh()
+    if mesh is None or jax.default_backend() != "cpu":
+        return None
+    B, T = records.x.shape
+    n = mesh.size
+    if B % n:
+        return None
+    big = [a for a in jax.tree.leaves(records) if getattr(a, "ndim", 0) == 2 and a.shape[0] == B]
+    for a in big:
+        if isinstance(a, jax.core.Tracer) or not isinstance(a, jax.Array | np.ndarray):
+            return None
+        if isinstance(a, jax.Array) and len(a.sharding.device_set) > 1:
+            return None
+        if (B // n) * T * a.dtype.itemsize % 64:
+            return None
+    from jax.sharding import NamedSharding
+
+    devs = list(mesh.devices.flat)
+    aliased = True
+
+    def place(a, spec):
+        nonlocal aliased
+        if a.ndim == 1:  # (B,) per-record scalars: a copy costs nothing
+            return jax.device_put(a, NamedSharding(mesh, spec))
+        h = np.asarray(a)
+        if not h.flags.c_contiguous or h.ctypes.data % 64:
+            aliased = False
+            return a
+        m = h.shape[0] // n
+        parts = [jax.device_put(h[i * m : (i + 1) * m], d) for i, d in enumerate(devs)]
+        aliased &= all(
+            p.unsafe_buffer_pointer() == h[i * m :].ctypes.data for i, p in enumerate(parts)
+        )
+        return jax.make_array_from_single_device_arrays(h.shape, NamedSharding(mesh, spec), parts)
+
+    placed = _by_batch(records, place)
+    return placed if aliased else None
+
+
+def _shard_here(records: Record, shard: bool) -> tuple[Record, bool]:
+    """(records, shard) for this call. On CPU records already laid out over the devices
+    (:func:`shard_records`) are sharded, and so are records that can be laid out as views of
+    their memory (:func:`_place_views`: no copy); others run on one device, the batch split into
+    loops over its cores (copying them over the devices costs about as much as it saves). On
+    accelerators always (one device would leave the others idle)."""
     if not shard or _mesh() is None or jax.default_backend() != "cpu":
-        return shard
+        return records, shard
     x = records.x
     if isinstance(x, jax.core.Tracer) or not isinstance(x, jax.Array):
-        return True  # traced (inside an outer jit): the layout is the caller's
-    return len(x.sharding.device_set) > 1
+        return records, True  # traced (inside an outer jit): the layout is the caller's
+    if len(x.sharding.device_set) > 1:
+        return records, True
+    placed = _place_views(records)
+    return (records, False) if placed is None else (placed, True)
 
 
 def _mesh() -> Mesh | None:
@@ -188,8 +252,9 @@ class Execution(eqx.Module):
             else 1.
         shard: shard the batch over ``jax.local_devices()`` (default True; the batch size must
             be a multiple of the device count, else it runs unsharded). On CPU host devices
-            only records already placed by :func:`shard_records` are sharded (else they would
-            be copied on every call; one device's ``split`` loops use the cores instead).
+            records are sharded when already placed by :func:`shard_records` or when they can
+            be laid out over the devices as views of their memory (rows starting on 64 bytes:
+            no copy); others run on one device, whose ``split`` loops use the cores.
         kernel: the kernel implementation, one of :data:`KERNELS`: ``"auto"`` (default, the
             kernel validated on the backend: ``"xla"`` today everywhere — the Pallas kernel has
             been tested only in interpret mode on CPU, not yet on a GPU), ``"xla"`` (the fused
@@ -1156,7 +1221,8 @@ def lion_batched(
             f"lion_batched: each accumulator type at most once in outputs, got "
             f"{tuple(k.__name__ for k in kinds)}."
         )
-    execution = dataclasses.replace(execution, shard=_shard_here(records, execution.shard))
+    records, shard = _shard_here(records, execution.shard)
+    execution = dataclasses.replace(execution, shard=shard)
     one = jnp.ones((), records.x.dtype)
     sol = _lion_batched(
         model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one
@@ -1310,7 +1376,8 @@ def least_squares_batched(
         raise InputError(
             f"least_squares_batched: max_condition must be a number > 1, got {max_condition!r}."
         )
-    execution = dataclasses.replace(execution, shard=_shard_here(records, execution.shard))
+    records, shard = _shard_here(records, execution.shard)
+    execution = dataclasses.replace(execution, shard=shard)
     one = jnp.ones((), records.x.dtype)
     sol = _least_squares_batched(
         model, records, bank, lengths, LSStatistics(transient), execution, one, max_condition

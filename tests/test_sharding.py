@@ -37,6 +37,24 @@ SCRIPT = textwrap.dedent(
     c = lj.lion_batched(lj.MassDamper(), placed, **kw2)
     d = lj.lion_batched(lj.MassDamper(), rec, **kw2)
     np.testing.assert_allclose(c.theta, d.theta, rtol=1e-10)
+    # unplaced records: laid out over the devices as views of their memory (no copy), the
+    # default call sharded; rows that would not start on 64 bytes are not viewed
+    xj = jax.numpy.asarray(x)
+    recj = lj.Record(xj, jax.numpy.asarray(F), 1e-3)
+    viewed = lj.shard_records(recj)
+    base = np.asarray(xj).ctypes.data
+    ptrs = [s.data.unsafe_buffer_pointer() for s in viewed.x.addressable_shards]
+    assert sorted(ptrs) == [base, base + (B // 2) * T * 8], (ptrs, base)
+    e = lj.lion_batched(lj.MassDamper(), recj, **kw)
+    assert len(e.theta.sharding.device_set) == 2, e.theta.sharding
+    for name in ("theta", "J", "theta_ls", "t_converged"):
+        np.testing.assert_allclose(getattr(e, name), getattr(b, name), rtol=1e-10, atol=0)
+    odd = lj.Record(jax.numpy.asarray(x[:, :2599]), jax.numpy.asarray(F[:, :2599]), 1e-3)
+    f = lj.lion_batched(lj.MassDamper(), odd, **kw)  # 3·2599·8 bytes: not on 64 bytes
+    assert len(f.theta.sharding.device_set) == 1, f.theta.sharding
+    g = lj.lion_batched(lj.MassDamper(), lj.shard_records(odd), **kw)  # copied over
+    assert len(g.theta.sharding.device_set) == 2, g.theta.sharding
+    np.testing.assert_allclose(f.theta, g.theta, rtol=1e-10)
     print("OK", a.theta.sharding)
     """
 )
