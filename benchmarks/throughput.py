@@ -552,7 +552,9 @@ def main(argv=None) -> dict:
     # --- lionjax with its defaults on records as they come: on CPU with several host devices it
     # lays them out over the devices as views of their memory (no copy) and shards
     if "unplaced" not in skip:
-        thu = unplaced("lionjax_unplaced", bank, run_with=lj.Execution(), execution="defaults, unplaced")
+        thu = unplaced(
+            "lionjax_unplaced", bank, run_with=lj.Execution(), execution="defaults, unplaced"
+        )
         check("lionjax_unplaced", thu)
 
     # --- lionjax on one device with the shared filter
