@@ -171,7 +171,7 @@ def _place_views(records: Record) -> Record | None:
     mesh = _mesh()
     if mesh is None or jax.default_backend() != "cpu":
         return None
-    B, T = records.x.shape
+    B = records.x.shape[0]
     n = mesh.size
     if B % n:
         return None
@@ -180,8 +180,6 @@ def _place_views(records: Record) -> Record | None:
         if isinstance(a, jax.core.Tracer) or not isinstance(a, jax.Array | np.ndarray):
             return None
         if isinstance(a, jax.Array) and len(a.sharding.device_set) > 1:
-            return None
-        if (B // n) * T * a.dtype.itemsize % 64:
             return None
     from jax.sharding import NamedSharding
 
@@ -193,10 +191,10 @@ def _place_views(records: Record) -> Record | None:
         if a.ndim == 1:  # (B,) per-record scalars: a copy costs nothing
             return jax.device_put(a, NamedSharding(mesh, spec))
         h = np.asarray(a)
-        if not h.flags.c_contiguous or h.ctypes.data % 64:
-            aliased = False
-            return a
         m = h.shape[0] // n
+        if not h.flags.c_contiguous or h.ctypes.data % 64 or h[:m].nbytes % 64:
+            aliased = False  # the runtime would copy a device's rows: no view possible
+            return a
         parts = [jax.device_put(h[i * m : (i + 1) * m], d) for i, d in enumerate(devs)]
         aliased &= all(
             p.unsafe_buffer_pointer() == h[i * m :].ctypes.data for i, p in enumerate(parts)

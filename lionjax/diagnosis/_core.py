@@ -984,12 +984,11 @@ def diagnose(
     # excitation), as MATLAB resid tests against the reference. Above the floor it stays
     # against F: a closed-loop backlash 4× above the floor looked input-independent against
     # F_ref (0.86) and was called noise.
-    ic_floor = (
-        structure(base.residual, F_ref, st)["input_correlation"]
-        if closed_loop
-        else s_base["input_correlation"]
+    quiet = (
+        at_floor
+        and (structure(base.residual, F_ref, st) if closed_loop else s_base)["input_correlation"]
+        <= 1.0
     )
-    quiet = at_floor and ic_floor <= 1.0
     if stack:
         verdict = "unexplained" if peak_grew else stack[0].name
     elif noise_like or quiet or negligible:
