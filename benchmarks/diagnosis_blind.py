@@ -29,8 +29,9 @@ Effect size: each effect has a strength s (log-uniform prior per class, below); 
 change c = ‖v − v₀‖/‖v₀‖ on the valid record (v the true velocity of the measured body, v₀ the
 same run — excitation, loop, noise — without the effect) must lie in [2 %, 80 %]. s is redrawn
 from its prior up to 4 times, then bisected/extended in log s within wider hard limits (8 more
-tries; a simulation that blows up counts as too strong). Cases whose size stays outside the band
-are kept and flagged (``size_in_band``). Two-effect classes size each effect alone.
+tries; a simulation that blows up counts as too strong); a draw no strength can size (a mode far
+above the excited band) is redrawn whole, up to 6 draws. Cases whose size stays outside the band
+are kept, counted and flagged (``size_in_band``). Two-effect classes size each effect alone.
 
 Classes → accepted answer:
     none                     → verdict ``none``
@@ -623,7 +624,7 @@ def make_case(
     names = [] if cls == "none" else cls.split("+")
     draws, in_band = [], []
     for nm in names:
-        for redraw in range(3):  # a draw no strength can size (e.g. a mode far above the
+        for redraw in range(6):  # a draw no strength can size (e.g. a mode far above the
             d = draw_effect(nm, rng, st, stats)  # excited band) is redrawn whole
             d.redraws = redraw
             if size_effect(st, d, rng, v0):

@@ -122,7 +122,7 @@ MODE_N = 16
 MODE_ROUNDS = 4
 MODE_STEPS = 16
 #: Soft-saturation levels in the F_max grid.
-SOFT_N = 12
+SOFT_N = 15
 
 
 def settings(
@@ -183,8 +183,9 @@ def settings(
         window_s=window_s,
         tau_grid=tuple(float(t) for t in taus),
         # hard clips at the force quantiles, then soft ones (negative: |F_max|·tanh(F/|F_max|))
+        # up to the plausibility limit, 4× the largest force
         fmax_grid=tuple(float(f) for f in fq)
-        + tuple(-float(f) for f in np.geomspace(0.5 * fq[0], 2.0 * fq[-1], SOFT_N)),
+        + tuple(-float(f) for f in np.geomspace(0.5 * fq[0], 4.0 * fq[-1], SOFT_N)),
         mode_grid=tuple(float(f) for f in np.geomspace(f_lo, f_hi, MODE_N)),
         x_center=float(np.mean(x)),
         x_scale=float(max(np.std(x), 1e-12)),
@@ -255,6 +256,9 @@ class _Fitter:
         self._coarse: tuple | None = None  # the coarse mode grid and its RSS per variant
         self._h_valid: dict = {}  # rms((s²/D)[x]) on validation per mode (ω, ζ)
         self.degree = 1  # of the position-dependent a(x), b(x): chosen in diagnose(), then fixed
+        # the saturation's shape, +1 hard or −1 soft (the sign of its F_max grid), or 0 both:
+        # chosen in diagnose(), then fixed
+        self.fmax_shape = 0
 
     @property
     def mode(self) -> tuple[float, float] | None:
@@ -375,6 +379,8 @@ class _Fitter:
     def _profile(self, model, tau, fmax, which):
         st = self.st
         grid = np.asarray(st.tau_grid if which == "tau" else st.fmax_grid)
+        if which == "fmax" and self.fmax_shape:
+            grid = grid[np.sign(grid) == self.fmax_shape]
         if which == "tau":
             inputs = [(float(t), fmax) for t in grid]
         else:
@@ -730,7 +736,9 @@ def diagnose(
     1 − h, h = ln(D/min_size)/ln(1/min_size) the share (log scale) of the sizes worth naming
     below the record's detection limit D (``noise["detection_limit"]``: the least one-parameter
     effect that would have reached ``threshold``); ``unexplained`` gets 1 − the largest share
-    of a candidate that is plausible or beats "no effect". ``ambiguous`` lists every name
+    of a candidate that is plausible or beats "no effect", at most 1 − the largest share of
+    validation samples outside train's position, velocity or force range
+    (``evidence["valid_outside_train"]``: there no candidate could be fitted). ``ambiguous`` lists every name
     (``"none"`` included) within a weight ratio of 1/20 of the verdict, so a near-tie (an offset
     vs a spring with equilibrium in closed loop) is reported rather than decided by library
     order.
@@ -806,11 +814,18 @@ def diagnose(
         loop_noise=closed_loop and base.ms_valid <= floor**2,
     )
 
+    # N_eff of the residual each comparison starts from: after a first effect the residual is
+    # whiter than the baseline's (a spring's misfit dominated it), and the baseline's N_eff
+    # would deflate the evidence for a second effect (a closed-loop delay under a spring, τ
+    # within 4 % of the truth, scored 4.6 with the baseline's N_eff ≈ 110)
+    n_effs: dict[int, float] = {id(base): n_eff}
+
     def score_of(cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
         # mean squares below lo_rms² (a floor) count as lo_rms²: a gain there is on noise
         lo = max(lo_rms**2, 1e-300)
         gain = math.log(max(cur.ms_valid, lo) / max(new.ms_valid, lo))
-        return n_eff * gain - p * math.log(n_eff)
+        ne = n_effs.setdefault(id(cur), _n_eff(cur.residual))
+        return ne * gain - p * math.log(ne)
 
     # every candidate alone, its variants (the degree of the position dependence, the flexible
     # mode with or without its input-share column) chosen by their validated score, each paying
@@ -818,19 +833,26 @@ def diagnose(
     # others from nothing yet
     fitted: dict[str, Fitted] = {}
     for c in candidates:
+        now = (fitter.degree, fitter.mode_input, fitter.fmax_shape)
         if c.profiled == "degree":
-            variants = [(d, fitter.mode_input) for d in range(1, MAX_POSITION_DEGREE + 1)]
+            variants = [(d, now[1], now[2]) for d in range(1, MAX_POSITION_DEGREE + 1)]
         elif c.profiled == "mode":
-            variants = [(fitter.degree, False), (fitter.degree, True)]
+            variants = [(now[0], False, now[2]), (now[0], True, now[2])]
+        elif c.profiled == "fmax":
+            # the shape too: both fit the train record nearly alike where its forces stay low,
+            # and the wrong one extrapolates badly (a hard clip at the train record's peak,
+            # 1.1 N, under a tanh of 3.5 N made a validation record reaching 2.9 N 18× worse)
+            variants = [(now[0], now[1], 1), (now[0], now[1], -1)]
         else:
-            variants = [(fitter.degree, fitter.mode_input)]
+            variants = [now]
         tries = []
-        for deg, inp in variants:
-            fitter.degree, fitter.mode_input = deg, inp
+        for var in variants:
+            fitter.degree, fitter.mode_input, fitter.fmax_shape = var
             f = fitter.fit([c])
             lo = floor if _has_mode([c]) else 0.0
-            tries.append((score_of(base, f, fitter.params(c), lo), f, (deg, inp)))
-        _, fitted[c.name], (fitter.degree, fitter.mode_input) = max(tries, key=lambda t: t[0])
+            tries.append((score_of(base, f, fitter.params(c), lo), f, var))
+        _, fitted[c.name], var = max(tries, key=lambda t: t[0])
+        fitter.degree, fitter.mode_input, fitter.fmax_shape = var
 
     # the floor scores and shares count from: the estimate above is an upper bound only for
     # white, independent noise on x and F — in closed loop F carries the controller's response
@@ -1027,6 +1049,7 @@ def diagnose(
         near = [k for k in weights if weights[k] >= weights[verdict] / TIE_RATIO]
         if len(near) > 1:
             ambiguous = sorted(near, key=lambda k: -weights[k])
+    outside = _outside(train, valid, fitter.v_train, fitter.v_valid)
     if verdict == "none":
         # "nothing named" is only as sure as the record is sensitive: the share (log scale) of
         # the sizes worth naming, min_size … 1, below this record's detection limit is where an
@@ -1040,7 +1063,11 @@ def diagnose(
         # Stribeck friction fitted at F_c within 5 % removed 18 % of the excess at N_eff = 15
         # of 5536 samples) leaves the question open rather than settling it
         best_share = max([s.share for s in effects if s.score > 0 or s.plausible], default=0.0)
-        confidence = float(np.clip(1.0 - best_share, 0.0, 1.0))
+        # and "no candidate explains it" holds only where train covered what validation holds:
+        # an effect acting where train never went cannot be fitted there (a tanh a(x) at
+        # positions 99.97 % outside train's range was "unexplained" at 1.00)
+        coverage = 1.0 - max(outside.values())
+        confidence = float(np.clip(min(1.0 - best_share, coverage), 0.0, 1.0))
     else:
         confidence = weights.get(verdict, 0.0) * min(1.0, max(explained, 0.0) / EXPLAINED_FULL)
 
@@ -1098,7 +1125,7 @@ def diagnose(
         "noise_like": bool(noise_like),
         "condition": base.condition,
         "structure": s_base,
-        "valid_outside_train": _outside(train, valid, fitter.v_train, fitter.v_valid),
+        "valid_outside_train": outside,
     }
     return Diagnosis(
         baseline=baseline,
@@ -1145,7 +1172,8 @@ def _outside(train: Record, valid: Record, v_train, v_valid) -> dict[str, float]
 
     A model fitted on train extrapolates there: an effect that acts only where train never went
     (a clip above its largest force, a position dependence beyond its positions) cannot be
-    fitted on train, and its validation error is reported as ``unexplained``."""
+    fitted on train, and its validation error is reported as ``unexplained``, with a confidence
+    of at most 1 − the largest of these shares."""
 
     def share(tr, va, absolute=False):
         tr, va = np.asarray(tr, np.float64), np.asarray(va, np.float64)
