@@ -174,8 +174,11 @@ def test_effect_under_an_overstated_floor_is_named():
     j = d.to_json()
     assert j["baseline"]["equation_gap"] < j["baseline"]["noise_floor"]
     assert d.verdict == "saturation" and d.confidence > 0.9
-    # soft (the simulator's shape is not the library's tanh): within 30 % of the true level
-    assert d.final["Fmax"] == pytest.approx(info["effects"][0]["params"]["f_max"], rel=0.3)
+    # soft, within 15 % of the true level (closed loop at 251 Hz biases it; the parabolic
+    # refinement on the soft grid, whose levels are negative, was clipped to the grid's outer
+    # neighbour: 1.82 N for 1.39, at a train profile minimum of 1.38)
+    assert d.final["soft"] == 1.0
+    assert d.final["Fmax"] == pytest.approx(info["effects"][0]["params"]["f_max"], rel=0.15)
 
 
 def test_second_effect_gains_below_the_first_ones_fit():

@@ -397,7 +397,7 @@ class _Fitter:
             B = g[2] ** 2 * (r[0] - r[1]) + g[1] ** 2 * (r[2] - r[0]) + g[0] ** 2 * (r[1] - r[2])
             if A > 0:
                 v = -B / den / (2 * A)
-                v = float(np.clip(v, g[0], g[2]))
+                v = float(np.clip(v, min(g[0], g[2]), max(g[0], g[2])))  # soft: g < 0
                 best = float(np.exp(v)) if which == "tau" else v
         return best
 
