@@ -738,10 +738,10 @@ def diagnose(
     effect that would have reached ``threshold``); ``unexplained`` gets 1 − the largest share
     of a candidate that is plausible or beats "no effect", at most 1 − the largest share of
     validation samples outside train's position, velocity or force range
-    (``evidence["valid_outside_train"]``: there no candidate could be fitted). ``ambiguous`` lists every name
-    (``"none"`` included) within a weight ratio of 1/20 of the verdict, so a near-tie (an offset
-    vs a spring with equilibrium in closed loop) is reported rather than decided by library
-    order.
+    (``baseline["valid_outside_train"]``: there no candidate could be fitted). ``ambiguous``
+    lists every name (``"none"`` included) within a weight ratio of 1/20 of the verdict, so a
+    near-tie (an offset vs a spring with equilibrium in closed loop) is reported rather than
+    decided by library order.
     """
     for nm, rec in (("train", train), ("valid", valid)):
         if rec is not None and not isinstance(rec, Record):
