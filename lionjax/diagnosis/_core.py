@@ -43,6 +43,7 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -219,6 +220,11 @@ class Fitted:
     @property
     def equation_gap(self) -> float:
         return float(np.sqrt(self.ms_valid))
+
+    @functools.cached_property
+    def n_eff(self) -> float:
+        """Effective sample count of the validation residual (:func:`_n_eff`), once per fit."""
+        return _n_eff(self.residual)
 
 
 def _has_mode(cands: Sequence[AbstractCandidate]) -> bool:
@@ -797,7 +803,7 @@ def diagnose(
     sF = _robust_diff_std(np.asarray(valid.F))
     gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
-    n_eff = _n_eff(base.residual)
+    n_eff = base.n_eff
     # the scale of ε₁'s input term b·F/Λ on validation, against which an effect's size counts
     Fv = np.asarray(valid.F, np.float64)
     hF = fitter.rva.filtered({"F scale": (Fv - np.mean(Fv), "zoh")})["F scale"]
@@ -814,17 +820,15 @@ def diagnose(
         loop_noise=closed_loop and base.ms_valid <= floor**2,
     )
 
-    # N_eff of the residual each comparison starts from: after a first effect the residual is
-    # whiter than the baseline's (a spring's misfit dominated it), and the baseline's N_eff
-    # would deflate the evidence for a second effect (a closed-loop delay under a spring, τ
-    # within 4 % of the truth, scored 4.6 with the baseline's N_eff ≈ 110)
-    n_effs: dict[int, float] = {id(base): n_eff}
-
     def score_of(cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
         # mean squares below lo_rms² (a floor) count as lo_rms²: a gain there is on noise
         lo = max(lo_rms**2, 1e-300)
         gain = math.log(max(cur.ms_valid, lo) / max(new.ms_valid, lo))
-        ne = n_effs.setdefault(id(cur), _n_eff(cur.residual))
+        # N_eff of the residual the comparison starts from: after a first effect the residual is
+        # whiter than the baseline's (a spring's misfit dominated it), and the baseline's N_eff
+        # would deflate the evidence for a second effect (a closed-loop delay under a spring, τ
+        # within 4 % of the truth, scored 4.6 with the baseline's N_eff ≈ 110)
+        ne = cur.n_eff
         return ne * gain - p * math.log(ne)
 
     # every candidate alone, its variants (the degree of the position dependence, the flexible
