@@ -73,6 +73,7 @@ from ._fit import (
     impulse_gains,
     mode_columns,
     mode_free_response,
+    mode_seed,
     mode_signals,
     residual,
     rss_with_columns,
@@ -260,6 +261,7 @@ class _Fitter:
         self.mode_input = True  # the flexible mode's κ column: chosen in diagnose(), then fixed
         self._modes: dict[bool, tuple[float, float]] = {}  # (ω, ζ) profiled per variant
         self._coarse: tuple | None = None  # the coarse mode grid and its RSS per variant
+        self._seed: tuple | None = None  # (mode_seed's (ω, ζ) or None,), once computed
         self._h_valid: dict = {}  # rms((s²/D)[x]) on validation per mode (ω, ζ)
         self.degree = 1  # of the position-dependent a(x), b(x): chosen in diagnose(), then fixed
         # the saturation's shape, +1 hard or −1 soft (the sign of its F_max grid), or 0 both:
@@ -345,7 +347,24 @@ class _Fitter:
             self._coarse = (grid, rss_of(grid, (True, False)))
         grid, coarse = self._coarse
         i = int(np.argmin(coarse[self.mode_input]))
-        (w, z), best = grid[i], float(coarse[self.mode_input][i])
+        starts = [(grid[i], float(coarse[self.mode_input][i]))]
+        # the equation-error guess of the mode (mode_seed) starts a second search: the valley
+        # of a lightly damped mode is narrower than the coarse grid's step
+        if self._seed is None:
+            self._seed = (mode_seed(self.train.x, self.train.F, self.st.dt, lam, regs.Tp),)
+        (seed,) = self._seed
+        lo, hi = MODE_ZETA_RANGE
+        if seed is not None and ws[0] <= seed[0] <= ws[-1]:
+            q = (seed[0], min(max(seed[1], lo), hi))
+            starts.append((q, float(rss_of([q], (self.mode_input,))[self.mode_input][0])))
+        seen: dict[tuple[float, float], float] = {}  # successive rings (and clamps) share points
+        found = [self._pattern_search(q, r, ws, rss_of, seen) for q, r in starts]
+        (w, z), _ = min(found, key=lambda t: t[1])
+        return float(w), float(z)
+
+    def _pattern_search(self, start, best, ws, rss_of, seen):
+        """((ω, ζ), RSS) of the pattern search from ``start`` (its RSS ``best``)."""
+        (w, z) = start
         # pattern search: the 8 neighbours of the best on a 3×3 grid in (ln ω, ln ζ), within the
         # grid's frequencies and MODE_ZETA_RANGE; move while a neighbour is better, halve the
         # steps when none is (MODE_ROUNDS halvings, at most MODE_STEPS rings). Unbounded, it
@@ -357,7 +376,6 @@ class _Fitter:
         sw, sz = 0.5 * math.log(ws[1] / ws[0]), 0.5 * math.log(3.0)
         lo, hi = MODE_ZETA_RANGE
         halvings = 0
-        seen: dict[tuple[float, float], float] = {}  # successive rings (and clamps) share points
         for _ in range(MODE_STEPS):
             ring = [
                 (
@@ -380,7 +398,7 @@ class _Fitter:
             if halvings > MODE_ROUNDS:
                 break
             sw, sz = 0.5 * sw, 0.5 * sz
-        return float(w), float(z)
+        return (w, z), best
 
     def _profile(self, model, tau, fmax, which):
         st = self.st
