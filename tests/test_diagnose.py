@@ -563,6 +563,20 @@ def test_mode_search_finds_a_narrow_valley(monkeypatch):
     assert mode["input_share"] == pytest.approx(1.0, abs=0.01)
 
 
+def test_clip_the_validation_never_reaches_is_no_saturation():
+    """A collocated flexible mode in closed loop (lionjax's twin, 1.13 kHz): its ringing put
+    0.5 % of train's forces above 1.01 N and none of validation's (peak 0.67 N). A hard clip at
+    1.01 N leaves validation's inputs unchanged, yet scored 151 through a and b refitted on
+    train's clipped peaks: ``saturation`` at 1.00. A saturation must act on both records."""
+    train, valid, info = blind.make_case("flexible_mode", 12080000, source="twin")
+    assert info["closed_loop"]
+    d = lj.diagnose(train, valid)
+    sat = next(e for e in d.effects if e.name == "saturation")
+    peak_valid = float(np.max(np.abs(np.asarray(valid.F))))
+    assert d.verdict != "saturation" and "saturation" not in d.stack
+    assert not sat.plausible and not (sat.params["soft"] == 0 and sat.params["Fmax"] < peak_valid)
+
+
 def test_second_effect_counts_from_its_own_residual():
     """A closed-loop spring + fractional delay (lionjax's twin, 964 Hz, τ = 2.89 ms changing the
     response by 2.3 % alone): with the baseline's N_eff (≈ 110, the spring's misfit) the delay

@@ -62,8 +62,9 @@ class Context(eqx.Module):
 
 
 class Limits(eqx.Module):
-    """What plausibility is judged against: the largest |F| of the training record [N], its
-    sample interval [s], the validation record's position noise [m] (the robust spread of its
+    """What plausibility is judged against: the largest |F| [N] that both records reach (the
+    smaller of their largest |F|: an input map must act on the record it is validated on, too),
+    the sample interval [s], the validation record's position noise [m] (the robust spread of its
     third differences, encoder quantisation included) and ``loop_noise``: the record is closed
     loop (F answers the position noise) and the baseline's error is at or below the estimated
     noise floor."""
@@ -346,8 +347,12 @@ class DelayCandidate(AbstractCandidate):
 class SaturationCandidate(AbstractCandidate):
     """Actuator saturation F_max [N], hard u = clip(F, ±F_max) or soft
     u = F_max·tanh(F/F_max) (``soft`` = 1): shape and F_max profiled on one grid. Plausible
-    when it acts on the record: a hard F_max below the largest force, a soft one below four times
-    it (tanh then still compresses the largest force by ≥ 2 %).
+    when it acts on both records: a hard F_max below the largest force each reaches, a soft one
+    below four times it (tanh then still compresses that force by ≥ 2 %). A clip that the
+    validation record never reaches leaves its inputs unchanged, and what it gains there comes
+    from a and b refitted on train's clipped peaks (a closed-loop flexible mode, whose ringing
+    gave train 0.5 % of its samples above 1.01 N and validation none, was named `saturation`
+    at 1.00).
     """
 
     name: ClassVar[str] = "saturation"

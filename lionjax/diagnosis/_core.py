@@ -832,7 +832,7 @@ def diagnose(
     feedback, F_ref = _feedback(np.asarray(valid.x), np.asarray(valid.F))
     closed_loop = feedback >= FEEDBACK_SHARE
     limits = Limits(
-        float(np.max(np.abs(np.asarray(train.F)))),
+        float(min(np.max(np.abs(np.asarray(train.F))), np.max(np.abs(Fv)))),
         st.dt,
         sx,
         loop_noise=closed_loop and base.ms_valid <= floor**2,
