@@ -577,6 +577,20 @@ def test_clip_the_validation_never_reaches_is_no_saturation():
     assert not sat.plausible and not (sat.params["soft"] == 0 and sat.params["Fmax"] < peak_valid)
 
 
+def test_widest_stack_fits(monkeypatch):
+    """Cogging (lionjax's twin, 1.40 kHz) stacks a spring and a cubic a(x), b(x) (8 columns),
+    then tries the flexible mode on them: 12 columns and 5 refitted initial-state ones, wider
+    than the design held (16) — the run crashed. The default library's widest stack fits; a
+    structure wider than the design is skipped, not raised (the old width: the same stack)."""
+    from lionjax.diagnosis import _fit
+
+    train, valid, _ = blind.make_case("cogging", 13110006, source="twin")
+    d = lj.diagnose(train, valid)
+    assert d.stack[:2] == ["spring", "position_dependent"]
+    monkeypatch.setattr(_fit, "P_MAX", 16)
+    assert lj.diagnose(train, valid).stack == d.stack
+
+
 def test_second_effect_counts_from_its_own_residual():
     """A closed-loop spring + fractional delay (lionjax's twin, 964 Hz, τ = 2.89 ms changing the
     response by 2.3 % alone): with the baseline's N_eff (≈ 110, the spring's misfit) the delay

@@ -68,6 +68,7 @@ from ._candidates import (
 )
 from ._fit import (
     Regressors,
+    TooWide,
     apply_input,
     fit_batch,
     impulse_gains,
@@ -949,8 +950,18 @@ def diagnose(
     steps: list[EffectScore] = []
     cur = base
     pool = list(candidates)
+
+    def stacked(c):  # the stack with c, or None when its design would be wider than P_MAX
+        try:
+            return fitter.fit([*stack, c])
+        except TooWide:
+            return None
+
     while pool and len(stack) < max_effects:
-        fits = [(c, alone[c.name][1] if not stack else fitter.fit([*stack, c])) for c in pool]
+        fits = [(c, alone[c.name][1] if not stack else stacked(c)) for c in pool]
+        fits = [(c, f) for c, f in fits if f is not None]
+        if not fits:
+            break
         # every validated fit bounds the floor from above, this step's too: else the first
         # effect's fit is the floor and no second effect can gain on it (a spring under a
         # closed-loop delay, k within 11 % of the truth, scored −5)

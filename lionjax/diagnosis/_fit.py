@@ -47,7 +47,15 @@ from .._record import Record
 from ..twin._windows import windowed_errors
 
 #: Columns of every least-squares design (effect columns + the filter's initial-state columns).
-P_MAX = 16
+P_MAX = 18
+
+
+class TooWide(ValueError):
+    """A structure with more columns (its own and the refitted initial-state ones) than
+    :data:`P_MAX`: the default library's widest stack of three (a cubic a(x), b(x), asymmetric
+    friction and a flexible mode) has 12 + 5."""
+
+
 #: Length of every profile grid (τ, F_max); shorter grids are padded by repeating a value.
 GRID = 32
 #: Padded lengths above this filter a profile grid 4 points at a time (memory).
@@ -589,7 +597,10 @@ class Regressors:
         nuis = self.nuisance(model)
         n_nuis = nuis.shape[1]
         if p + n_nuis > P_MAX:
-            raise ValueError(f"structure with {p} columns exceeds P_MAX = {P_MAX}")
+            raise TooWide(
+                f"structure with {p} columns and {n_nuis} initial-state columns exceeds "
+                f"P_MAX = {P_MAX}"
+            )
         fixed = sorted({c.signal for c in cols if c.signal not in F_DEP})
         raw = self._raw(model, [s for s in fixed if s != "x"])
         raw["x"] = (self.x, "foh")
@@ -715,7 +726,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -
     n = p + regs.nuisance(model).shape[1]
     m, K, _ = cols.shape
     if n + K > P_MAX:
-        raise ValueError(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
+        raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
     A = _augmented_design(Wdef * regs.mask[:, None] + pad, regs.W0 * regs.mask)
     A[:, n : n + K] = 0.0
     G0 = A.T @ A
