@@ -591,6 +591,19 @@ def test_widest_stack_fits(monkeypatch):
     assert lj.diagnose(train, valid).stack == d.stack
 
 
+def test_friction_fitted_slightly_negative_in_one_direction():
+    """Asymmetric friction (lionjax's twin, 863 Hz, closed loop, F⁺ = 5 mN, F⁻ = 17 mN, with
+    direction-dependent viscous friction): F⁺ is fitted at −0.5 mN, −2 % of F⁻ — zero within
+    the fit's accuracy, not friction pushing along the motion. It was rejected as implausible
+    and the record called ``unexplained``; now it is named, with F⁻ within 40 %."""
+    train, valid, info = blind.make_case("asymmetric_friction", 13020000, source="twin")
+    d = lj.diagnose(train, valid)
+    assert d.verdict == "asymmetric_friction"
+    fit = next(e for e in d.effects if e.name == "asymmetric_friction").params
+    assert fit["Fc_pos"] < 0 and fit["Fc_neg"] > 20 * abs(fit["Fc_pos"])
+    assert fit["Fc_neg"] == pytest.approx(info["effects"][0]["params"]["fc_neg"], rel=0.4)
+
+
 def test_second_effect_counts_from_its_own_residual():
     """A closed-loop spring + fractional delay (lionjax's twin, 964 Hz, τ = 2.89 ms changing the
     response by 2.3 % alone): with the baseline's N_eff (≈ 110, the spring's misfit) the delay

@@ -199,6 +199,9 @@ class AbstractCandidate(eqx.Module):
         return ""
 
 
+#: How far below zero one direction's friction level may be fitted, as a share of the other's
+#: (AsymmetricFrictionCandidate): zero within the fit's accuracy.
+FRICTION_TOL = 0.05
 #: Largest plausible mass ratio of a flexible mode. Heavier loads on a compliant coupling exist
 #: (the blind benchmark draws μ up to 0.9, and they are fitted well), but friction's pre-sliding
 #: stiffness (Dahl) fits a collocated mode with μ ≈ 0.77 just as well: above 0.6 the diagnosis
@@ -250,7 +253,11 @@ class CoulombCandidate(AbstractCandidate):
 class AsymmetricFrictionCandidate(AbstractCandidate):
     """Direction-dependent Coulomb friction: F⁺ for ẋ > 0 and F⁻ for ẋ < 0 [N]: the Coulomb
     column plus :class:`DirectionalFriction`'s. Contains Coulomb friction; plausible when
-    F⁺, F⁻ ≥ 0, not both 0."""
+    F⁺ + F⁻ > 0 and neither is below −:data:`FRICTION_TOL` times the other: a direction with
+    (almost) no friction is fitted slightly negative as often as slightly positive (twin records
+    with F⁺ = 5 mN, F⁻ = 17 mN and F⁺ = 71 mN, F⁻ = 15 mN, under direction-dependent viscous
+    friction the library does not hold, gave F⁺ = −0.5 mN and F⁻ = −0.8 mN: −2 % and −1 % of
+    the other direction's)."""
 
     name: ClassVar[str] = "asymmetric_friction"
     n_params: ClassVar[int] = 2
@@ -268,7 +275,8 @@ class AsymmetricFrictionCandidate(AbstractCandidate):
 
     def implausible(self, phys, lim):
         r = self.report(phys)
-        if not (r["Fc_pos"] >= 0 and r["Fc_neg"] >= 0 and r["Fc_pos"] + r["Fc_neg"] > 0):
+        lo, hi = sorted((r["Fc_pos"], r["Fc_neg"]))
+        if not (hi > 0 and lo >= -FRICTION_TOL * hi):
             return "friction would push along the motion (F⁺ or F⁻ < 0)"
         return _b_positive(phys)
 
