@@ -421,24 +421,32 @@ def test_mode_columns_against_scipy():
         np.testing.assert_allclose(Vx[tail, j], yx[tail], atol=1e-9 * np.max(np.abs(yx)))
 
 
+def _noise_free_noncollocated_mode(monkeypatch, seed):
+    """(train, valid, info) of the independent simulator's open-loop non-collocated flexible
+    mode case ``seed``, without encoder quantisation or position noise."""
+    import dataclasses
+
+    draw = blind.draw_setup
+    monkeypatch.setattr(
+        blind, "draw_setup", lambda *a, **k: dataclasses.replace(draw(*a, **k), q=1e-9, noise=0.0)
+    )
+    train, valid, info = blind.make_case("flexible_mode", seed, source="scipy")
+    assert info["shape"] == "noncollocated" and not info["closed_loop"]
+    return train, valid, info
+
+
 def test_noncollocated_mode_is_exact(monkeypatch):
     """A non-collocated flexible mode (independent simulator, noise-free, open loop, 905 Hz,
     17 Hz, ζ = 0.023) obeys ẍ + aẋ − μs²(s²/D)x = b(1 − s²/D)F exactly: at the drawn (ω, ζ)
     the ε₁ fit returns μ and the input share κ = 1 within 1e-3. The two-stage columns (h's
     samples filtered again) returned μ 0.147, κ 0.78, and without the mode's free-response
     columns its initial transient (1/ζω = 0.4 s) left a quarter of the excess error."""
-    import dataclasses
     import math
 
     from lionjax.diagnosis import _core
     from lionjax.diagnosis._candidates import FlexibleModeCandidate
 
-    draw = blind.draw_setup
-    monkeypatch.setattr(
-        blind, "draw_setup", lambda *a, **k: dataclasses.replace(draw(*a, **k), q=1e-9, noise=0.0)
-    )
-    train, valid, info = blind.make_case("flexible_mode", 81000, source="scipy")
-    assert info["shape"] == "noncollocated" and not info["closed_loop"]
+    train, valid, info = _noise_free_noncollocated_mode(monkeypatch, 81000)
     p = info["effects"][0]["params"]
     fitter = _core._Fitter(train, valid, _core.settings(train))
     fitter.mode_input = True
@@ -537,17 +545,11 @@ def test_mode_search_finds_a_narrow_valley(monkeypatch):
     (μ ≈ 0 at 14.2 Hz, ζ 0.12, RSS 480× the true mode's): verdict ``unexplained``. The
     equation-error guess (:func:`mode_seed`) lands within 1 % of ω and 5 % of ζ, and the search
     from it recovers the drawn mode (reference: the simulator's parameters)."""
-    import dataclasses
     import math
 
     from lionjax.diagnosis._fit import mode_seed, padded_length
 
-    draw = blind.draw_setup
-    monkeypatch.setattr(
-        blind, "draw_setup", lambda *a, **k: dataclasses.replace(draw(*a, **k), q=1e-9, noise=0.0)
-    )
-    train, valid, info = blind.make_case("flexible_mode", 12081004, source="scipy")
-    assert info["shape"] == "noncollocated" and not info["closed_loop"]
+    train, valid, info = _noise_free_noncollocated_mode(monkeypatch, 12081004)
     p = info["effects"][0]["params"]
     w, z = 2 * math.pi * p["frequency"], p["damping_ratio"]
     dt = float(train.dt)
