@@ -606,6 +606,20 @@ def test_friction_fitted_slightly_negative_in_one_direction():
     assert fit["Fc_neg"] == pytest.approx(info["effects"][0]["params"]["fc_neg"], rel=0.4)
 
 
+def test_offset_is_not_stacked_with_asymmetric_friction():
+    """Coulomb friction and an offset (lionjax's twin, 556 Hz, closed loop): while the axis
+    moves, asymmetric friction's ΔF·|sgn ẋ| is a constant force like the offset, so the two
+    differ only at low speed, where the smoothed sign misfits stiction. The stack was offset,
+    then asymmetric friction (verdict at 1.00, Coulomb missing from the top three); now offset,
+    then Coulomb friction with F_c within 25 % and F_0 within 10 %."""
+    train, valid, info = blind.make_case("coulomb_friction+offset", 14090009, source="twin")
+    d = lj.diagnose(train, valid)
+    assert d.stack == ["offset", "coulomb_friction"]
+    true = {e["name"]: e["params"] for e in info["effects"]}
+    assert d.final["Fc"] == pytest.approx(true["coulomb_friction"]["fc"], rel=0.25)
+    assert d.final["F0"] == pytest.approx(true["offset"]["f0"], rel=0.1)
+
+
 def test_second_effect_counts_from_its_own_residual():
     """A closed-loop spring + fractional delay (lionjax's twin, 964 Hz, τ = 2.89 ms changing the
     response by 2.3 % alone): with the baseline's N_eff (≈ 110, the spring's misfit) the delay

@@ -178,6 +178,10 @@ class AbstractCandidate(eqx.Module):
     #: a simpler structure (candidate names) that stands in for this one unless its extra
     #: parameters are significant on validation data (spring → offset)
     simpler: ClassVar[tuple[str, ...]] = ()
+    #: names of the candidates never stacked with this one (in either order): the data cannot
+    #: tell them apart (asymmetric friction's ΔF·|sgn ẋ| is a constant force while the axis
+    #: moves, as an offset — or a spring's equilibrium term — is)
+    excludes: ClassVar[tuple[str, ...]] = ()
     #: whether the windowed simulation (:func:`lionjax.twin._windows.windowed_errors`) models
     #: the effect in full, so that its simulated gap can judge it
     simulated: ClassVar[bool] = True
@@ -264,6 +268,7 @@ class AsymmetricFrictionCandidate(AbstractCandidate):
     units: ClassVar[dict[str, str]] = {"Fc_pos": "N", "Fc_neg": "N"}
     subsumes: ClassVar[tuple[str, ...]] = ("coulomb_friction",)
     simpler: ClassVar[tuple[str, ...]] = ("coulomb_friction", "offset")
+    excludes: ClassVar[tuple[str, ...]] = ("offset", "spring")
     simulated: ClassVar[bool] = False  # the simulation has its mean level F_c only
 
     def effects(self, ctx):

@@ -975,7 +975,16 @@ def diagnose(
         stack.append(best[2])
         cur = best[1]
         # a candidate is not stacked after one that contains it (spring ⊃ offset)
-        pool = [c for c in pool if c is not best[2] and c.name not in best[2].subsumes]
+        # nor with one the data cannot tell apart from it (asymmetric friction and an offset)
+        new = best[2]
+        pool = [
+            c
+            for c in pool
+            if c is not new
+            and c.name not in new.subsumes
+            and c.name not in new.excludes
+            and new.name not in c.excludes
+        ]
 
     # parsimony pass: a candidate with a simpler stand-in (spring → offset: in closed loop a
     # constant force shifts the equilibrium; asymmetric friction → Coulomb + offset: while the
