@@ -976,14 +976,14 @@ def diagnose(
         cur = best[1]
         # a candidate is not stacked after one that contains it (spring ⊃ offset)
         # nor with one the data cannot tell apart from it (asymmetric friction and an offset)
-        new = best[2]
+        added = best[2]
         pool = [
             c
             for c in pool
-            if c is not new
-            and c.name not in new.subsumes
-            and c.name not in new.excludes
-            and new.name not in c.excludes
+            if c is not added
+            and c.name not in added.subsumes
+            and c.name not in added.excludes
+            and added.name not in c.excludes
         ]
 
     # parsimony pass: a candidate with a simpler stand-in (spring → offset: in closed loop a
