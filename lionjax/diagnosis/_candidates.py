@@ -211,6 +211,15 @@ FRICTION_TOL = 0.05
 #: stiffness (Dahl) fits a collocated mode with μ ≈ 0.77 just as well: above 0.6 the diagnosis
 #: says ``unexplained`` rather than risk a confident wrong name.
 MAX_MODE_MASS = 0.6
+#: Largest mass ratio of a heavy flexible mode (above :data:`MAX_MODE_MASS`), plausible only as a
+#: collocated, lightly damped resonance (ζ ≤ :data:`HEAVY_MODE_ZETA`): the look-alikes of a heavy
+#: load are not. A delay fits one with the input share κ ≈ 1 (κ 0.87–1.27 on every delay record
+#: of runs H and I), friction's pre-sliding stiffness, a dead zone or backlash one at ζ ≥ 0.3
+#: or at the search's limit, while the drawn heavy modes those runs refused (μ 0.61–0.91) were
+#: fitted collocated at ζ 0.04–0.23.
+MAX_HEAVY_MODE_MASS = 0.95
+#: Largest damping ratio of a heavy flexible mode (:data:`MAX_HEAVY_MODE_MASS`).
+HEAVY_MODE_ZETA = 0.25
 #: Smallest ratio of a mode's μ to the hold error it could stand for (FlexibleModeCandidate).
 MODE_OVER_HOLD = 3.0
 #: Smallest ratio of a mode's deflection rms(μ·(s²/D)[x]) to the position noise.
@@ -393,7 +402,8 @@ class FlexibleModeCandidate(AbstractCandidate):
     mode (0 collocated sensor, 1 non-collocated), fitted or held at 0 (``ctx.mode_input``: the
     diagnosis keeps the variant with the better validated score — in closed loop the free κ
     also fits the feedback of position noise into F, and biases μ). Plausible when
-    0 < μ ≤ :data:`MAX_MODE_MASS`, −0.5 ≤ κ ≤ 1.5, μ ≥ :data:`MODE_OVER_HOLD`·(ωh)²/12 and
+    0 < μ ≤ :data:`MAX_MODE_MASS` (≤ :data:`MAX_HEAVY_MODE_MASS` for a collocated mode with
+    ζ ≤ :data:`HEAVY_MODE_ZETA`), −0.5 ≤ κ ≤ 1.5, μ ≥ :data:`MODE_OVER_HOLD`·(ωh)²/12 and
     its deflection rms(μ·(s²/D)[x]) on the validation record (``deflection`` [m]) at least
     :data:`MODE_OVER_NOISE` times the position noise, with ζ below the upper limit of
     :data:`MODE_ZETA_RANGE` (held-out cogging and backlash records were fitted as "modes" at
@@ -432,8 +442,15 @@ class FlexibleModeCandidate(AbstractCandidate):
 
     def implausible(self, phys, lim):
         r = self.report(phys)
-        if not 0 < r.get("mass_ratio", 0) <= MAX_MODE_MASS:
-            return f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}]"
+        mu = r.get("mass_ratio", 0)
+        # the collocated variant (κ held at 0) has β ≡ 0 exactly; a fitted β is never exactly 0
+        collocated = phys.get("beta", 0.0) == 0.0
+        heavy = collocated and r.get("zeta_mode", 1.0) <= HEAVY_MODE_ZETA
+        if not 0 < mu <= (MAX_HEAVY_MODE_MASS if heavy else MAX_MODE_MASS):
+            return (
+                f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}] (up to "
+                f"{MAX_HEAVY_MODE_MASS} collocated with ζ ≤ {HEAVY_MODE_ZETA})"
+            )
         # The regressors hold x first-order between samples; the equation error this leaves is
         # ≈ (h²/12)·x⁽⁴⁾, which a mode far above the excitation reproduces with
         # μ/ω² = h²/12 (μ·s²·s²/ω²): a mode that small is the sampling, not the device
