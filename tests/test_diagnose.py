@@ -655,3 +655,24 @@ def test_unexplained_is_no_surer_than_train_covers_validation():
     out = d.to_json()["baseline"]["valid_outside_train"]
     assert out["position"] > 0.99
     assert d.verdict == "unexplained" and d.confidence <= 1.0 - out["position"] + 1e-12
+
+
+def test_heavy_mode_plausible_only_collocated_and_lightly_damped():
+    from lionjax.diagnosis._candidates import (
+        HEAVY_MODE_ZETA,
+        MAX_HEAVY_MODE_MASS,
+        FlexibleModeCandidate,
+        Limits,
+    )
+
+    c, lim = FlexibleModeCandidate(), Limits(F_abs_max=1.0, dt=1e-3)
+    base = dict(b=2.0, f_mode=20.0, deflection=1e-3)
+
+    def why(mu, zeta, beta):
+        return c.implausible(base | dict(mass_ratio=mu, zeta_mode=zeta, beta=beta), lim)
+
+    assert why(0.5, 0.3, 1.0) == ""  # light: any damping below the search's limit, κ free
+    assert why(0.9, 0.1, 0.0) == ""  # heavy, collocated (β ≡ 0), lightly damped
+    assert "mass ratio" in why(0.9, 0.1, 2.0)  # heavy with κ = 1: a delay's look-alike
+    assert "mass ratio" in why(0.9, HEAVY_MODE_ZETA + 0.05, 0.0)  # heavy, damped
+    assert "mass ratio" in why(MAX_HEAVY_MODE_MASS + 0.01, 0.1, 0.0)
