@@ -131,3 +131,18 @@ def test_polynomial_position_converges_to_solve_ivp():
     assert np.ptp(d) > 0.01  # the cubic terms matter: a changes by > 20 % over the range
     assert e1 < 2e-2 * span and e2 < 1e-2 * span
     assert 1.6 < e1 / e2 < 2.6  # first order in dt
+
+
+def test_position_dependence_held_beyond_range_equals_constant_coefficients():
+    # with x_lo = x_hi = x_c the clamped a(x), b(x) are a, b everywhere: the same errors as
+    # the model without position dependence
+    F = _force()
+    x = np.asarray(twin.simulate(twin.Plant(A, B, (), []), jnp.asarray(F), dt=DT).x)
+    zeros = jnp.zeros(T)
+    args = (jnp.asarray(F), jnp.asarray(x), zeros, zeros, DT, jnp.asarray(T), T)
+    held = _params(da_dx=40.0, db_dx=30.0, a_x2=5e3, x_lo=0.0, x_hi=0.0)
+    e_held = windowed_errors(held, *args)
+    e_plain = windowed_errors(_params(), *args)
+    e_free = windowed_errors(_params(da_dx=40.0, db_dx=30.0, a_x2=5e3), *args)
+    np.testing.assert_allclose(np.asarray(e_held), np.asarray(e_plain), atol=1e-12)
+    assert np.max(np.abs(np.asarray(e_free) - np.asarray(e_plain))) > 1e-6  # it would matter

@@ -316,8 +316,10 @@ class PositionCandidate(AbstractCandidate):
     """a(x), b(x) polynomial in position, degree 1 … 3 (exact §3-style columns,
     :class:`~lionjax.PolynomialPosition`), two parameters per degree: each degree is fitted on
     the training record and the one with the best validated score (its own 2K parameters
-    penalised) is kept (:func:`lionjax.diagnose`). Reports the coefficients of (x − x_c)ᵏ and
-    the expansion point x_c."""
+    penalised) is kept (:func:`lionjax.diagnose`), with or without a(x), b(x) held at their
+    values at the ends of the training positions beyond them (tried where validation leaves
+    that range; ``x_lo``, ``x_hi`` reported when held). Reports the coefficients of (x − x_c)ᵏ
+    and the expansion point x_c."""
 
     name: ClassVar[str] = "position_dependent"
     n_params: ClassVar[int] = 2  # per degree
@@ -330,6 +332,8 @@ class PositionCandidate(AbstractCandidate):
         "a_x3": "1/(s·m³)",
         "b_x3": "1/(kg·m³)",
         "x_center": "m",
+        "x_lo": "m",
+        "x_hi": "m",
     }
 
     def effects(self, ctx):

@@ -100,6 +100,7 @@ class Settings:
     mode_grid: tuple[float, ...]
     x_center: float
     x_scale: float
+    x_range: tuple[float, float] = (-math.inf, math.inf)  # the training positions' [min, max]
 
     def bank(self) -> FilterBank:
         w = 2 * math.pi * self.filter_hz
@@ -192,6 +193,7 @@ def settings(
         mode_grid=tuple(float(f) for f in np.geomspace(f_lo, f_hi, MODE_N)),
         x_center=float(np.mean(x)),
         x_scale=float(max(np.std(x), 1e-12)),
+        x_range=(float(np.min(x)), float(np.max(x))),
     )
 
 
@@ -268,6 +270,7 @@ class _Fitter:
         # the saturation's shape, +1 hard or −1 soft (the sign of its F_max grid), or 0 both:
         # chosen in diagnose(), then fixed
         self.fmax_shape = 0
+        self._clamp = False  # position_clamp: chosen in diagnose() with the degree, then fixed
 
     @property
     def mode(self) -> tuple[float, float] | None:
@@ -283,21 +286,60 @@ class _Fitter:
         ctx = self.ctx if not mode else dataclasses.replace(self.ctx, mode=tuple(mode))
         return dataclasses.replace(ctx, position_degree=self.degree, mode_input=self.mode_input)
 
+    @property
+    def variant(self) -> tuple:
+        """The profiled variants now fixed: (degree, mode_input, fmax_shape, position_clamp)."""
+        return (self.degree, self.mode_input, self.fmax_shape, self.position_clamp)
+
+    @variant.setter
+    def variant(self, var: tuple) -> None:
+        self.degree, self.mode_input, self.fmax_shape, self.position_clamp = var
+
     def _known(self, rec: Record, v: np.ndarray) -> dict:
         """Raw signals of the library's effects, computed once (names as the effects use)."""
         x = np.asarray(rec.x, np.float64)
-        xi = (x - self.st.x_center) / self.st.x_scale
         known = {
             "one": (np.ones_like(x), "zoh"),
             "x_spring": (x, "foh"),
             "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
             "abs_sgn_v": (np.abs(np.tanh(v / self.st.v_eps)), "foh"),
         }
+        return known | self._position_known(rec, clamp=False)
+
+    def _position_known(self, rec: Record, clamp: bool) -> dict:
+        """The position dependence's raw signals (ℓξᵏ⁺¹/(k+1) and the multipliers ξᵏ of F).
+
+        ``clamp``: a(x), b(x) held at their values at the ends of the training positions'
+        range beyond it, ξ_c = clip(ξ) — aₖξ_cᵏẋ = d/dt ℓ(ξ_cᵏ⁺¹/(k+1) + ξ_cᵏ(ξ − ξ_c)) stays
+        exact. (Equal to the polynomial's on the training record itself.)"""
+        xi = (np.asarray(rec.x, np.float64) - self.st.x_center) / self.st.x_scale
+        lo, hi = ((r - self.st.x_center) / self.st.x_scale for r in self.st.x_range)
+        xic = np.clip(xi, lo, hi) if clamp else xi
+        known = {}
         for k in range(1, MAX_POSITION_DEGREE + 1):  # in float64 (the effect's own: jax)
             g, _, m = position_terms(k)
-            gv, known[m] = position_values(xi, self.st.x_scale, k)
-            known[g] = (gv, "foh")
+            gv, known[m] = position_values(xic, self.st.x_scale, k)
+            known[g] = (gv + self.st.x_scale * known[m] * (xi - xic), "foh")
         return known
+
+    @property
+    def position_clamp(self) -> bool:
+        """Whether a(x), b(x) are held constant beyond the training positions (validation)."""
+        return self._clamp
+
+    @position_clamp.setter
+    def position_clamp(self, clamp: bool) -> None:
+        if clamp == getattr(self, "_clamp", False):
+            self._clamp = clamp
+            return
+        self._clamp = clamp
+        # only the validation record's signals differ (train lies inside its own range)
+        names = []
+        for k in range(1, MAX_POSITION_DEGREE + 1):
+            g, b, m = position_terms(k)
+            names += [g, b, m, f"{b}·F"]
+        self.rva.drop(names)
+        self.rva.known.update(self._position_known(self.valid, clamp))
 
     def _model(self, cands, mode=None):
         return Augmented(MassDamper(), _effects_of(cands, self._context(mode)))
@@ -464,6 +506,8 @@ class _Fitter:
             phys["deflection"] = abs(phys.get("mass_ratio", 0.0)) * self._h_valid[self.mode]
         if any(c.profiled == "degree" for c in cands):
             phys["x_center"] = self.st.x_center
+            if self.position_clamp:
+                phys["x_lo"], phys["x_hi"] = self.st.x_range
         sim = self._simulate(phys, u_va, cands)
         return Fitted(
             names=names,
@@ -499,6 +543,8 @@ class _Fitter:
         keys = tuple(k for k in WINDOW_PARAMETERS if k != "xc")
         p = {k: jnp.asarray(float(phys.get(k, 0.0))) for k in keys}
         p["xc"] = jnp.asarray(self.st.x_center)
+        if self.position_clamp:
+            p["x_lo"], p["x_hi"] = (jnp.asarray(r) for r in self.st.x_range)
         H = self.window(float(phys["a"]))
         e = simulate_windows(p, u, self.valid.x, self.x_valid_smooth, self.v_valid, self.st.dt, H)
         return e[: (self.valid.n_samples // H) * H]
@@ -854,28 +900,37 @@ def diagnose(
     # mode with or without its input-share column) chosen by their validated score, each paying
     # its own parameters, then fixed; the mode counts from the estimated floor (see below), the
     # others from nothing yet
+    outside = _outside(train, valid, fitter.v_train, fitter.v_valid)
     fitted: dict[str, Fitted] = {}
     for c in candidates:
-        now = (fitter.degree, fitter.mode_input, fitter.fmax_shape)
+        d0, m0, s0, c0 = now = fitter.variant
         if c.profiled == "degree":
-            variants = [(d, now[1], now[2]) for d in range(1, MAX_POSITION_DEGREE + 1)]
+            # and whether a(x), b(x) are held constant beyond the training positions: where
+            # validation leaves train's range the polynomial extrapolates, right for a slow
+            # dependence (a tanh wider than the range) and wildly wrong for a saturating one
+            # (a bowl 1 − exp(−d²) scored −65 extrapolated and +103 held)
+            variants = [
+                (d, m0, s0, clamp)
+                for clamp in ((False, True) if outside["position"] > 0 else (False,))
+                for d in range(1, MAX_POSITION_DEGREE + 1)
+            ]
         elif c.profiled == "mode":
-            variants = [(now[0], False, now[2]), (now[0], True, now[2])]
+            variants = [(d0, False, s0, c0), (d0, True, s0, c0)]
         elif c.profiled == "fmax":
             # the shape too: both fit the train record nearly alike where its forces stay low,
             # and the wrong one extrapolates badly (a hard clip at the train record's peak,
             # 1.1 N, under a tanh of 3.5 N made a validation record reaching 2.9 N 18× worse)
-            variants = [(now[0], now[1], 1), (now[0], now[1], -1)]
+            variants = [(d0, m0, 1, c0), (d0, m0, -1, c0)]
         else:
             variants = [now]
         tries = []
         for var in variants:
-            fitter.degree, fitter.mode_input, fitter.fmax_shape = var
+            fitter.variant = var
             f = fitter.fit([c])
             lo = floor if _has_mode([c]) else 0.0
             tries.append((score_of(base, f, fitter.params(c), lo), f, var))
         _, fitted[c.name], var = max(tries, key=lambda t: t[0])
-        fitter.degree, fitter.mode_input, fitter.fmax_shape = var
+        fitter.variant = var
 
     # the floor scores and shares count from: the estimate above is an upper bound only for
     # white, independent noise on x and F — in closed loop F carries the controller's response
@@ -1091,7 +1146,6 @@ def diagnose(
         near = [k for k in weights if weights[k] >= weights[verdict] / TIE_RATIO]
         if len(near) > 1:
             ambiguous = sorted(near, key=lambda k: -weights[k])
-    outside = _outside(train, valid, fitter.v_train, fitter.v_valid)
     if verdict == "none":
         # "nothing named" is only as sure as the record is sensitive: the share (log scale) of
         # the sizes worth naming, min_size … 1, below this record's detection limit is where an

@@ -66,7 +66,8 @@ def windowed_errors(
     """Windowed simulation error x_sim − x_meas [m]: 0 from sample ``n_valid`` on.
 
     Model: ẍ + a(x)ẋ = b(x)·(u + F₀ − F_c·sgn ẋ − k·x), a(x) = a + a'd + a₂d² + a₃d³,
-    b(x) = b + b'd + b₂d² + b₃d³, d = x − x_c, with ``p`` holding :data:`WINDOW_PARAMETERS`;
+    b(x) = b + b'd + b₂d² + b₃d³, d = clip(x, x_lo, x_hi) − x_c, with ``p`` holding
+    :data:`WINDOW_PARAMETERS` (and optionally ``x_lo``, ``x_hi`` [m]: ±∞ when absent);
     u the applied force [N], held over each sample; each step is :func:`exact_hold_step` with the
     nonlinear terms held over the sample. Coulomb friction sticks when the velocity would reverse
     within a step while the other forces stay inside ±F_c. Every H samples (k % H == 0) the state
@@ -77,13 +78,15 @@ def windowed_errors(
     restart = (k % H) == 0
     a, b, Fc = p["a"], p["b"], p["Fc"]
     a2, a3, b2, b3 = p["a_x2"], p["a_x3"], p["b_x2"], p["b_x3"]
+    # optional: a(x), b(x) held at their values at x_lo, x_hi beyond them
+    x_lo, x_hi = p.get("x_lo", -jnp.inf), p.get("x_hi", jnp.inf)
 
     def body(carry, inp):
         x, v = carry
         uk, rs, xs, vs = inp
         x = jnp.where(rs, xs, x)
         v = jnp.where(rs, vs, v)
-        dx = x - p["xc"]
+        dx = jnp.clip(x, x_lo, x_hi) - p["xc"]
         ak = a + dx * (p["da_dx"] + dx * (a2 + dx * a3))
         bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3))
         other = uk + p["F0"] - p["k"] * x
