@@ -329,8 +329,7 @@ class _Fitter:
 
     @position_clamp.setter
     def position_clamp(self, clamp: bool) -> None:
-        if clamp == getattr(self, "_clamp", False):
-            self._clamp = clamp
+        if clamp == self._clamp:
             return
         self._clamp = clamp
         # only the validation record's signals differ (train lies inside its own range)
@@ -543,8 +542,9 @@ class _Fitter:
         keys = tuple(k for k in WINDOW_PARAMETERS if k != "xc")
         p = {k: jnp.asarray(float(phys.get(k, 0.0))) for k in keys}
         p["xc"] = jnp.asarray(self.st.x_center)
-        if self.position_clamp:
-            p["x_lo"], p["x_hi"] = (jnp.asarray(r) for r in self.st.x_range)
+        # always passed (±∞ when not held): one compiled program either way
+        rng = self.st.x_range if self.position_clamp else (-math.inf, math.inf)
+        p["x_lo"], p["x_hi"] = (jnp.asarray(r) for r in rng)
         H = self.window(float(phys["a"]))
         e = simulate_windows(p, u, self.valid.x, self.x_valid_smooth, self.v_valid, self.st.dt, H)
         return e[: (self.valid.n_samples // H) * H]
