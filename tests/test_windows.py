@@ -146,3 +146,26 @@ def test_position_dependence_held_beyond_range_equals_constant_coefficients():
     e_free = windowed_errors(_params(da_dx=40.0, db_dx=30.0, a_x2=5e3), *args)
     np.testing.assert_allclose(np.asarray(e_held), np.asarray(e_plain), atol=1e-12)
     assert np.max(np.abs(np.asarray(e_free) - np.asarray(e_plain))) > 1e-6  # it would matter
+
+
+def test_asymmetric_friction_follows_twin_and_equals_coulomb_with_offset():
+    # levels F⁺ = 0.9 N while ẋ > 0 and F⁻ = 0.3 N while ẋ < 0, sticking while the force stays
+    # inside [−F⁻, F⁺]: against twin.simulate (diffrax with stick events) on one window, and
+    # exactly Coulomb friction F_c = 0.6 N with an offset F₀ = −0.3 N (one law: levels F_c ∓ F₀,
+    # the same breakaway band)
+    t = np.arange(T) * DT
+    F = 1.2 * np.sin(2 * np.pi * 1.5 * t) + 0.4 * np.sin(2 * np.pi * 7.0 * t)
+    fp, fn = 0.9, 0.3
+    plant = twin.Plant(A, B, (), [twin.AsymmetricFriction(fp, fn)])
+    x = np.asarray(twin.simulate(plant, jnp.asarray(F), dt=DT).x)
+    zeros = jnp.zeros(T)
+    args = (jnp.asarray(F), jnp.asarray(x), zeros, zeros, DT, jnp.asarray(T), T)
+    asym = np.asarray(windowed_errors(_params(Fc=(fp + fn) / 2, dF=(fp - fn) / 2, F0=0.0), *args))
+    c_o = np.asarray(windowed_errors(_params(Fc=(fp + fn) / 2, F0=-(fp - fn) / 2), *args))
+    mean = np.asarray(windowed_errors(_params(Fc=(fp + fn) / 2, F0=0.0), *args))
+    span = np.ptp(x)
+    assert span > 1e-3 and np.mean(np.abs(np.diff(x)) < 1e-12) > 0.05  # it moves and sticks
+    # the held-force step puts each stick and breakaway at a sample (2e-5 of the range measured)
+    assert np.max(np.abs(asym)) < 1e-3 * span
+    assert np.max(np.abs(mean)) > 10 * np.max(np.abs(asym))  # the direction dependence matters
+    np.testing.assert_allclose(asym, c_o, atol=1e-12 * span)

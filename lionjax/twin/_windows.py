@@ -19,12 +19,13 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-#: The parameters :func:`windowed_errors` reads (SI: 1/s, 1/kg, N, N, N/m, m, 1/(s·m),
+#: The parameters :func:`windowed_errors` reads (SI: 1/s, 1/kg, N, N, N, N/m, m, 1/(s·m),
 #: 1/(kg·m), then the coefficients of (x − x_c)² and (x − x_c)³ in a(x) and b(x)).
 WINDOW_PARAMETERS = (
     "a",
     "b",
     "Fc",
+    "dF",
     "F0",
     "k",
     "xc",
@@ -65,18 +66,22 @@ def windowed_errors(
 ) -> Float[Array, " T"]:
     """Windowed simulation error x_sim − x_meas [m]: 0 from sample ``n_valid`` on.
 
-    Model: ẍ + a(x)ẋ = b(x)·(u + F₀ − F_c·sgn ẋ − k·x), a(x) = a + a'd + a₂d² + a₃d³,
-    b(x) = b + b'd + b₂d² + b₃d³, d = clip(x, x_lo, x_hi) − x_c, with ``p`` holding
-    :data:`WINDOW_PARAMETERS` (and optionally ``x_lo``, ``x_hi`` [m]: ±∞ when absent);
-    u the applied force [N], held over each sample; each step is :func:`exact_hold_step` with the
-    nonlinear terms held over the sample. Coulomb friction sticks when the velocity would reverse
-    within a step while the other forces stay inside ±F_c. Every H samples (k % H == 0) the state
+    Model: ẍ + a(x)ẋ = b(x)·(u + F₀ − F_c·sgn ẋ − ΔF·|sgn ẋ| − k·x), a(x) = a + a'd + a₂d² +
+    a₃d³, b(x) = b + b'd + b₂d² + b₃d³, d = clip(x, x_lo, x_hi) − x_c, with ``p`` holding
+    :data:`WINDOW_PARAMETERS` (``dF`` optional, 0 when absent; and optionally ``x_lo``,
+    ``x_hi`` [m]: ±∞ when absent); u the applied force [N], held over each sample; each step is
+    :func:`exact_hold_step` with the nonlinear terms held over the sample. Friction has the level
+    F⁺ = F_c + ΔF while ẋ > 0 and F⁻ = F_c − ΔF while ẋ < 0; it sticks when the velocity would
+    reverse within a step while the other forces stay inside [−F⁻, F⁺], and breaks away when they
+    leave it. Every H samples (k % H == 0) the state
     restarts from (x_start[k], v_start[k]). Everything is traced: one program per record length.
     """
     T = u.shape[0]
     k = jnp.arange(T)
     restart = (k % H) == 0
     a, b, Fc = p["a"], p["b"], p["Fc"]
+    Fp, Fn = Fc + p.get("dF", 0.0), Fc - p.get("dF", 0.0)  # the levels while ẋ > 0, ẋ < 0
+    sticky = Fp + Fn > 0
     a2, a3, b2, b3 = p["a_x2"], p["a_x3"], p["b_x2"], p["b_x3"]
     # optional: a(x), b(x) held at their values at x_lo, x_hi beyond them
     x_lo, x_hi = p.get("x_lo", -jnp.inf), p.get("x_hi", jnp.inf)
@@ -91,10 +96,11 @@ def windowed_errors(
         bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3))
         other = uk + p["F0"] - p["k"] * x
         s = jnp.sign(v)
-        s = jnp.where(s == 0, jnp.sign(other) * (jnp.abs(other) > Fc), s)
-        x1, v1 = exact_hold_step(x, v, bk * (other - Fc * s), ak, dt)
-        stick = (Fc > 0) & (s * v1 < 0) & (jnp.abs(other) <= Fc)
-        stuck = (s == 0) & (Fc > 0)
+        s = jnp.where(s == 0, (other > Fp).astype(s.dtype) - (other < -Fn).astype(s.dtype), s)
+        fric = jnp.where(s > 0, Fp, jnp.where(s < 0, -Fn, 0.0))
+        x1, v1 = exact_hold_step(x, v, bk * (other - fric), ak, dt)
+        stick = sticky & (s * v1 < 0) & (other <= Fp) & (other >= -Fn)
+        stuck = (s == 0) & sticky
         v1 = jnp.where(stick | stuck, 0.0, v1)
         x1 = jnp.where(stuck, x, x1)
         return (x1, v1), x
