@@ -522,10 +522,22 @@ class Regressors:
 
     ``known``: precomputed raw signals {name: (samples (T,), hold)} (the diagnosis supplies the
     smoothed sign of its zero-phase velocity, so that no effect recompiles its own filter).
+
+    ``force_mask``: optional (T,) weights m ∈ {0, 1} of the forces: while the axis sticks
+    (m = 0) static friction balances every force on it, ẍ + aẋ = 0 there, and each force
+    column (order 0: the input u, an offset, a spring, friction) is built from m·(signal).
+    The columns of x's derivatives and the nuisance are unchanged.
     """
 
-    def __init__(self, record: Record, bank: FilterBank, known: dict | None = None):
+    def __init__(
+        self,
+        record: Record,
+        bank: FilterBank,
+        known: dict | None = None,
+        force_mask: np.ndarray | None = None,
+    ):
         self.record, self.bank = record, bank
+        self.force_mask = None if force_mask is None else np.asarray(force_mask, np.float64)
         self.T = record.n_samples
         self.Tp = padded_length(self.T)
         self.dt = float(record.dt)
@@ -605,6 +617,15 @@ class Regressors:
         raw = self._raw(model, [s for s in fixed if s != "x"])
         raw["x"] = (self.x, "foh")
         filt = self.filtered(raw)
+        m = self.force_mask
+        masked = {}  # force columns of m·signal (those held only filtered, a mode's, stay whole)
+        if m is not None:
+            forces = {
+                c.signal
+                for c in cols
+                if c.order == 0 and c.signal in raw and raw[c.signal][0] is not None
+            }
+            masked = self.filtered({f"{n}|stick": (m * raw[n][0], raw[n][1]) for n in forces})
         Wfix = np.zeros((self.Tp, P_MAX))
         n_dep = sum(c.signal in F_DEP for c in cols)
         K = next((k for k in K_BUCKETS if k >= n_dep), n_dep)
@@ -620,12 +641,15 @@ class Regressors:
                     g = np.ones(self.T)
                 else:
                     g = self._multiplier(model, c.signal)
+                if m is not None:
+                    g = g * m
                 mult[kk] = edge_pad(g, self.Tp)
                 fdep.append(c.signal)
                 onehot[kk, j] = c.sign
                 kk += 1
             else:
-                Wfix[:, j] = c.sign * filt[c.signal][:, c.order]
+                V = masked.get(f"{c.signal}|stick") if c.order == 0 else None
+                Wfix[:, j] = c.sign * (filt[c.signal] if V is None else V)[:, c.order]
         Wfix[:, p : p + n_nuis] = nuis
         pad = np.zeros((self.Tp, P_MAX))
         for j in range(p + n_nuis, P_MAX):
