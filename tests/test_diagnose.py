@@ -704,3 +704,32 @@ def test_sticking_axis_is_masked_for_friction(monkeypatch):
         fits[stick] = fitter.fit([coulomb])
     assert fits[False].physical["Fc"] < 0.7 * fc  # the smoothed sign alone is biased low
     assert fits[True].ms_valid < 0.5 * fits[False].ms_valid
+
+
+def test_dead_zone_is_not_friction():
+    """A dead zone u = sgn F·max(|F| − d, 0), d = 0.52 N (scipy's simulator, 309 Hz, closed
+    loop) was named Coulomb friction: both stop small forces from moving the axis, but friction
+    acts with the sign of the velocity and a dead zone with the sign of the force. The look-alike
+    input F − clip(F, ±d) (d profiled on train) is the simulator's own law here and leaves
+    < 1 % of the baseline's validated ε₁ power; on a Coulomb record (lionjax's twin, F_c =
+    54 mN) it explains less than friction does. The dead zone is now ``unexplained``."""
+    from lionjax.diagnosis import _core
+
+    by = {c.name: c for c in lj.diagnosis.DEFAULT_CANDIDATES}
+    for cls, src, seed, dead in (
+        ("dead_zone", "scipy", 15121004, True),
+        ("coulomb_friction", "twin", 15010004, False),
+    ):
+        train, valid, info = blind.make_case(cls, seed, source=src)
+        fitter = _core._Fitter(train, valid, _core.settings(train))
+        base = fitter.fit([])
+        friction = fitter.fit([by["coulomb_friction"]]).ms_valid
+        look = fitter.dead_zone_lookalike([])
+        if dead:
+            assert look < 0.01 * base.ms_valid and look < 0.01 * friction
+            d = lj.diagnose(train, valid)
+            assert d.verdict == "unexplained"
+            coulomb = next(e for e in d.effects if e.name == "coulomb_friction")
+            assert "sign of the force" in coulomb.reason
+        else:
+            assert friction < 0.1 * look
