@@ -1030,8 +1030,8 @@ def diagnose(
         if c.profiled == "stick" and sticks and not stick_chosen:
             # whether the samples where the axis sticks are masked (static friction balances
             # the forces there, which the smoothed sign cannot): chosen by the first friction
-            # candidate, then shared (a Coulomb record sticking 17 % of its samples had F_c
-            # fitted at 0.22 N for 0.36 N and scored 3.8)
+            # candidate, then shared (a Coulomb record sticking on 37 % of its training samples
+            # had F_c fitted at 0.22 N for 0.36 N and scored 3.8)
             variants = [(d0, m0, s0, c0, False), (d0, m0, s0, c0, True)]
             stick_chosen = True
         elif c.profiled == "degree":
