@@ -16,6 +16,9 @@ Two more regressor effects live here (only the diagnosis uses them):
   ΔF = (F⁺ − F⁻)/2: column +(1/Λ)[|sgñ v̂|], parameter b·ΔF. (A direction-dependent viscous
   term Δc·|ẋ| is left out: on EMPS it takes the part of a constant offset while the axis moves
   and displaces the published Coulomb + offset model; its effect is partly carried by ΔF.)
+- :class:`ForceClip`: the dead zone's input F − clip(F, ±d) as a column −(1/Λ)[clip(F, ±d)],
+  an out-of-library look-alike that friction must beat (a dead zone acts with the sign of the
+  force, friction with the sign of the velocity); never a named candidate.
 - :class:`ModeColumns`: a flexible mode. The rigid mass M = 1/b split into M₁ (driven) and
   m₂ = μM on a spring–damper (ω, ζ): with D(s) = s² + 2ζωs + ω² and h = (s²/D)[·],
   collocated (x = x₁): ẍ + aẋ − μ·s²h[x] = b·u; non-collocated (x = x₂):
@@ -31,6 +34,7 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._filters import FilterBank
@@ -95,6 +99,31 @@ class DirectionalFriction(AbstractEffect):
 
     def physical(self, theta: Array, b: Array) -> dict:
         return {"dF": theta[..., 0] / b}
+
+
+class ForceClip(AbstractEffect):
+    """The dead zone's input u = F − clip(F, ±d) (d [N]): column −(1/Λ)[clip(F, ±d)], whose
+    coefficient is b for the dead zone exactly (module docstring)."""
+
+    d: float
+
+    @property
+    def signal(self) -> str:
+        return f"clip_F@{self.d:.9g}"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("b_clip",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column(self.signal, 0, -1.0),)
+
+    def signals(self, record: Record) -> dict:
+        F = np.asarray(record.F, np.float64)
+        return {self.signal: (np.clip(F, -self.d, self.d), "zoh")}
+
+    def physical(self, theta: Array, b: Array) -> dict:
+        return {}
 
 
 def mode_bank(omega: float, zeta: float) -> FilterBank:

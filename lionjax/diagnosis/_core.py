@@ -50,7 +50,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -58,7 +58,7 @@ import numpy as np
 from .._errors import InputError
 from .._filters import FilterBank
 from .._model_effects import MAX_POSITION_DEGREE, position_terms, position_values
-from .._models import AbstractEffect, Augmented, Column, MassDamper
+from .._models import Augmented, MassDamper
 from .._record import Record
 from .._tables import jsonable
 from ..twin._windows import WINDOW_PARAMETERS
@@ -67,6 +67,7 @@ from ._candidates import (
     MODE_ZETA_RANGE,
     AbstractCandidate,
     Context,
+    ForceClip,
     Limits,
     mode_signal_names,
 )
@@ -135,26 +136,6 @@ SOFT_N = 15
 STICK_MIN_S = 0.01
 #: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
 DEAD_ZONE_QUANTILES = tuple(float(q) for q in np.geomspace(0.01, 0.8, 16))
-
-
-class _ForceClip(AbstractEffect):
-    """The dead-zone look-alike's column −(1/Λ)[clip(F, ±d)] (a precomputed signal ``signal``);
-    with coefficient b it makes the input F − clip(F, ±d)."""
-
-    signal: str
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return ("b_clip",)
-
-    def columns(self) -> tuple[Column, ...]:
-        return (Column(self.signal, 0, -1.0),)
-
-    def signals(self, record: Record) -> dict:
-        raise KeyError(f"{self.signal} is precomputed by the diagnosis")
-
-    def physical(self, theta, b) -> dict:
-        return {}
 
 
 def settings(
@@ -275,6 +256,16 @@ def _effects_of(cands: Sequence[AbstractCandidate], ctx: Context):
     return tuple(out)
 
 
+class Variant(NamedTuple):
+    """The variants a candidate's fit is chosen among, by validated score (:func:`diagnose`)."""
+
+    degree: int  # of the position-dependent a(x), b(x)
+    mode_input: bool  # the flexible mode's κ column (else collocated, κ = 0)
+    fmax_shape: int  # the saturation's shape: +1 hard, −1 soft, 0 both
+    position_clamp: bool  # a(x), b(x) held beyond the training positions
+    stick: bool  # friction's force columns masked where the axis sticks
+
+
 class _Fitter:
     """Fits structures (lists of candidates) on the train record and scores them on validation."""
 
@@ -288,6 +279,7 @@ class _Fitter:
         self.x_valid_smooth, self.v_valid = zero_phase(valid.x, dt, wv)
         v_train = self.v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
         self.v_train = v_train
+        self._clamp = False  # position_clamp: chosen in diagnose() with the degree, then fixed
         self.rtr = Regressors(train, self.bank, self._known(train, v_train))
         self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
         self.mode_input = True  # the flexible mode's κ column: chosen in diagnose(), then fixed
@@ -299,7 +291,6 @@ class _Fitter:
         # the saturation's shape, +1 hard or −1 soft (the sign of its F_max grid), or 0 both:
         # chosen in diagnose(), then fixed
         self.fmax_shape = 0
-        self._clamp = False  # position_clamp: chosen in diagnose() with the degree, then fixed
         # whether friction's structures treat the samples where the axis sticks as balanced
         # (Regressors' force_mask): chosen in diagnose() by the first friction candidate
         self.stick = False
@@ -321,28 +312,38 @@ class _Fitter:
         return dataclasses.replace(ctx, position_degree=self.degree, mode_input=self.mode_input)
 
     @property
-    def variant(self) -> tuple:
-        """The profiled variants now fixed: (degree, mode_input, fmax_shape, position_clamp,
-        stick)."""
-        return (self.degree, self.mode_input, self.fmax_shape, self.position_clamp, self.stick)
+    def variant(self) -> Variant:
+        """The profiled variants now fixed."""
+        return Variant(
+            self.degree, self.mode_input, self.fmax_shape, self.position_clamp, self.stick
+        )
 
     @variant.setter
-    def variant(self, var: tuple) -> None:
+    def variant(self, var: Variant) -> None:
         self.degree, self.mode_input, self.fmax_shape, self.position_clamp, self.stick = var
 
     def stuck(self, rec: Record, v: np.ndarray) -> np.ndarray:
         """(T,) True where the axis sticks: |v̂| within 3σ of its noise (the position noise
         through the zero-phase derivative) for at least :data:`STICK_MIN_S` (and 3 samples)."""
-        x = np.asarray(rec.x, np.float64)
-        sx = max(_robust_diff_std(x), _lattice_step(x) / math.sqrt(12.0))
+        sx = _position_noise(np.asarray(rec.x, np.float64))
+        va = np.abs(v)
+        thr = max(3.0 * sx * self._velocity_gain, 1e-4 * float(np.quantile(va, 0.99)))
+        return _long_runs(va <= thr, max(3, int(math.ceil(STICK_MIN_S / self.st.dt))))
+
+    @functools.cached_property
+    def _velocity_gain(self) -> float:
+        """‖h‖₂ of the zero-phase derivative filter's impulse response: white position noise of
+        σ gives v̂ the noise σ·‖h‖₂."""
         imp = np.zeros(2048)
         imp[1024] = 1.0
-        gain = float(
+        return float(
             np.linalg.norm(zero_phase(imp, self.st.dt, 2 * math.pi * self.st.velocity_hz)[1])
         )
-        va = np.abs(v)
-        thr = max(3.0 * sx * gain, 1e-4 * float(np.quantile(va, 0.99)))
-        return _long_runs(va <= thr, max(3, int(math.ceil(STICK_MIN_S / self.st.dt))))
+
+    @functools.cached_property
+    def stuck_masks(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`stuck` of (train, valid), once."""
+        return tuple(self.stuck(rec, v) for rec, v in self.records())
 
     def dead_zone_lookalike(self, cands, inp=(0.0, math.inf)) -> float:
         """Validated mean square of ε₁ of the structure ``cands`` (input map ``inp`` = (τ,
@@ -359,10 +360,8 @@ class _Fitter:
             effects = _effects_of(cands, self._context())
             best = (math.inf, math.inf)
             for d in ds[ds > 0]:
-                nm = f"clip_F@{float(d):.9g}"
-                for regs, rec in ((rtr, self.train), (rva, self.valid)):
-                    regs.known[nm] = (np.clip(np.asarray(rec.F, np.float64), -d, d), "zoh")
-                model = Augmented(MassDamper(), (*effects, _ForceClip(nm)))
+                clip = ForceClip(float(d))
+                model = Augmented(MassDamper(), (*effects, clip))
                 try:
                     th, rss, _, _ = fit_batch(rtr, model, [inp])
                     if float(rss[0]) < best[0]:
@@ -370,8 +369,8 @@ class _Fitter:
                         best = (float(rss[0]), float(np.mean(r**2)))
                 except TooWide:
                     pass
-                rtr.drop([nm])
-                rva.drop([nm])
+                for regs in (rtr, rva):  # one structure per width: not kept
+                    regs.drop([clip.signal])
             self._dead_zone[key] = best[1]
         return self._dead_zone[key]
 
@@ -379,24 +378,28 @@ class _Fitter:
         """((train, v̂_train), (valid, v̂_valid))."""
         return ((self.train, self.v_train), (self.valid, self.v_valid))
 
+    @property
+    def sticks(self) -> bool:
+        """Whether the axis sticks anywhere on either record (:attr:`stuck_masks`)."""
+        return any(bool(np.any(m)) for m in self.stuck_masks)
+
     def _regs(self, cands) -> tuple[Regressors, Regressors]:
         """(train, valid) regressors of a structure: force-masked where the axis sticks when
         the structure has friction and the stick variant is chosen."""
         if not (self.stick and any(c.profiled == "stick" for c in cands)):
             return self.rtr, self.rva
         if self._stick_regs is None:
-            pair = []
-            for rec, v in self.records():
-                known = self._known(rec, v)
-                if rec is self.valid:
-                    known |= self._position_known(rec, self._clamp)
-                m = 1.0 - self.stuck(rec, v)
-                pair.append(Regressors(rec, self.bank, known, force_mask=m))
-            self._stick_regs = (pair[0], pair[1])
+            rtr, rva = (
+                Regressors(rec, self.bank, self._known(rec, v), force_mask=1.0 - m)
+                for (rec, v), m in zip(self.records(), self.stuck_masks, strict=True)
+            )
+            self._stick_regs = (rtr, rva)
         return self._stick_regs
 
     def _known(self, rec: Record, v: np.ndarray) -> dict:
-        """Raw signals of the library's effects, computed once (names as the effects use)."""
+        """Raw signals of the library's effects, computed once (names as the effects use); the
+        validation record's position signals held beyond train's range when
+        :attr:`position_clamp` is set."""
         x = np.asarray(rec.x, np.float64)
         known = {
             "one": (np.ones_like(x), "zoh"),
@@ -404,7 +407,7 @@ class _Fitter:
             "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
             "abs_sgn_v": (np.abs(np.tanh(v / self.st.v_eps)), "foh"),
         }
-        return known | self._position_known(rec, clamp=False)
+        return known | self._position_known(rec, clamp=self._clamp and rec is self.valid)
 
     def _position_known(self, rec: Record, clamp: bool) -> dict:
         """The position dependence's raw signals (ℓξᵏ⁺¹/(k+1) and the multipliers ξᵏ of F).
@@ -672,6 +675,15 @@ def _long_runs(flag: np.ndarray, n: int) -> np.ndarray:
         if e0 - s0 >= n:
             out[s0:e0] = True
     return out
+
+
+def _position_noise(x: np.ndarray) -> float:
+    """σ [m] of a position record's noise: the larger of the third-difference estimate
+    (:func:`_robust_diff_std`) and q/√12 of its encoder's count q (:func:`_lattice_step`) — a
+    quantised position's error is uniform over one count when the axis moves several counts per
+    sample, and the third differences then miss it (a 2.3 µm encoder at 3.1 kHz: 0.46 µm for
+    0.66)."""
+    return max(_robust_diff_std(x), _lattice_step(x) / math.sqrt(12.0))
 
 
 def _robust_diff_std(u: np.ndarray) -> float:
@@ -978,14 +990,9 @@ def diagnose(
     base = fitter.fit([])
     a, b = base.physical["a"], base.physical["b"]
 
-    # noise floor of ε₁ on the validation record
-    # a quantised position's error is uniform over one count, σ = q/√12, when the axis moves
-    # several counts per sample; the third-difference estimate then misses it (a 2.3 µm encoder
-    # at 3.1 kHz: 0.46 µm for 0.66), and a clean record's gap is taken for an effect
-    sx = max(
-        _robust_diff_std(np.asarray(valid.x)),
-        _lattice_step(np.asarray(valid.x)) / math.sqrt(12.0),
-    )
+    # noise floor of ε₁ on the validation record (with the encoder's count: else a clean
+    # record's gap is taken for an effect)
+    sx = _position_noise(np.asarray(valid.x))
     sF = _robust_diff_std(np.asarray(valid.F))
     gx, gF = impulse_gains(fitter.bank, st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
@@ -1023,16 +1030,15 @@ def diagnose(
     # others from nothing yet
     outside = _outside(train, valid, fitter.v_train, fitter.v_valid)
     fitted: dict[str, Fitted] = {}
-    sticks = any(np.any(fitter.stuck(r, v)) for r, v in fitter.records())
     stick_chosen = False
     for c in candidates:
-        d0, m0, s0, c0, k0 = now = fitter.variant
-        if c.profiled == "stick" and sticks and not stick_chosen:
+        now = fitter.variant
+        if c.profiled == "stick" and fitter.sticks and not stick_chosen:
             # whether the samples where the axis sticks are masked (static friction balances
             # the forces there, which the smoothed sign cannot): chosen by the first friction
             # candidate, then shared (a Coulomb record sticking on 37 % of its training samples
             # had F_c fitted at 0.22 N for 0.36 N and scored 3.8)
-            variants = [(d0, m0, s0, c0, False), (d0, m0, s0, c0, True)]
+            variants = [now._replace(stick=k) for k in (False, True)]
             stick_chosen = True
         elif c.profiled == "degree":
             # and whether a(x), b(x) are held constant beyond the training positions: where
@@ -1040,17 +1046,17 @@ def diagnose(
             # dependence (a tanh wider than the range) and wildly wrong for a saturating one
             # (a bowl 1 − exp(−d²) scored −65 extrapolated and +103 held)
             variants = [
-                (d, m0, s0, clamp, k0)
+                now._replace(degree=d, position_clamp=clamp)
                 for clamp in ((False, True) if outside["position"] > 0 else (False,))
                 for d in range(1, MAX_POSITION_DEGREE + 1)
             ]
         elif c.profiled == "mode":
-            variants = [(d0, False, s0, c0, k0), (d0, True, s0, c0, k0)]
+            variants = [now._replace(mode_input=m) for m in (False, True)]
         elif c.profiled == "fmax":
             # the shape too: both fit the train record nearly alike where its forces stay low,
             # and the wrong one extrapolates badly (a hard clip at the train record's peak,
             # 1.1 N, under a tanh of 3.5 N made a validation record reaching 2.9 N 18× worse)
-            variants = [(d0, m0, 1, c0, k0), (d0, m0, -1, c0, k0)]
+            variants = [now._replace(fmax_shape=k) for k in (1, -1)]
         else:
             variants = [now]
         tries = []
