@@ -570,7 +570,7 @@ class Regressors:
         for n in names:
             self.known.pop(n, None)
             self.cache.pop(n, None)
-        for k in [k for k in self.cache if isinstance(k, tuple) and k[0] in ("layout", "nuisance")]:
+        for k in [k for k in self.cache if isinstance(k, tuple) and k[0] in _PER_STRUCTURE]:
             if any(c.signal in names for c in k[1]):
                 del self.cache[k]
 
@@ -671,20 +671,56 @@ class Regressors:
         return np.asarray(model.signals(ones)[signal][0], np.float64)
 
     def _args(self, model):
-        key = ("layout", _model_key(model))
-        if self.Tp > BIG:  # a long record: rebuild rather than hold a dense design per structure
-            return self.layout(model)
+        return self._cached(("layout", _model_key(model)), lambda: self.layout(model))
+
+    def _cached(self, key, make):
+        """``make()`` cached under ``key`` (a per-structure key, see :meth:`drop`), except on a
+        long record: there it is rebuilt rather than held as a dense (Tp, ·) array."""
+        if self.Tp > BIG:
+            return make()
         if key not in self.cache:
-            self.cache[key] = self.layout(model)
+            self.cache[key] = make()
         return self.cache[key]
+
+    def fixed_gram(self, model, n_free: int = 0):
+        """(A, AᵀA) of a structure with u = F: A = [W | ε₁'s x column] (Tp, P_MAX + 1), masked,
+        with the unit pad columns of unused slots, except that the ``n_free`` slots after its
+        columns are zero (:func:`rss_with_columns` fills them); cached per structure, since a
+        profile over a column family (the flexible mode's ω, ζ) reuses it at every point."""
+
+        def make():
+            Wfix, mult, onehot, pad, p, Wdef = self._args(model)
+            n = p + self.nuisance(model).shape[1]
+            A = _augmented_design(Wdef * self.mask[:, None] + pad, self.W0 * self.mask)
+            A[:, n : n + n_free] = 0.0
+            return A, A.T @ A
+
+        return self._cached(("gram", _model_key(model), n_free), make)
+
+    def grid_gram(self, model):
+        """(A, AᵀA) of a structure's fixed columns (the F-dependent slots zero, to be filled per
+        input map by :func:`_solve_grid`) and ε₁'s x column, masked; cached per structure: the
+        τ and F_max profiles refit it at every grid point."""
+
+        def make():
+            Wfix, mult, onehot, pad, p, Wdef = self._args(model)
+            A = _augmented_design(Wfix * self.mask[:, None] + pad, self.W0 * self.mask)
+            return A, A.T @ A
+
+        return self._cached(("gram", _model_key(model), "grid"), make)
+
+
+#: Cache keys held per structure (dropped with the signals they use).
+_PER_STRUCTURE = ("layout", "nuisance", "gram")
 
 
 def _model_key(model) -> tuple:
     return tuple(c for c in model.columns())
 
 
-def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
-    """coef, RSS, Gram inverse, condition (each leading G) of the masked LS per input map."""
+def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None, fixed=None):
+    """coef, RSS, Gram inverse, condition (each leading G) of the masked LS per input map;
+    ``fixed``: the (A, AᵀA) of [Wfix·mask + pad | y·mask] when already known."""
     taus = np.array([float(t) for t, _ in inputs], np.float64)
     fmaxs = np.array([float(f) for _, f in inputs], np.float64)
     y = np.asarray(y, np.float64) * regs.mask
@@ -692,8 +728,10 @@ def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None):
         Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, y)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
-        A = _augmented_design(Wfix * regs.mask[:, None] + pad, y)
-        G0 = A.T @ A
+        if fixed is None:
+            A = _augmented_design(Wfix * regs.mask[:, None] + pad, y)
+            fixed = A, A.T @ A
+        A, G0 = fixed
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
         gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
@@ -733,7 +771,11 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
     Returns θ ``(G, p)``, the RSS ``(G,)``, σ²(ΦᵀΦ)⁻¹ ``(G, p, p)`` and condition numbers.
     """
     Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
-    coef, rss, gi, cond = _solve_grid(regs, Wfix, mult, onehot, pad, regs.W0, inputs, Wdef)
+    default = len(inputs) == 1 and float(inputs[0][0]) == 0 and float(inputs[0][1]) == np.inf
+    fixed = None if default else regs.grid_gram(model)
+    coef, rss, gi, cond = _solve_grid(
+        regs, Wfix, mult, onehot, pad, regs.W0, inputs, Wdef, fixed=fixed
+    )
     n_cols = p + regs.nuisance(model).shape[1]
     s2 = rss / max(regs.T - n_cols, 1)
     cov = s2[:, None, None] * gi[:, :p, :p]
@@ -751,9 +793,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -
     m, K, _ = cols.shape
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
-    A = _augmented_design(Wdef * regs.mask[:, None] + pad, regs.W0 * regs.mask)
-    A[:, n : n + K] = 0.0
-    G0 = A.T @ A
+    A, G0 = regs.fixed_gram(model, K)
     V = np.zeros((m, K, regs.Tp))
     V[:, :, : regs.T] = cols
     O = np.zeros((K, P_MAX + 1))
