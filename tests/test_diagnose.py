@@ -733,3 +733,25 @@ def test_dead_zone_is_not_friction():
             assert "sign of the force" in coulomb.reason
         else:
             assert friction < 0.1 * look
+
+
+def test_closed_loop_delay_at_the_floor_needs_the_simulation():
+    """In closed loop at the noise floor a delay can cancel the position noise the controller
+    feeds into F, so it must also remove ≥ 10 % of the simulated gap (driven by the measured F).
+    A scipy delay of 3.13 ms (304 Hz, PD loop, baseline at 0.9 of the floor) was refused outright
+    and the record `unexplained`; it is named, τ within 2 %. A flexible mode's look-alike delay
+    (1.5 ms, removing 6 % of the simulated gap, score > 300) stays refused."""
+    train, valid, info = blind.make_case("delay", 16051000, source="scipy")
+    d = lj.diagnose(train, valid)
+    assert d.noise["closed_loop"] and d.baseline["at_noise_floor"]
+    assert d.verdict == "delay"
+    assert d.final["tau"] == pytest.approx(info["effects"][0]["params"]["tau"], rel=0.02)
+    delay = next(e for e in d.effects if e.name == "delay")
+    assert delay.shrink > 0.1
+
+    train, valid, info = blind.make_case("flexible_mode", 15081000, source="scipy")
+    d = lj.diagnose(train, valid)
+    delay = next(e for e in d.effects if e.name == "delay")
+    assert d.noise["closed_loop"] and delay.score > 100 and 0 < delay.shrink < 0.1
+    assert not delay.plausible and "simulated gap" in delay.reason
+    assert d.verdict != "delay"

@@ -27,7 +27,9 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    (F_c > 0, F_max inside the force range …), it removes at least ``min_share`` of the gap in
    excess of the fitted floor, its size (the rms of ε₁ it removes over the rms of the input's
    term b·F/Λ) is at least ``min_size`` and, if the windowed simulation models it, it does not
-   make the simulated gap worse (by more than :data:`MAX_WORSENING`). Friction is also tried
+   make the simulated gap worse (by more than :data:`MAX_WORSENING`); in closed loop at the
+   noise floor a candidate that can cancel the position noise fed into F (the delay) must also
+   remove its ``loop_noise_shrink`` of the simulated gap. Friction is also tried
    with the force columns masked where the axis sticks (:meth:`_Fitter.stuck`). Greedy stacking
    adds the best significant candidate until none is — or, when none is, the stand-in pair of an
    implausible candidate (asymmetric friction with F⁺ < 0 < F⁻: Coulomb friction and an offset)
@@ -1004,6 +1006,7 @@ def diagnose(
     # in closed loop the controller feeds the position noise into F, so a regressor built from
     # F can cancel the noise's path through x in ε₁: at or below the estimated floor a delay of
     # a few samples does (a clean record named `delay` at 1.00), and is not taken as the device's
+    # unless it also removes part of the simulated gap (``loop_noise_shrink``)
     feedback, F_ref = _feedback(np.asarray(valid.x), np.asarray(valid.F))
     closed_loop = feedback >= FEEDBACK_SHARE
     limits = Limits(
@@ -1109,6 +1112,13 @@ def diagnose(
             why = (
                 "the residual follows the sign of the force rather than of the velocity: a dead "
                 "zone's input F − clip(F, ±d) validates better than friction"
+            )
+        loop = [k.loop_noise_shrink for k in ks if k.loop_noise_shrink is not None]
+        if not why and limits.loop_noise and loop and not new.gap <= (1 - max(loop)) * cur.gap:
+            why = (
+                "closed loop at the noise floor: it cancels the position noise the controller "
+                f"feeds into F and removes less than {max(loop):.0%} of the simulated gap "
+                f"({new.gap:.3g} m against {cur.gap:.3g} m)"
             )
         plausible = not why
         # an effect the windowed simulation models must not make the simulated gap worse: an
