@@ -1013,6 +1013,7 @@ def diagnose(
         float(min(np.max(np.abs(np.asarray(train.F))), np.max(np.abs(Fv)))),
         st.dt,
         sx,
+        closed_loop=closed_loop,
         loop_noise=closed_loop and base.ms_valid <= floor**2,
     )
 
