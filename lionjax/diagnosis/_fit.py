@@ -814,13 +814,14 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     r0 = W @ np.asarray(theta) + regs.W0
     nuis = regs.nuisance(model)
     n = nuis.shape[1]
-    Nfix = np.zeros((regs.Tp, P_MAX))
-    Nfix[:, :n] = nuis
-    padn = np.zeros((regs.Tp, P_MAX))
-    for j in range(n, P_MAX):
-        padn[regs.T + j, j] = 1.0
-    zk = np.zeros((K_BUCKETS[0], regs.Tp)), np.zeros((K_BUCKETS[0], P_MAX))
-    eta = _solve_grid(regs, Nfix, *zk, padn, r0, [(0.0, math.inf)], Nfix)[0][0, :n]
+    # the nuisance's least squares on the masked record, its augmented Gram (n + 1)² placed in
+    # the solver's fixed size with unit diagonals in the unused slots (the Gram of the unit pad
+    # columns of :meth:`Regressors.layout`, which hold no part of the record)
+    g = _augmented_gram(nuis * regs.mask[:, None], r0 * regs.mask)
+    G = np.eye(P_MAX + 1)
+    idx = np.r_[np.arange(n), P_MAX]
+    G[np.ix_(idx, idx)] = g
+    eta = solve_grams(G[None], regs.T)[0][0, :n]
     return (r0 + nuis @ eta)[: regs.T]
 
 
