@@ -182,3 +182,17 @@ def test_dead_zone_is_not_friction():
             assert "sign of the force" in coulomb.reason
         else:
             assert friction < 0.1 * look
+
+
+def test_dead_zone_named_as_an_offset_is_unexplained():
+    """A scipy dead zone in closed loop (958 Hz): F is nearly one-signed, so the dead zone's
+    loss F − clip(F, ±d) acts like an offset, and `offset` was named at 0.90. The dead zone's
+    look-alike on the baseline structure validates far better than the named offset (a ratio of
+    its mean square to the stack's below 0.8; true offsets, springs and b(x) stay above 1.2),
+    so the record is `unexplained`."""
+    train, valid, info = blind.make_case("dead_zone", 16121017, source="scipy")
+    assert info["closed_loop"]
+    d = lj.diagnose(train, valid)
+    assert d.stack[:1] == ["offset"]
+    assert d.final["dead_zone_lookalike_ratio"] < 0.8
+    assert d.verdict == "unexplained"
