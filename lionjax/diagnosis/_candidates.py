@@ -407,10 +407,10 @@ class DelayCandidate(AbstractCandidate):
         return ()
 
     #: F(t − τ) − F(t) ≈ −τḞ, and in closed loop Ḟ carries the controller's answer to the
-    #: position noise, which cancels the noise's path through x in ε₁. Refused outright there,
-    #: four of 46 held-out closed-loop records at the floor lost a true delay (τ 1.4–3.1 ms,
-    #: removing 11–66 % of the simulated gap); a flexible mode's look-alike delay removed 6 %,
-    #: clean records' delays none (their validated scores were all negative)
+    #: position noise, which cancels the noise's path through x in ε₁. When a delay was refused
+    #: outright there, four of 46 held-out closed-loop records at the floor lost a true one (τ
+    #: 1.4–3.1 ms, removing 11–66 % of the simulated gap); a flexible mode's look-alike delay
+    #: removed 6 %, and the clean records' delays validated worse than no delay
     loop_noise_shrink: ClassVar[float | None] = 0.1
 
     def implausible(self, phys, lim):

@@ -718,20 +718,17 @@ def _model_key(model) -> tuple:
     return tuple(c for c in model.columns())
 
 
-def _solve_grid(regs, Wfix, mult, onehot, pad, y, inputs, Wdef=None, fixed=None):
-    """coef, RSS, Gram inverse, condition (each leading G) of the masked LS per input map;
-    ``fixed``: the (A, AᵀA) of [Wfix·mask + pad | y·mask] when already known."""
+def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
+    """coef, RSS, Gram inverse, condition (each leading G) of the masked LS of ``model`` on
+    ``regs`` (y = ε₁'s x column) per input map (τ, F_max) in ``inputs``."""
+    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
     taus = np.array([float(t) for t, _ in inputs], np.float64)
     fmaxs = np.array([float(f) for _, f in inputs], np.float64)
-    y = np.asarray(y, np.float64) * regs.mask
-    if Wdef is not None and len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
-        Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, y)[None]]
+    if len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
+        Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, regs.W0 * regs.mask)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
-        if fixed is None:
-            A = _augmented_design(Wfix * regs.mask[:, None] + pad, y)
-            fixed = A, A.T @ A
-        A, G0 = fixed
+        A, G0 = regs.grid_gram(model)
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
         gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
@@ -770,12 +767,8 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
 
     Returns θ ``(G, p)``, the RSS ``(G,)``, σ²(ΦᵀΦ)⁻¹ ``(G, p, p)`` and condition numbers.
     """
-    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
-    default = len(inputs) == 1 and float(inputs[0][0]) == 0 and float(inputs[0][1]) == np.inf
-    fixed = None if default else regs.grid_gram(model)
-    coef, rss, gi, cond = _solve_grid(
-        regs, Wfix, mult, onehot, pad, regs.W0, inputs, Wdef, fixed=fixed
-    )
+    p = len(model.columns())
+    coef, rss, gi, cond = _solve_grid(regs, model, inputs)
     n_cols = p + regs.nuisance(model).shape[1]
     s2 = rss / max(regs.T - n_cols, 1)
     cov = s2[:, None, None] * gi[:, :p, :p]
