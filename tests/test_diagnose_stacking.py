@@ -189,10 +189,17 @@ def test_dead_zone_named_as_an_offset_is_unexplained():
     loss F − clip(F, ±d) acts like an offset, and `offset` was named at 0.90. The dead zone's
     look-alike on the baseline structure validates far better than the named offset (a ratio of
     its mean square to the stack's below 0.8; true offsets, springs and b(x) stay above 1.2),
-    so the record is `unexplained`."""
+    so the record is `unexplained`. A saturation is not judged so (below)."""
     train, valid, info = blind.make_case("dead_zone", 16121017, source="scipy")
     assert info["closed_loop"]
     d = lj.diagnose(train, valid)
     assert d.stack[:1] == ["offset"]
     assert d.final["dead_zone_lookalike_ratio"] < 0.8
     assert d.verdict == "unexplained"
+
+    # the look-alike's free columns F and clip(F, ±d) span a hard saturation: a hard clip
+    # (twin, open loop, 461 Hz) validated at 7× the look-alike's error and was `unexplained`;
+    # a stack with a saturation is not judged against it
+    train, valid, info = blind.make_case("saturation", 17060002, source="twin")
+    d = lj.diagnose(train, valid)
+    assert d.verdict == "saturation" and d.final["dead_zone_lookalike_ratio"] is None
