@@ -682,32 +682,24 @@ class Regressors:
             self.cache[key] = make()
         return self.cache[key]
 
-    def fixed_gram(self, model, n_free: int = 0):
-        """(A, AᵀA) of a structure with u = F: A = [W | ε₁'s x column] (Tp, P_MAX + 1), masked,
-        with the unit pad columns of unused slots, except that the ``n_free`` slots after its
-        columns are zero (:func:`rss_with_columns` fills them); cached per structure, since a
-        profile over a column family (the flexible mode's ω, ζ) reuses it at every point."""
+    def gram(self, model, *, grid: bool = False, n_free: int = 0):
+        """(A, AᵀA) of a structure, masked, cached per structure: A = [W·mask + pad | ε₁'s x
+        column·mask] (Tp, P_MAX + 1) with the unit pad columns of unused slots. W is the design
+        with u = F, or with ``grid`` its fixed columns only (the F-dependent slots zero, filled
+        per input map by :func:`_solve_grid`); the ``n_free`` slots after the structure's columns
+        are zero (:func:`rss_with_columns` fills them). The τ and F_max profiles and the flexible
+        mode's (ω, ζ) profile reuse it at every point."""
 
         def make():
             Wfix, mult, onehot, pad, p, Wdef = self._args(model)
             n = p + self.nuisance(model).shape[1]
-            A = _augmented_design(Wdef * self.mask[:, None] + pad, self.W0 * self.mask)
+            A = _augmented_design(
+                (Wfix if grid else Wdef) * self.mask[:, None] + pad, self.W0 * self.mask
+            )
             A[:, n : n + n_free] = 0.0
             return A, A.T @ A
 
-        return self._cached(("gram", _model_key(model), n_free), make)
-
-    def grid_gram(self, model):
-        """(A, AᵀA) of a structure's fixed columns (the F-dependent slots zero, to be filled per
-        input map by :func:`_solve_grid`) and ε₁'s x column, masked; cached per structure: the
-        τ and F_max profiles refit it at every grid point."""
-
-        def make():
-            Wfix, mult, onehot, pad, p, Wdef = self._args(model)
-            A = _augmented_design(Wfix * self.mask[:, None] + pad, self.W0 * self.mask)
-            return A, A.T @ A
-
-        return self._cached(("gram", _model_key(model), "grid"), make)
+        return self._cached(("gram", _model_key(model), grid, n_free), make)
 
 
 #: Cache keys held per structure (dropped with the signals they use).
@@ -728,7 +720,7 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
         Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, regs.W0 * regs.mask)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
-        A, G0 = regs.grid_gram(model)
+        A, G0 = regs.gram(model, grid=True)
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
         gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
@@ -786,7 +778,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -
     m, K, _ = cols.shape
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
-    A, G0 = regs.fixed_gram(model, K)
+    A, G0 = regs.gram(model, n_free=K)
     V = np.zeros((m, K, regs.Tp))
     V[:, :, : regs.T] = cols
     O = np.zeros((K, P_MAX + 1))
