@@ -2,6 +2,7 @@
 noise-free record, the (ω, ζ) search, and its plausibility (collocated, heavy, deflection against
 the position noise) on held-out records."""
 
+import math
 import sys
 from pathlib import Path
 
@@ -174,10 +175,10 @@ def test_mode_search_finds_a_narrow_valley(monkeypatch):
     assert mode["input_share"] == pytest.approx(1.0, abs=0.01)
 
 
-def test_heavy_mode_plausible_only_collocated_and_lightly_damped():
+def test_mode_plausible_only_lightly_damped_and_heavy_only_collocated():
     from lionjax.diagnosis._candidates import (
-        HEAVY_MODE_ZETA,
         MAX_HEAVY_MODE_MASS,
+        MAX_MODE_ZETA,
         FlexibleModeCandidate,
         Limits,
     )
@@ -188,12 +189,15 @@ def test_heavy_mode_plausible_only_collocated_and_lightly_damped():
     def why(mu, zeta, beta):
         return c.implausible(base | dict(mass_ratio=mu, zeta_mode=zeta, beta=beta), lim)
 
-    assert why(0.5, 0.3, 1.0) == ""  # light: any damping below the search's limit, κ free
+    assert why(0.5, 0.2, 1.0) == ""  # light, κ free
+    # more damped than a resonance peak of 2× (1/(2ζ√(1 − ζ²)) at ζ = 0.2588): refused
+    assert 1 / (2 * MAX_MODE_ZETA * math.sqrt(1 - MAX_MODE_ZETA**2)) >= 2.0
+    assert "damping ratio" in why(0.5, MAX_MODE_ZETA + 0.01, 1.0)
+    assert "damping ratio" in why(0.9, MAX_MODE_ZETA + 0.05, 0.0)  # heavy, damped
     assert why(0.9, 0.1, 0.0) == ""  # heavy, collocated (β ≡ 0), lightly damped
     assert why(0.9, 0.1, 0.004) == ""  # κ = 0.002 fitted free: collocated within the fit
     assert "mass ratio" in why(0.9, 0.1, 2.0)  # heavy with κ = 1: a delay's look-alike
     assert "mass ratio" in why(0.9, 0.1, 0.4)  # heavy with κ = 0.2
-    assert "mass ratio" in why(0.9, HEAVY_MODE_ZETA + 0.05, 0.0)  # heavy, damped
     assert "mass ratio" in why(MAX_HEAVY_MODE_MASS + 0.01, 0.1, 0.0)
 
 
