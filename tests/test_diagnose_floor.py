@@ -117,10 +117,11 @@ def test_closed_loop_delay_at_the_floor_needs_the_simulation():
 
 
 def test_unexplained_is_no_surer_than_train_covers_validation():
-    """A tanh position dependence whose validation positions lie 99.97 % outside train's range:
-    nothing fitted on train can describe it there, so ``unexplained`` (the verdict) carries at
-    most 1 − that share (it was 1.00)."""
-    train, valid, info = blind.make_case("position_dependent", 11070004, source="twin")
+    """A tanh position dependence whose validation positions lie wholly outside train's range
+    (an open-loop record that drifts): nothing fitted on train can describe it there, so
+    ``unexplained`` (the verdict) carries at most 1 − that share (such a record was
+    ``unexplained`` at 1.00; this one, of held-out run P, is at 0.00)."""
+    train, valid, info = blind.make_case("position_dependent", 26070014, source="twin")
     d = lj.diagnose(train, valid)
     out = d.to_json()["baseline"]["valid_outside_train"]
     assert out["position"] > 0.99
