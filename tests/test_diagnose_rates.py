@@ -91,3 +91,29 @@ def test_settings_finite_over_rates_and_lengths(fs, duration):
     assert np.all(np.isfinite(fm)) and np.all(fm != 0)
     assert np.all(np.abs(fm[fm > 0]) <= 1.0 + 1e-12)  # hard clips within the force's range
     assert math.isfinite(st.x_center) and st.x_scale == pytest.approx(A / np.sqrt(2), rel=0.01)
+
+
+def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, capsys):
+    """The diagnosis's peak host memory grows with the padded length (measured: 9.7 kB per
+    padded sample of each record with the designs cached, up to 2¹⁸; 4.3 kB above): records
+    that would need more than ``max_memory_gb`` (default: the machine's memory) get an
+    InputError naming the need, the limit and the longest records that fit, before anything
+    is computed. A 10-minute record at 10 kHz, padded to 2²³, needs 72 GB."""
+    from lionjax.diagnosis._fit import memory_estimate
+
+    assert memory_estimate(6_000_000, 6_000_000) == 4300 * 2 * 2**23
+    assert memory_estimate(20_000, 20_000) == 9700 * 2 * 2**15
+    t = np.arange(20_000) / 1000.0
+    rec = lj.Record(0.01 * np.sin(2 * np.pi * 0.7 * t), np.cos(2 * np.pi * 0.7 * t), 1e-3)
+    # 0.3 GB: the longest padded length that fits is 2¹³ (9700·2·2¹³ = 0.16 GB; 2¹⁴: 0.32 GB),
+    # which holds 2¹³ − 20 samples (padded_length pads n + 20)
+    with pytest.raises(lj.InputError, match=r"0\.636 GB .* max_memory_gb \(0\.3 GB\).* 8172 "):
+        lj.diagnose(rec, rec, max_memory_gb=0.3)
+    for bad in (-1.0, 0, "8"):
+        with pytest.raises(lj.InputError, match="max_memory_gb must be a number > 0"):
+            lj.diagnose(rec, rec, max_memory_gb=bad)
+    # the command line: a clear message and exit status 2
+    path = tmp_path / "rec.npz"
+    lj.save_record(path, rec)
+    assert main(["diagnose", str(path), "--max-memory-gb", "0.3"]) == 2
+    assert "need about 0.636 GB" in capsys.readouterr().err

@@ -30,6 +30,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--filter-hz", type=float, help="filter corner λ/2π in Hz (default min(fs/25, 40 Hz))"
     )
     g.add_argument("--window", type=float, help="restart interval H [s] of the simulation gap")
+    g.add_argument(
+        "--max-memory-gb",
+        type=float,
+        help="host memory the diagnosis may take [GB] (default: this machine's memory)",
+    )
     g = p.add_argument_group("input files")
     g.add_argument("--columns", help="map column names, e.g. t=time,x=pos,F=force")
     g.add_argument("--force-scale", type=float, help="multiply F by this (e.g. N/V)")
@@ -51,7 +56,13 @@ def run(args) -> int:
     check_folder(args.json, "--json")
     train = _load(args.data, args)
     valid = _load(args.validate, args) if args.validate else None
-    d = lj.diagnose(train, valid, filter_hz=args.filter_hz, window_s=args.window)
+    d = lj.diagnose(
+        train,
+        valid,
+        filter_hz=args.filter_hz,
+        window_s=args.window,
+        max_memory_gb=args.max_memory_gb,
+    )
     out = d.to_json()
     out["files"] = {"train": str(args.data), "validate": str(args.validate or args.data)}
     base = out["baseline"]

@@ -75,15 +75,18 @@ from ._candidates import (
     mode_signal_names,
 )
 from ._fit import (
+    P_MAX,
     Regressors,
     TooWide,
     apply_input,
     fit_batch,
     impulse_gains,
+    memory_estimate,
     mode_columns,
     mode_free_response,
     mode_seed,
     mode_signals,
+    physical_memory,
     residual,
     rss_with_columns,
     simulate_windows,
@@ -669,6 +672,29 @@ class _Fitter:
 # ----------------------------------------------------------------------------- statistics
 
 
+def _check_memory(n_train: int, n_valid: int, max_memory_gb: float | None) -> None:
+    """InputError when records of these lengths need more host memory than allowed."""
+    if max_memory_gb is not None and not (
+        isinstance(max_memory_gb, (int, float)) and max_memory_gb > 0
+    ):
+        raise InputError(f"diagnose: max_memory_gb must be a number > 0, got {max_memory_gb!r}.")
+    have = physical_memory() if max_memory_gb is None else max_memory_gb * 1e9
+    need = memory_estimate(n_train, n_valid)
+    if have is None or need <= have:
+        return
+    tp = 1 << 12  # the longest padded length of two records that would fit
+    while memory_estimate(2 * tp - P_MAX - 2, 2 * tp - P_MAX - 2) <= have:
+        tp *= 2
+    n = tp - P_MAX - 2
+    limit = "max_memory_gb" if max_memory_gb is not None else "this machine's physical memory"
+    raise InputError(
+        f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
+        f"{need / 1e9:.3g} GB of host memory, more than {limit} ({have / 1e9:.3g} GB). Diagnose "
+        f"shorter records (at most about {n} samples each: excerpts of the record), or pass a "
+        "larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
+    )
+
+
 def _long_runs(flag: np.ndarray, n: int) -> np.ndarray:
     """``flag`` (T,) bool with its runs of True shorter than ``n`` samples cleared."""
     f = np.concatenate([[False], np.asarray(flag, bool), [False]])
@@ -909,6 +935,7 @@ def diagnose(
     min_size: float = 0.005,
     floor_factor: float = 1.5,
     max_effects: int = 3,
+    max_memory_gb: float | None = None,
 ) -> Diagnosis:
     """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record.
 
@@ -932,6 +959,12 @@ def diagnose(
             ε₁'s rms ≤ floor_factor × the estimated floor; there a residual within its input
             correlation bound is ``none`` even with a spectral line.
         max_effects: largest stack.
+        max_memory_gb: host memory [GB] the diagnosis may take (default: this machine's
+            physical memory). Its peak grows with the records' padded lengths (about 4.3 kB per
+            padded sample of each record above 2¹⁸, 9.7 kB below, where designs are cached:
+            :func:`~lionjax.diagnosis._fit.memory_estimate`); records that would need more get
+            an :class:`~lionjax.InputError` before anything is computed, not an
+            out-of-memory kill.
 
     Returns:
         a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,
@@ -993,6 +1026,7 @@ def diagnose(
                 f"diagnose: the {nm} record has {rec.n_samples} samples; at least "
                 f"{max(min_len, 200)} are needed (20 filter time constants)."
             )
+    _check_memory(train.n_samples, valid.n_samples, max_memory_gb)
     fitter = _Fitter(train, valid, st)
     base = fitter.fit([])
     a, b = base.physical["a"], base.physical["b"]

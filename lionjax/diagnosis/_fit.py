@@ -32,6 +32,7 @@ Compilation. Every compiled program here sees only *bucketed* shapes and *traced
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -58,8 +59,34 @@ class TooWide(ValueError):
 
 #: Length of every profile grid (τ, F_max); shorter grids are padded by repeating a value.
 GRID = 32
-#: Padded lengths above this filter a profile grid 4 points at a time (memory).
-BIG = 1 << 20
+#: Padded lengths above this filter a profile grid 4 points at a time and rebuild each
+#: structure's dense (Tp, ·) design and Gram instead of caching them (memory). A 10-minute
+#: record at 1 kHz (padded to 2²⁰) took 243 s and 17.9 GB with them cached, 245 s and 5.8 GB
+#: without (the same diagnosis to six digits): above a few 10⁵ samples the cache buys no time.
+BIG = 1 << 18
+#: Host memory a diagnosis holds at its peak per padded sample of each record [bytes], with and
+#: without the per-structure caches (measured as peak RSS over train's + valid's padded
+#: length: 10.1 GB at 2 × 2¹⁹, cached; 5.8 GB at 2 × 2²⁰ and 17.8 GB at 2 × 2²¹, not cached).
+BYTES_PER_SAMPLE_CACHED = 9_700
+BYTES_PER_SAMPLE = 4_300
+
+
+def memory_estimate(*n_samples: int) -> int:
+    """Peak host memory [bytes] a diagnosis of records of ``n_samples`` samples needs
+    (:data:`BYTES_PER_SAMPLE`, :data:`BYTES_PER_SAMPLE_CACHED` per padded sample)."""
+    tp = [padded_length(int(n)) for n in n_samples]
+    rate = BYTES_PER_SAMPLE_CACHED if max(tp) <= BIG else BYTES_PER_SAMPLE
+    return rate * sum(tp)
+
+
+def physical_memory() -> int | None:
+    """This machine's physical memory [bytes], or None where the OS does not say."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
 #: Signals whose value is (a function of x) × F: the input map u replaces F in them; the value
 #: is the name of the multiplier's raw signal (``known``), None for F itself.
 F_DEP = {"F": None} | {
