@@ -117,7 +117,7 @@ def test_bad_arguments():
 
 
 def test_blind_small():
-    classes = ("none", *FIXED, "coulomb_friction+offset", "dead_zone")
+    classes = ("none", *FIXED, "dead_zone")  # (two-effect records: test_diagnose_stacking)
     out = blind.run(
         per_class=1,
         seed0=500,
