@@ -109,7 +109,7 @@ def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, 
     # which holds 2¹³ − 20 samples (padded_length pads n + 20)
     with pytest.raises(lj.InputError, match=r"0\.636 GB .* max_memory_gb \(0\.3 GB\).* 8172 "):
         lj.diagnose(rec, rec, max_memory_gb=0.3)
-    for bad in (-1.0, 0, "8"):
+    for bad in (-1.0, 0, "8", True, float("nan")):
         with pytest.raises(lj.InputError, match="max_memory_gb must be a number > 0"):
             lj.diagnose(rec, rec, max_memory_gb=bad)
     # the command line: a clear message and exit status 2

@@ -675,7 +675,9 @@ class _Fitter:
 def _check_memory(n_train: int, n_valid: int, max_memory_gb: float | None) -> None:
     """InputError when records of these lengths need more host memory than allowed."""
     if max_memory_gb is not None and not (
-        isinstance(max_memory_gb, (int, float)) and max_memory_gb > 0
+        isinstance(max_memory_gb, (int, float))
+        and not isinstance(max_memory_gb, bool)
+        and max_memory_gb > 0
     ):
         raise InputError(f"diagnose: max_memory_gb must be a number > 0, got {max_memory_gb!r}.")
     have = physical_memory() if max_memory_gb is None else max_memory_gb * 1e9
