@@ -1,13 +1,15 @@
 import os
 import pathlib
 import re
+import sys
 from importlib import metadata
 
 # One JAX compilation cache for the whole run, shared by the pytest-xdist workers and the
 # notebook kernels they start (set before jax is imported, so child processes inherit it): the
 # suite is compile-bound, and the workers compile many of the same programs. Results do not
 # depend on it (a cache hit is the same executable).
-_CACHE = pathlib.Path(__file__).resolve().parents[1] / ".jax_cache"
+_ROOT = pathlib.Path(__file__).resolve().parents[1]
+_CACHE = _ROOT / ".jax_cache"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
@@ -26,6 +28,10 @@ if _JAXLIB >= (0, 10) and "xla_cpu_use_fusion_emitters" not in os.environ.get("X
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
 
 import jax  # noqa: E402
+
+# The blind benchmark's generators (benchmarks/diagnosis_blind.py, _blind_sim.py) serve the
+# diagnosis tests as independent references: importable as top-level modules.
+sys.path.insert(0, str(_ROOT / "benchmarks"))
 
 jax.config.update("jax_enable_x64", True)
 # (also through the config, in case a plugin imported jax before this file)

@@ -7,16 +7,11 @@ this file's budget; tests/test_diagnose.py runs the benchmark with the real one.
 """
 
 import math
-import sys
-from pathlib import Path
 
+import _blind_sim as bs  # benchmarks/ (tests/conftest.py)
+import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-import _blind_sim as bs  # noqa: E402
-import diagnosis_blind as blind  # noqa: E402
 
 
 def test_self_test_closed_form():

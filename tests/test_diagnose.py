@@ -8,18 +8,13 @@ mode); test_diagnose_rates.py runs the CLI across sample rates. (Several files: 
 two workers, one file each.)"""
 
 import json
-import sys
-from pathlib import Path
 
+import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
 
 import lionjax as lj
 from lionjax.cli import main
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-import diagnosis_blind as blind  # noqa: E402
 
 FIXED = ("coulomb_friction", "offset", "spring", "delay", "saturation", "position_dependent")
 

@@ -2,17 +2,11 @@
 floor, on a closed loop feeding the position noise into F, or on what the training record
 covers."""
 
-import sys
-from pathlib import Path
-
+import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
 
 import lionjax as lj
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-import diagnosis_blind as blind  # noqa: E402
 
 
 def test_strong_evidence_is_not_none():

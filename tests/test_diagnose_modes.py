@@ -3,17 +3,12 @@ noise-free record, the (ω, ζ) search, and its plausibility (collocated, heavy,
 the position noise) on held-out records."""
 
 import math
-import sys
-from pathlib import Path
 
+import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
 
 import lionjax as lj
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-import diagnosis_blind as blind  # noqa: E402
 
 
 def test_quantisation_fed_back_is_no_mode():

@@ -1,17 +1,11 @@
 """lionjax.diagnose: friction (stick, negative levels, a dead zone's look-alike), stacking a
 second effect, stand-ins and saturation shapes, on held-out records."""
 
-import sys
-from pathlib import Path
-
+import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
 
 import lionjax as lj
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-import diagnosis_blind as blind  # noqa: E402
 
 
 def test_second_effect_gains_below_the_first_ones_fit():
