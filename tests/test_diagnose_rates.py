@@ -99,7 +99,7 @@ def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, 
     that would need more than ``max_memory_gb`` (default: the machine's memory) get an
     InputError naming the need, the limit and the longest records that fit, before anything
     is computed. A 10-minute record at 10 kHz, padded to 2²³, needs 72 GB."""
-    from lionjax.diagnosis._fit import memory_estimate
+    from lionjax.diagnosis._fit import longest_records, memory_estimate
 
     assert memory_estimate(6_000_000, 6_000_000) == 4300 * 2 * 2**23
     assert memory_estimate(20_000, 20_000) == 9700 * 2 * 2**15
@@ -109,9 +109,17 @@ def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, 
     # which holds 2¹³ − 20 samples (padded_length pads n + 20)
     with pytest.raises(lj.InputError, match=r"0\.636 GB .* max_memory_gb \(0\.3 GB\).* 8172 "):
         lj.diagnose(rec, rec, max_memory_gb=0.3)
+    # 0.01 GB: not even one bucket of 2¹² (9700·2·2¹² = 0.08 GB)
+    with pytest.raises(lj.InputError, match="Even the shortest records do not fit"):
+        lj.diagnose(rec, rec, max_memory_gb=0.01)
+    # the estimate drops where the caches stop (above 2¹⁸): at 4.6 GB two records of 2¹⁹
+    # (4300·2·2¹⁹ = 4.51 GB) fit though two of 2¹⁸ (9700·2·2¹⁸ = 5.09 GB) do not
+    assert longest_records(4.6e9) == 2**19 - 20 and longest_records(0.01e9) == 0
     for bad in (-1.0, 0, "8", True, float("nan")):
         with pytest.raises(lj.InputError, match="max_memory_gb must be a number > 0"):
             lj.diagnose(rec, rec, max_memory_gb=bad)
+    with pytest.raises(lj.InputError, match=r"max_memory_gb \(0\.3 GB\)"):  # numpy scalars
+        lj.diagnose(rec, rec, max_memory_gb=np.float32(0.3))
     # the command line: a clear message and exit status 2
     path = tmp_path / "rec.npz"
     lj.save_record(path, rec)

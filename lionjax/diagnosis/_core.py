@@ -52,6 +52,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import numbers
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -75,12 +76,12 @@ from ._candidates import (
     mode_signal_names,
 )
 from ._fit import (
-    P_MAX,
     Regressors,
     TooWide,
     apply_input,
     fit_batch,
     impulse_gains,
+    longest_records,
     memory_estimate,
     mode_columns,
     mode_free_response,
@@ -675,7 +676,7 @@ class _Fitter:
 def _check_memory(n_train: int, n_valid: int, max_memory_gb: float | None) -> None:
     """InputError when records of these lengths need more host memory than allowed."""
     if max_memory_gb is not None and not (
-        isinstance(max_memory_gb, (int, float))
+        isinstance(max_memory_gb, numbers.Real)
         and not isinstance(max_memory_gb, bool)
         and max_memory_gb > 0
     ):
@@ -684,16 +685,17 @@ def _check_memory(n_train: int, n_valid: int, max_memory_gb: float | None) -> No
     need = memory_estimate(n_train, n_valid)
     if have is None or need <= have:
         return
-    tp = 1 << 12  # the longest padded length of two records that would fit
-    while memory_estimate(2 * tp - P_MAX - 2, 2 * tp - P_MAX - 2) <= have:
-        tp *= 2
-    n = tp - P_MAX - 2
+    n = longest_records(have)
     limit = "max_memory_gb" if max_memory_gb is not None else "this machine's physical memory"
+    shorter = (
+        f"Diagnose shorter records (at most about {n} samples each: excerpts of the record), or"
+        if n
+        else "Even the shortest records do not fit:"
+    )
     raise InputError(
         f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
-        f"{need / 1e9:.3g} GB of host memory, more than {limit} ({have / 1e9:.3g} GB). Diagnose "
-        f"shorter records (at most about {n} samples each: excerpts of the record), or pass a "
-        "larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
+        f"{need / 1e9:.3g} GB of host memory, more than {limit} ({have / 1e9:.3g} GB). "
+        f"{shorter} pass a larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
     )
 
 

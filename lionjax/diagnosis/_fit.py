@@ -71,12 +71,27 @@ BYTES_PER_SAMPLE_CACHED = 9_700
 BYTES_PER_SAMPLE = 4_300
 
 
+def _record_bytes(Tp: int) -> int:
+    return (BYTES_PER_SAMPLE_CACHED if Tp <= BIG else BYTES_PER_SAMPLE) * Tp
+
+
 def memory_estimate(*n_samples: int) -> int:
     """Peak host memory [bytes] a diagnosis of records of ``n_samples`` samples needs
-    (:data:`BYTES_PER_SAMPLE`, :data:`BYTES_PER_SAMPLE_CACHED` per padded sample)."""
-    tp = [padded_length(int(n)) for n in n_samples]
-    rate = BYTES_PER_SAMPLE_CACHED if max(tp) <= BIG else BYTES_PER_SAMPLE
-    return rate * sum(tp)
+    (:data:`BYTES_PER_SAMPLE`, or :data:`BYTES_PER_SAMPLE_CACHED` where the record's padded
+    length keeps the per-structure caches, per padded sample)."""
+    return sum(_record_bytes(padded_length(int(n))) for n in n_samples)
+
+
+def longest_records(budget: float, count: int = 2) -> int:
+    """The most samples each of ``count`` records of one length may have for
+    :func:`memory_estimate` to stay within ``budget`` [bytes]; 0 when even the shortest bucket
+    does not fit. (Every padded length is tried: the estimate drops where the caches stop.)"""
+    fits = [
+        Tp - P_MAX - 2  # the longest record padded_length puts into Tp
+        for Tp in (1 << k for k in range(12, 41))
+        if count * _record_bytes(Tp) <= budget
+    ]
+    return max(fits, default=0)
 
 
 def physical_memory() -> int | None:
