@@ -78,6 +78,57 @@ class Record(eqx.Module):
         k = jnp.arange(self.n_samples, dtype=self.x.dtype)
         return self.t0[..., None] + self.dt[..., None] * k
 
+    def decimate(self, factor: int) -> Record:
+        """The record at the interval ``factor``·dt, for a long record at a high rate (only on
+        request: lionjax never decimates silently).
+
+        With r = ``factor`` and N = ⌊T/r⌋ blocks of r samples:
+
+            x'ⱼ = x_{jr},    F'ⱼ = (1/r)·Σ_{i<r} F_{jr+i},    dt' = r·dt,   j = 0 … N − 1.
+
+        The positions are kept at the new sample instants (no smoothing: nothing lags); the
+        force, held by the device over each interval, becomes its mean over the new interval:
+        the held input with the same impulse ∫F dt per interval. The response to it differs
+        from the response to the fine one by the hold error of the longer interval, O((ωr·dt)²)
+        at angular frequency ω: decimate only so far that the dynamics and effects of interest
+        stay well below the new Nyquist frequency 1/(2r·dt). The last T − N·r samples (fewer
+        than r, part of one new interval) are not used.
+
+        Arguments:
+            factor: r, an integer ≥ 1 (1 returns the record unchanged) and ≤ T/2.
+
+        Returns:
+            a :class:`Record` with x, F of shape ``(*batch, N)``, dt·r, the same t0.
+
+        Raises:
+            InputError: a factor that is not an integer in [1, T/2]; a record with
+                ``extras`` (whether each is a held input, to average, or a sampled signal, to
+                keep, is the user's call: decimate them and build the record).
+        """
+        T = self.n_samples
+        if (
+            not isinstance(factor, (int, np.integer))
+            or isinstance(factor, bool)
+            or not 1 <= factor <= T // 2
+        ):
+            raise InputError(
+                f"Record.decimate: factor must be an integer from 1 to {T // 2} (half the "
+                f"record's {T} samples), got {factor!r}."
+            )
+        if self.extras:
+            raise InputError(
+                f"Record.decimate: the record has extra signals {sorted(self.extras)}; whether "
+                "each is a held input (to average) or a sampled signal (to keep) is not known. "
+                "Decimate them yourself and build the Record from the results."
+            )
+        r = int(factor)
+        if r == 1:
+            return self
+        n = T // r
+        x = self.x[..., : n * r : r]
+        F = jnp.mean(self.F[..., : n * r].reshape(*self.F.shape[:-1], n, r), axis=-1)
+        return Record(x, F, self.dt * r, self.t0)
+
     @classmethod
     def from_samples(
         cls,

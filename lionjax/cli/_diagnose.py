@@ -35,10 +35,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         help="host memory the diagnosis may take [GB] (default: this machine's memory)",
     )
+    g.add_argument(
+        "--decimate",
+        metavar="R",
+        type=_factor,
+        default=1,
+        help="diagnose both records at R× the sample interval (Record.decimate: x sampled, F "
+        "averaged over each interval); 'auto': the least R that fits the memory (default 1)",
+    )
     g = p.add_argument_group("input files")
     g.add_argument("--columns", help="map column names, e.g. t=time,x=pos,F=force")
     g.add_argument("--force-scale", type=float, help="multiply F by this (e.g. N/V)")
     g.add_argument("--resample", action="store_true", help="resample a non-uniform record (linear)")
+
+
+def _factor(s: str):
+    if s == "auto":
+        return s
+    try:
+        r = int(s)
+    except ValueError:
+        r = 0
+    if r < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer ≥ 1 or 'auto', got {s!r}")
+    return r
 
 
 def _load(path, args):
@@ -56,6 +76,19 @@ def run(args) -> int:
     check_folder(args.json, "--json")
     train = _load(args.data, args)
     valid = _load(args.validate, args) if args.validate else None
+    r = args.decimate
+    if r == "auto":
+        r = lj.diagnosis.decimation_for(train, valid, max_memory_gb=args.max_memory_gb)
+        if r == 0:
+            r = 1  # no factor fits: diagnose refuses the records and says why
+    dt0 = float(train.dt)
+    if r > 1:
+        train = train.decimate(r)
+        valid = valid.decimate(r) if valid is not None else None
+        print(
+            f"decimated by {r}: dt {dt0:.6g} s → {float(train.dt):.6g} s, "
+            f"{train.n_samples} training samples (x sampled, F averaged over each interval)"
+        )
     d = lj.diagnose(
         train,
         valid,
@@ -65,6 +98,7 @@ def run(args) -> int:
     )
     out = d.to_json()
     out["files"] = {"train": str(args.data), "validate": str(args.validate or args.data)}
+    out["decimate"] = {"factor": r, "dt_recorded": dt0}
     base = out["baseline"]
     print(
         f"baseline ẍ + aẋ = bF: a = {base['params']['a']:.6g} 1/s, b = {base['params']['b']:.6g} "

@@ -1,7 +1,8 @@
 """Sim-to-real gap diagnosis: ``lionjax.diagnosis`` (layer 3 of docs/method.md).
 
 :func:`diagnose` works on recorded data alone: it names the unmodelled effect that explains the
-model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figure.
+model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figure;
+:func:`decimation_for` gives the least decimation that lets long records fit the memory.
 ``lionjax.diagnose`` is the same function as :func:`lionjax.diagnosis.diagnose`.
 """
 
@@ -17,5 +18,10 @@ from ._candidates import (
     SaturationCandidate as SaturationCandidate,
     SpringCandidate as SpringCandidate,
 )
-from ._core import Diagnosis as Diagnosis, EffectScore as EffectScore, diagnose as diagnose
+from ._core import (
+    Diagnosis as Diagnosis,
+    EffectScore as EffectScore,
+    decimation_for as decimation_for,
+    diagnose as diagnose,
+)
 from ._plot import plot_diagnosis as plot_diagnosis

@@ -79,6 +79,7 @@ from ._fit import (
     Regressors,
     TooWide,
     apply_input,
+    decimation_to_fit,
     fit_batch,
     impulse_gains,
     longest_records,
@@ -673,29 +674,53 @@ class _Fitter:
 # ----------------------------------------------------------------------------- statistics
 
 
-def _check_memory(n_train: int, n_valid: int, max_memory_gb: float | None) -> None:
-    """InputError when records of these lengths need more host memory than allowed."""
+def _memory_budget(max_memory_gb: float | None) -> float | None:
+    """Host memory [bytes] a diagnosis may take: ``max_memory_gb``, else this machine's
+    physical memory (None where the OS does not say)."""
     if max_memory_gb is not None and not (
         isinstance(max_memory_gb, numbers.Real)
         and not isinstance(max_memory_gb, bool)
         and max_memory_gb > 0
     ):
         raise InputError(f"diagnose: max_memory_gb must be a number > 0, got {max_memory_gb!r}.")
-    have = physical_memory() if max_memory_gb is None else max_memory_gb * 1e9
+    return physical_memory() if max_memory_gb is None else max_memory_gb * 1e9
+
+
+def decimation_for(
+    train: Record, valid: Record | None = None, *, max_memory_gb: float | None = None
+) -> int:
+    """The least factor r for which :func:`diagnose` of ``train.decimate(r)`` and
+    ``valid.decimate(r)`` (:meth:`lionjax.Record.decimate`) fits the host memory
+    (``max_memory_gb``, default this machine's; see :func:`diagnose`): 1 when the records fit
+    as they are; 0 when no factor helps. ``lionjax diagnose --decimate auto`` uses it."""
+    valid = train if valid is None else valid
+    have = _memory_budget(max_memory_gb)
+    if have is None:
+        return 1
+    return decimation_to_fit(have, train.n_samples, valid.n_samples)
+
+
+def _check_memory(n_train: int, n_valid: int, max_memory_gb: float | None) -> None:
+    """InputError when records of these lengths need more host memory than allowed."""
+    have = _memory_budget(max_memory_gb)
     need = memory_estimate(n_train, n_valid)
     if have is None or need <= have:
         return
     n = longest_records(have)
+    r = decimation_to_fit(have, n_train, n_valid)
     limit = "max_memory_gb" if max_memory_gb is not None else "this machine's physical memory"
-    shorter = (
-        f"Diagnose shorter records (at most about {n} samples each: excerpts of the record), or"
-        if n
-        else "Even the shortest records do not fit:"
-    )
+    if n:
+        how = (
+            f"Decimate both records by {r} or more (train.decimate({r}), valid.decimate({r}): "
+            f"the diagnosis then runs at {r}× the sample interval; CLI: --decimate {r}, or "
+            f"--decimate auto), diagnose shorter excerpts (at most about {n} samples each), or"
+        )
+    else:
+        how = "Even the shortest records do not fit:"
     raise InputError(
         f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
         f"{need / 1e9:.3g} GB of host memory, more than {limit} ({have / 1e9:.3g} GB). "
-        f"{shorter} pass a larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
+        f"{how} pass a larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
     )
 
 
@@ -968,7 +993,8 @@ def diagnose(
             padded sample of each record above 2¹⁸, 9.7 kB below, where designs are cached:
             :func:`~lionjax.diagnosis._fit.memory_estimate`); records that would need more get
             an :class:`~lionjax.InputError` before anything is computed, not an
-            out-of-memory kill.
+            out-of-memory kill, naming the least decimation that fits
+            (:func:`decimation_for`, :meth:`lionjax.Record.decimate`).
 
     Returns:
         a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,

@@ -94,6 +94,20 @@ def longest_records(budget: float, count: int = 2) -> int:
     return max(fits, default=0)
 
 
+def decimation_to_fit(budget: float, *n_samples: int) -> int:
+    """The least factor r ≥ 1 for which records of ``n_samples`` samples, decimated by r
+    (:meth:`lionjax.Record.decimate`: ⌊n/r⌋ samples each), fit :func:`memory_estimate` within
+    ``budget`` [bytes]; 0 when none does (not even the shortest bucket fits)."""
+    r = 1
+    while True:
+        n = [int(k) // r for k in n_samples]
+        if memory_estimate(*n) <= budget:
+            return r
+        if max(n) <= 4096 - P_MAX - 2:  # already in the shortest bucket: no factor helps
+            return 0
+        r += 1
+
+
 def physical_memory() -> int | None:
     """This machine's physical memory [bytes], or None where the OS does not say."""
     try:
