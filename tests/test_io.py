@@ -4,10 +4,13 @@ import logging
 import re
 import sys
 
+import jax
 import numpy as np
 import pytest
 import scipy.io
 
+import lionjax as lj
+from lionjax import twin as tw
 from lionjax._errors import InputError
 from lionjax._io import load_record, load_records, parse_columns, save_record
 from lionjax._record import Record
@@ -430,3 +433,35 @@ def test_load_records_errors(tmp_path):
     bad = _write_csv(tmp_path / "bad.csv", ["t", "x"], [["0", "1"]] * 20)
     msg = _raises([str(bad), "'F'"], load_records, [good, bad])
     assert re.search(r"Columns found: 't', 'x'", msg)
+
+
+def test_decimate_against_numpy_and_the_plant():
+    """Record.decimate keeps x at the new instants and averages F over each new interval
+    (numpy reference, batched); the twin's mass–damper at 10.1 kHz, decimated by 5 and 20,
+    identifies a, b within 10⁻⁴ of the truth (measured 1.4·10⁻⁵ at 20), where sampling F
+    instead of averaging it is off by more than 0.3 % (0.46 % at 5, 2.2 % at 20)."""
+    rng = np.random.default_rng(0)
+    x, F = rng.standard_normal((2, 3, 1001))
+    rec = lj.Record(x, F, np.full(3, 1e-3), np.full(3, 0.5))
+    d = rec.decimate(7)
+    np.testing.assert_array_equal(d.x, x[:, : 1001 - 1001 % 7 : 7])
+    np.testing.assert_allclose(d.F, F[:, : 1001 - 1001 % 7].reshape(3, -1, 7).mean(-1), rtol=1e-12)
+    np.testing.assert_allclose(d.dt, 7e-3) and np.testing.assert_allclose(d.t0, 0.5)
+    assert rec.decimate(1) is rec
+    for bad in (0, 1.5, True, 501, "2"):
+        with pytest.raises(lj.InputError, match="factor must be an integer from 1 to 500"):
+            rec.decimate(bad)
+    with pytest.raises(lj.InputError, match="extra signals"):
+        lj.Record(x[0], F[0], 1e-3, extras={"i": F[0]}).decimate(2)
+
+    fs = 10103.9
+    plant = tw.Plant(22.0, 1.916, (), [])
+    exc = tw.multisine(np.array([0.4, 0.9, 1.7, 3.1, 5.3, 11.0]), 1.2, key=jax.random.key(1))
+    r = tw.simulate(plant, exc, dt=1 / fs, n_samples=int(10 * fs), key=jax.random.key(3))
+    fine = lj.Record(r.x, r.F, r.dt)
+    for k in (5, 20):
+        theta = np.asarray(lj.least_squares(lj.MassDamper(), fine.decimate(k)).theta)
+        np.testing.assert_allclose(theta, [22.0, 1.916], rtol=1e-4)
+        sampled = lj.Record(fine.x[::k], fine.F[::k], fine.dt * k)
+        naive = np.asarray(lj.least_squares(lj.MassDamper(), sampled).theta)
+        assert np.max(np.abs(naive / [22.0, 1.916] - 1)) > 3e-3
