@@ -43,18 +43,20 @@ def plot_diagnosis(diagnosis, path: str | Path):
         f"({float(s['H']) * dt:.3g} s)",
     )
     a.tick_params(labelbottom=False)
-    a.legend(fontsize=8)
+    # matplotlib's "best" place searches every point (slow, and it warns, on long records)
+    loc = "best" if t.size <= 100_000 else "upper right"
+    a.legend(fontsize=8, loc=loc)
     e.plot(t[:n], s["sim_base"] * 1e6, "C1", lw=0.6, label="baseline − measured")
     e.plot(t[:n], s["sim_final"] * 1e6, "C0", lw=0.6, label="augmented − measured")
     e.set(xlabel="t [s]", ylabel="sim. error [µm]")
-    e.legend(fontsize=7)
+    e.legend(fontsize=7, loc=loc)
     a = ax[0, 1]
     a.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")
     a.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
     floor = diagnosis.noise["equation_floor"]
     a.axhspan(-floor, floor, color="0.85", label="noise floor (±1σ)")
     a.set(xlabel="t [s]", ylabel="ε₁ [m/s²]", title="filtered equation error")
-    a.legend(fontsize=8)
+    a.legend(fontsize=8, loc=loc)
     a = ax[1, 0]
     bands = [w for w in diagnosis.where if w.get("share") is not None and "fraction" in w]
     labels = [f"{w['kind']}: {w['band']}" for w in bands]
