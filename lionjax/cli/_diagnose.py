@@ -1,10 +1,11 @@
 """Diagnose the sim-to-real gap of ẍ + aẋ = bF: where it is, which effect explains it, how far.
 
 Fits the mass–damper on TRAIN, scores it and every candidate effect (coulomb_friction, offset,
-spring, delay, saturation, position_dependent) on VALID, stacks the significant ones, and prints
-the verdict. --json writes the payload (baseline, where, effects, stack, verdict, confidence,
-ambiguous, final);
---plot writes a one-page summary (PNG/PDF/SVG by extension).
+spring, delay, saturation, position_dependent, asymmetric_friction, flexible_mode) on VALID,
+stacks the significant ones, and prints the verdict. --json writes the payload (baseline, where,
+effects, stack, verdict, confidence, ambiguous, final, and the decimation applied);
+--plot writes a one-page summary (PNG/PDF/SVG by extension). --decimate R (or auto) diagnoses
+records too long for the memory at R× the sample interval.
 """
 
 from __future__ import annotations
