@@ -738,16 +738,18 @@ class Regressors:
             self.cache[key] = make()
         return self.cache[key]
 
-    def gram(self, model, *, grid: bool = False, n_free: int = 0):
+    def gram(self, model, *, grid: bool = False, n_free: int = 0, args=None):
         """(A, AᵀA) of a structure, masked, cached per structure: A = [W·mask + pad | ε₁'s x
         column·mask] (Tp, P_MAX + 1) with the unit pad columns of unused slots. W is the design
         with u = F, or with ``grid`` its fixed columns only (the F-dependent slots zero, filled
         per input map by :func:`_solve_grid`); the ``n_free`` slots after the structure's columns
         are zero (:func:`rss_with_columns` fills them). The τ and F_max profiles and the flexible
-        mode's (ω, ζ) profile reuse it at every point."""
+        mode's (ω, ζ) profile reuse it at every point. ``args``: the structure's :meth:`layout`
+        where the caller holds it (on a long record, where nothing is cached, it is not built
+        twice)."""
 
         def make():
-            Wfix, mult, onehot, pad, p, Wdef = self._args(model)
+            Wfix, mult, onehot, pad, p, Wdef = self._args(model) if args is None else args
             n = p + self.nuisance(model).shape[1]
             A = _augmented_design(
                 (Wfix if grid else Wdef) * self.mask[:, None] + pad, self.W0 * self.mask
@@ -769,14 +771,15 @@ def _model_key(model) -> tuple:
 def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
     """coef, RSS, Gram inverse, condition (each leading G) of the masked LS of ``model`` on
     ``regs`` (y = ε₁'s x column) per input map (τ, F_max) in ``inputs``."""
-    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
+    args = regs._args(model)
+    Wfix, mult, onehot, pad, p, Wdef = args
     taus = np.array([float(t) for t, _ in inputs], np.float64)
     fmaxs = np.array([float(f) for _, f in inputs], np.float64)
     if len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
         Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, regs.W0 * regs.mask)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
-        A, G0 = regs.gram(model, grid=True)
+        A, G0 = regs.gram(model, grid=True, args=args)
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
         gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
@@ -829,12 +832,12 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -
     parameter (the flexible mode's ω, ζ) without building a design per grid point. The new
     columns take the K first unused slots (whose unit pad columns leave the design); only their
     Gram blocks are new."""
-    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
-    n = p + regs.nuisance(model).shape[1]
+    args = regs._args(model)
+    n = args[4] + regs.nuisance(model).shape[1]
     m, K, _ = cols.shape
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
-    A, G0 = regs.gram(model, n_free=K)
+    A, G0 = regs.gram(model, n_free=K, args=args)
     V = np.zeros((m, K, regs.Tp))
     V[:, :, : regs.T] = cols
     O = np.zeros((K, P_MAX + 1))
