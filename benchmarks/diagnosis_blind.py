@@ -110,6 +110,9 @@ SHAPES = {
 BAND = (0.02, 0.80)
 RATE_BINS = ((250, 500), (500, 1000), (1000, 2000), (2000, 5000))
 CONF_BINS = ((0.0, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.0))
+#: Bins of a record's noise ratio (the baseline's equation error over its estimated noise floor,
+#: ``evidence["noise_ratio"]``): at or below 1 the baseline already fits down to the noise.
+NOISE_BINS = ((0.0, 1.0), (1.0, 3.0), (3.0, math.inf))
 
 
 def _logu(rng, lo, hi):
@@ -947,6 +950,13 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
         ]
         calib[f"{lo:.1f}-{hi:.1f}"] = _acc(sel)
     calib["n/a"] = _acc([r for r in scored if not np.isfinite(r["confidence"])])
+    # single-effect records by how far the baseline stands above the noise floor
+    ratio = lambda r: (r.get("evidence") or {}).get("noise_ratio")  # noqa: E731
+    by_noise = {
+        f"{lo:g}-{hi:g}": _acc([r for r in single if ratio(r) is not None and lo < ratio(r) <= hi])
+        for lo, hi in NOISE_BINS
+    }
+    by_noise["n/a"] = _acc([r for r in single if ratio(r) is None])
     shapes = {}
     for r in scored:
         shapes.setdefault(f"{r['class']} / {r['source']} / {r['shape']}", []).append(r)
@@ -969,6 +979,7 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
             for k in ("open", "closed")
         },
         "per_shape": {k: _acc(v) for k, v in sorted(shapes.items())},
+        "single_per_noise_ratio": by_noise,
         "top1_single": _acc(single)["accuracy"],
         "two_effect_both_in_top3": _acc(two)["accuracy"],
         "out_of_library_unexplained": _acc(ool)["accuracy"],
@@ -1057,6 +1068,10 @@ def print_summary(out: dict, fh=sys.stdout) -> None:
     p("\nper source: " + ", ".join(f"{s} {_fmt(a)}" for s, a in out["per_source"].items()))
     p("per loop:   " + ", ".join(f"{s} {_fmt(a)}" for s, a in out["per_loop"].items()))
     p("per sample rate: " + ", ".join(f"{k} {_fmt(a)}" for k, a in out["per_rate"].items()))
+    p(
+        "single-effect records by noise ratio (baseline error / noise floor; ≤ 1: at the floor): "
+        + ", ".join(f"{k} {_fmt(a)}" for k, a in out["single_per_noise_ratio"].items())
+    )
     p("\nper sub-shape")
     for k, a in out["per_shape"].items():
         p(f"  {k:55s} {_fmt(a)}")
