@@ -87,8 +87,8 @@ def longest_records(budget: float, count: int = 2) -> int:
     :func:`memory_estimate` to stay within ``budget`` [bytes]; 0 when even the shortest bucket
     does not fit. (Every padded length is tried: the estimate drops where the caches stop.)"""
     fits = [
-        Tp - P_MAX - 2  # the longest record padded_length puts into Tp
-        for Tp in (1 << k for k in range(12, 41))
+        _capacity(Tp)
+        for Tp in (MIN_PADDED << k for k in range(29))
         if count * _record_bytes(Tp) <= budget
     ]
     return max(fits, default=0)
@@ -103,7 +103,7 @@ def decimation_to_fit(budget: float, *n_samples: int) -> int:
         n = [int(k) // r for k in n_samples]
         if memory_estimate(*n) <= budget:
             return r
-        if max(n) <= 4096 - P_MAX - 2:  # already in the shortest bucket: no factor helps
+        if max(n) <= _capacity(MIN_PADDED):  # already in the shortest bucket: none helps
             return 0
         r += 1
 
@@ -127,10 +127,20 @@ K_BUCKETS = (2, 4)
 K_MAX = K_BUCKETS[-1]
 
 
+#: The shortest bucket (padded length) of a record.
+MIN_PADDED = 1 << 12
+
+
 def padded_length(n: int) -> int:
-    """Bucketed length: the next power of two ≥ n + P_MAX + 2, at least 4096 (short records
-    share one bucket: a bucket costs compilations, a short record's padding costs little)."""
-    return max(4096, 1 << int(math.ceil(math.log2(n + P_MAX + 2))))
+    """Bucketed length: the next power of two ≥ n + P_MAX + 2, at least :data:`MIN_PADDED`
+    (short records share one bucket: a bucket costs compilations, a short record's padding
+    costs little)."""
+    return max(MIN_PADDED, 1 << int(math.ceil(math.log2(n + P_MAX + 2))))
+
+
+def _capacity(Tp: int) -> int:
+    """The most samples :func:`padded_length` puts into the bucket ``Tp``."""
+    return Tp - P_MAX - 2
 
 
 def edge_pad(u, Tp: int) -> np.ndarray:
