@@ -5,13 +5,15 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
 1. **Settings from the record** (:func:`settings`): the filter Λ = (s + λ)³ with
    λ = 2π·min(f_s/25, 40 Hz) rad/s (40 Hz from 1 kHz up: fast enough that the filter does not
    bias real data — EMPS at 10 Hz is biased 3–7 % — well below Nyquist, and the same weighting
-   for the same device sampled faster), a zero-phase velocity filter at 2.5λ for sgn ẋ, the
+   for the same device sampled faster), a zero-phase velocity filter at 2.5λ (at least
+   :data:`VELOCITY_MIN_HZ` below 0.3·f_s) for sgn ẋ, the
    smoothed-sign scale v_ε = 2 % of the median |v̂|, the restart interval H and the profile grids.
 2. **Baseline**: ẍ + aẋ = bF by least squares on the filtered equation error ε₁ of the training
    record (:mod:`._fit`).
 3. **Gap**, on the validation record: the windowed simulation error (restart every H seconds from
    the estimated state; default H = 1/a clipped to [20·dt, 2 s], the mechanical time constant;
-   the state is x and v̂ from the zero-phase filter of step 1; the first window is not scored
+   the state is x and its derivative in the widest band the position noise allows,
+   :func:`_start_states`; the first window is not scored
    where a second follows), the filtered equation error ε₁
    with θ fixed from training, and the noise floor of ε₁ from the position/force noise estimated
    by robust third differences (σ² = Var(Δ³)/20 for white noise).
@@ -744,9 +746,10 @@ STATE_NOISE = 0.02
 def _noise_gain(dt: float, omega: float | None) -> float:
     """‖h‖₂ of the velocity estimator's impulse response: white position noise of σ [m] gives
     the estimate the noise σ·‖h‖₂ [m/s]. ``omega`` [rad/s] is the zero-phase filter's corner
-    (:func:`~._fit.zero_phase`); None is the central difference of the raw samples, 1/(√2·dt)."""
+    (:func:`~._fit.zero_phase`); None is the five-point derivative of the raw samples
+    (:func:`_five_point`), √130/(12·dt)."""
     if omega is None:
-        return 1.0 / (math.sqrt(2.0) * dt)
+        return math.sqrt(130.0) / (12.0 * dt)
     imp = np.zeros(2048)
     imp[1024] = 1.0
     return float(np.linalg.norm(zero_phase(imp, dt, omega)[1]))
@@ -759,18 +762,19 @@ def _start_states(
 
     Estimated in the widest band whose velocity noise (the position noise σ through the
     estimator, :func:`_noise_gain`) stays within :data:`STATE_NOISE` of the rms of ``v`` (v̂ at
-    ``velocity_hz``): the raw samples and their central differences (f = ∞) where they are
+    ``velocity_hz``): the raw samples and their five-point derivative (f = ∞) where they are
     precise enough, else the zero-phase filter at 8, 4 or 2 × ``velocity_hz`` (below
     0.3·f_s), else at ``velocity_hz`` itself. v̂'s own band suits sgn ẋ, not the states: its
     filter (1 + (f/f_v)²)⁻³ keeps 1/8 of the motion at f_v, which lies at the excited band's
     edge at low sample rates (f_v = f_s/10): at 277 Hz the smoothed start states were 161 µm and
     25 % of the rms velocity off (raw samples: 3 µm, 1.8 %), and the true model simulated worse
     than the rigid baseline."""
-    sx = _position_noise(x)
+    # the white noise's least upper bound, but never below the encoder's count: a slow axis's
+    # quantisation error is a staircase, not white, and hides from the top of the spectrum
+    sx = max(min(_robust_diff_std(x), _high_band_noise(x)), _lattice_step(x) / math.sqrt(12.0))
     limit = STATE_NOISE * float(np.sqrt(np.mean(np.asarray(v, np.float64) ** 2)))
     if sx * _noise_gain(dt, None) <= limit:
-        g = np.gradient(x, dt)
-        return math.inf, x, g
+        return math.inf, x, _five_point(x, dt)
     for m in (8.0, 4.0, 2.0):
         f = min(m * velocity_hz, 0.3 / dt)
         if sx * _noise_gain(dt, 2 * math.pi * f) <= limit:
@@ -779,6 +783,36 @@ def _start_states(
         f = velocity_hz
     sm, g = zero_phase(x, dt, 2 * math.pi * f)
     return f, sm, g
+
+
+def _five_point(x: np.ndarray, dt: float) -> np.ndarray:
+    """ẋ [m/s] of samples x [m] by the five-point stencil (x₋₂ − 8x₋₁ + 8x₁ − x₂)/(12·dt),
+    np.gradient's second-order differences at the two samples of each end. Its gain on a sine
+    at ωdt is (8 sin ωdt − sin 2ωdt)/(6ωdt) = 1 − (ωdt)⁴/30 + …: 0.3 % low at f_s/11, where
+    central differences are 5 % low."""
+    v = np.gradient(x, dt, edge_order=2)
+    if x.size >= 5:
+        v[2:-2] = (x[:-4] - 8.0 * x[1:-3] + 8.0 * x[3:-1] - x[4:]) / (12.0 * dt)
+    return v
+
+
+def _high_band_noise(x: np.ndarray) -> float:
+    """σ [m] of white position noise from the top of the spectrum: the median periodogram of
+    Δx (Hann window) over 0.3–0.5·f_s, divided by Δ's gain 4·sin²(πf/f_s) and by ln 2 (the
+    median of an exponential's sample over its mean). Motion there counts as noise, so it is an
+    upper bound like :func:`_position_noise`, but a different one: the third differences of a
+    motion at f_s/11 (a record sampled at 277 Hz excited to 25 Hz) are 0.18× its amplitude, and
+    took a 1 mm sine for 60 µm of noise; its spectrum above 0.3·f_s holds the encoder's 3 µm."""
+    d = np.diff(np.asarray(x, np.float64))
+    n = d.size
+    if n < 16:
+        return math.inf
+    w = np.hanning(n)
+    P = np.abs(np.fft.rfft((d - d.mean()) * w)) ** 2 / np.sum(w * w)
+    k = np.arange(P.size)
+    band = (k >= 0.3 * n) & (k < 0.5 * n)
+    gain = 4.0 * np.sin(np.pi * k[band] / n) ** 2
+    return float(np.sqrt(np.median(P[band] / gain) / math.log(2.0)))
 
 
 def _position_noise(x: np.ndarray) -> float:
@@ -1593,9 +1627,11 @@ def diagnose(
             "velocity_filter_hz": st.velocity_hz,
             "v_eps": st.v_eps,
             "window_s": fitter.H * st.dt,
+            "state_filter_hz": fitter.state_hz if math.isfinite(fitter.state_hz) else None,
             "window_note": (
-                "windowed simulation restarts every window_s seconds from x and v̂ of a "
-                "zero-phase (s+ω)³ low-pass/derivative filter at velocity_filter_hz"
+                "windowed simulation restarts every window_s seconds from x and its derivative: "
+                "the raw samples and their five-point derivative (state_filter_hz null), else a "
+                "zero-phase (s+ω)³ low-pass/derivative filter at state_filter_hz"
             ),
             "threshold": threshold,
             "min_share": min_share,
