@@ -600,15 +600,11 @@ class _Fitter:
         if fine.size == 0:
             return grid, rss
         r = fit_batch(regs, model, [(tau, float(f)) for f in fine])[1]
-        # the fine points and the grid's hard points near them, in order (soft ones after)
-        near = hard[(grid[hard] >= lo) & (grid[hard] <= hi)]
-        g = np.concatenate([grid[near], fine])
-        o = np.argsort(g)
-        rest = np.setdiff1d(np.arange(grid.size), near)
-        return (
-            np.concatenate([g[o], grid[rest]]),
-            np.concatenate([np.concatenate([np.asarray(rss)[near], r])[o], np.asarray(rss)[rest]]),
-        )
+        g, r = np.concatenate([grid, fine]), np.concatenate([np.asarray(rss), np.asarray(r)])
+        # the hard clips in ascending order, then the soft ones as they were
+        pos = g > 0
+        o = np.concatenate([np.flatnonzero(pos)[np.argsort(g[pos])], np.flatnonzero(~pos)])
+        return g[o], r[o]
 
     def fit(self, cands: Sequence[AbstractCandidate]) -> Fitted:
         dt = self.st.dt
