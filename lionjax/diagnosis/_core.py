@@ -293,7 +293,7 @@ class _Fitter:
         wv = 2 * math.pi * st.velocity_hz
         self.v_valid = zero_phase(valid.x, dt, wv)[1]
         v_train = self.v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
-        # the windowed simulation's start states: a wider band than v̂'s (state_bandwidth)
+        # the windowed simulation's start states: a wider band than v̂'s (_start_states)
         self.state_hz, self.x_start, self.v_start = _start_states(
             np.asarray(valid.x, np.float64), dt, st.velocity_hz, self.v_valid
         )
@@ -791,7 +791,7 @@ def _start_states(
     0.3·f_s), else at ``velocity_hz`` itself. v̂'s own band suits sgn ẋ, not the states: its
     filter (1 + (f/f_v)²)⁻³ keeps 1/8 of the motion at f_v, which lies at the excited band's
     edge at low sample rates (f_v = f_s/10): at 277 Hz the smoothed start states were 161 µm and
-    25 % of the rms velocity off (raw samples: 3 µm, 1.8 %), and the true model simulated worse
+    25 % of the rms velocity off (from the raw samples: 3 µm), and the true model simulated worse
     than the rigid baseline."""
     # the white noise's least upper bound, but never below the encoder's count: a slow axis's
     # quantisation error is a staircase, not white, and hides from the top of the spectrum
