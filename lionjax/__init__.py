@@ -7,7 +7,8 @@ The top level is the method's core, read top to bottom as the method runs (docs/
 - the filter bank 1/Λ(s): :class:`FilterBank`, :func:`default_bank`;
 - models ẍ + aẋ = bF + effects, as regressors: :class:`MassDamper`, :class:`Piecewise`,
   :class:`Augmented` with :class:`Offset`, :class:`Coulomb`, :class:`Spring`,
-  :class:`PolynomialPosition` (bases :class:`AbstractModel`, :class:`AbstractEffect`);
+  :class:`PolynomialPosition`, :class:`LocalizedPosition` (bases :class:`AbstractModel`,
+  :class:`AbstractEffect`);
 - Lion's law on one record: :func:`lion` with a gain (:class:`FixedGain`, :class:`AutoGain`)
   and a stepper (:class:`ExactStep`, :class:`EulerStep`, :class:`DiffraxStep`);
   least squares: :func:`least_squares`, :func:`linear_lstsq`;
@@ -76,6 +77,7 @@ from ._io import (
 from ._least_squares import least_squares as least_squares, linear_lstsq as linear_lstsq
 from ._model_effects import (
     Coulomb as Coulomb,
+    LocalizedPosition as LocalizedPosition,
     PolynomialPosition as PolynomialPosition,
     Spring as Spring,
 )
@@ -109,7 +111,7 @@ __all__ = [
     "FilterBank", "default_bank",
     # models and effects
     "AbstractModel", "MassDamper", "Piecewise", "Augmented", "AbstractEffect", "Offset",
-    "Coulomb", "Spring", "PolynomialPosition",
+    "Coulomb", "Spring", "PolynomialPosition", "LocalizedPosition",
     # Lion's law and least squares on one record
     "AbstractGain", "FixedGain", "AutoGain", "AbstractStepper", "ExactStep", "EulerStep",
     "DiffraxStep", "lion", "least_squares", "linear_lstsq",

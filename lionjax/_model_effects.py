@@ -17,7 +17,9 @@ ones, names suffixed ``_i``; ``PolynomialPosition`` excepted, it modulates a and
   column, whose parameter is then b·(F₀ + k·x₀);
 - position (:class:`PolynomialPosition`, degree K ≤ 3, default 1):
   +(s/Λ)[ℓξᵏ⁺¹/(k+1)], −(1/Λ)[ξᵏ·F], ξ = (x − x_c)/ℓ, parameters aₖ, bₖ of
-  a(x) = a + Σ aₖξᵏ, b(x) = b + Σ bₖξᵏ (exact: ξᵏẋ = d/dt(ℓξᵏ⁺¹/(k+1)), the §3 construction).
+  a(x) = a + Σ aₖξᵏ, b(x) = b + Σ bₖξᵏ (exact: ξᵏẋ = d/dt(ℓξᵏ⁺¹/(k+1)), the §3 construction);
+- localized position (:class:`LocalizedPosition`, a step and a bump at x₀ of width w):
+  +(s/Λ)[w·log cosh ξ], −(1/Λ)[tanh ξ·F], +(s/Λ)[w·tanh ξ], −(1/Λ)[sech²ξ·F], ξ = (x − x₀)/w.
 
 sgñ v̂ = tanh(v̂/v_ε) is a smoothed sign of a zero-phase derivative-filter velocity v̂: x is
 passed forward and backward through the low-pass λₙ/Λ_v(s) = (ω/(s + ω))³ and differentiated by
@@ -42,6 +44,7 @@ from ._record import Record
 
 __all__ = [
     "Coulomb",
+    "LocalizedPosition",
     "Offset",
     "PolynomialPosition",
     "Spring",
@@ -223,3 +226,88 @@ class PolynomialPosition(AbstractEffect):
     def physical(self, theta: Array, b: Array) -> dict[str, Array]:
         names = position_physical_names(self.degree)
         return {n: theta[..., j] / self.scale ** (j // 2 + 1) for j, n in enumerate(names)}
+
+
+def local_signal_names(center: float, width: float) -> tuple[str, str, str, str, str, str]:
+    """Raw signal names of :class:`LocalizedPosition` at (x₀, w): its two a-signals
+    w·log cosh ξ and w·tanh ξ, its two b-signals tanh ξ·F and sech²ξ·F, and those signals'
+    multipliers tanh ξ and sech²ξ of F (one set per (x₀, w): a profile holds many)."""
+    key = f"{float(center):.12g},{float(width):.12g}"
+    return (
+        f"lstep_g@{key}",
+        f"lbump_g@{key}",
+        f"lstepF@{key}",
+        f"lbumpF@{key}",
+        f"lstep@{key}",
+        f"lbump@{key}",
+    )
+
+
+def local_values(x, center, width):
+    """(w·log cosh ξ, w·tanh ξ, tanh ξ, sech²ξ) of ξ = (x − x₀)/w, numpy or jax arrays (see
+    :func:`local_signal_names`); log cosh ξ = |ξ| + log1p(e^{−2|ξ|}) − log 2 (no overflow)."""
+    xp = jnp if isinstance(x, jnp.ndarray) else np
+    xi = (x - center) / width
+    t = xp.tanh(xi)
+    ax = xp.abs(xi)
+    logcosh = ax + xp.log1p(xp.exp(-2 * ax)) - np.log(2.0)
+    return width * logcosh, width * t, t, 1.0 - t * t
+
+
+class LocalizedPosition(AbstractEffect):
+    """A change of a and b confined around x₀ (width w): a step and a bump in
+    ξ = (x − x₀)/w,
+
+        a(x) = a + a_s·tanh ξ + a_b·sech²ξ,   b(x) = b + b_s·tanh ξ + b_b·sech²ξ,
+
+    the §3 two-region structure made smooth (a step of 2a_s, 2b_s over ~2w at x₀) and a local
+    dip or hump (a detent, a worn spot, a magnet's field) that a polynomial in x over the whole
+    travel cannot follow.
+
+    Exact columns (docs/method.md, "Exact regressors across regions"): tanh ξ·ẋ =
+    d/dt(w·log cosh ξ) → +(s/Λ)[w·log cosh ξ]; sech²ξ·ẋ = d/dt(w·tanh ξ) → +(s/Λ)[w·tanh ξ];
+    b_s tanh ξ·F → −(1/Λ)[tanh ξ·F]; b_b sech²ξ·F → −(1/Λ)[sech²ξ·F]. Parameters
+    (a_s, b_s, a_b, b_b), reported as ``a_step`` [1/s], ``b_step`` [1/(kg)], ``a_bump`` [1/s],
+    ``b_bump`` [1/kg] (not divided by b: it modulates a and b). x₀ and w are not fitted here:
+    the diagnosis profiles them.
+
+    Attributes:
+        center: x₀ [m]; width: w [m] > 0.
+    """
+
+    acts_on_force: ClassVar[bool] = False  # it modulates a and b: added once, b not divided
+
+    center: float = eqx.field(static=True)
+    width: float = eqx.field(static=True)
+
+    def __init__(self, center: float, width: float):
+        c, w = float(center), float(width)
+        if not np.isfinite(c):
+            raise InputError(f"LocalizedPosition: argument 'center' must be finite [m], got {c}.")
+        if not (np.isfinite(w) and w > 0):
+            raise InputError(
+                f"LocalizedPosition: argument 'width' must be > 0 [m], got {w}; pass the width "
+                "of the transition (tanh((x − x₀)/w) goes from −0.76 to 0.76 over 2w)."
+            )
+        self.center, self.width = c, w
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("a_s", "b_s", "a_b", "b_b")
+
+    def columns(self) -> tuple[Column, ...]:
+        gs, gb, fs, fb, _, _ = local_signal_names(self.center, self.width)
+        return (Column(gs, 1, 1.0), Column(fs, 0, -1.0), Column(gb, 1, 1.0), Column(fb, 0, -1.0))
+
+    def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
+        gs, gb, fs, fb, _, _ = local_signal_names(self.center, self.width)
+        vs, vb, ms, mb = local_values(record.x, self.center, self.width)
+        return {
+            gs: (vs, "foh"),
+            gb: (vb, "foh"),
+            fs: (ms * record.F, "zoh"),
+            fb: (mb * record.F, "zoh"),
+        }
+
+    def physical(self, theta: Array, b: Array) -> dict[str, Array]:
+        return {n: theta[..., j] for j, n in enumerate(("a_step", "b_step", "a_bump", "b_bump"))}

@@ -133,6 +133,43 @@ def test_polynomial_position_converges_to_solve_ivp():
     assert 1.6 < e1 / e2 < 2.6  # first order in dt
 
 
+def test_localized_position_converges_to_solve_ivp():
+    # a(x), b(x) with a step and a bump at x_s of width w_s (LocalizedPosition): first order
+    # in dt against solve_ivp of the continuous model, as the polynomial above
+    loc = dict(a_step=6.0, b_step=-0.5, a_bump=-8.0, b_bump=0.8, x_step=0.004, w_step=0.003)
+
+    def run(dt, n):
+        t = np.arange(n) * dt
+        F = 2.0 * np.sin(2 * np.pi * 2.0 * t) + 1.0 * np.sin(2 * np.pi * 5.3 * t)
+
+        def rhs(_, y, f):
+            th = np.tanh((y[0] - loc["x_step"]) / loc["w_step"])
+            a = A + loc["a_step"] * th + loc["a_bump"] * (1 - th * th)
+            b = B + loc["b_step"] * th + loc["b_bump"] * (1 - th * th)
+            return [y[1], -a * y[1] + b * (f + F0)]
+
+        ys = [np.zeros(2)]
+        for k in range(n - 1):
+            s = solve_ivp(
+                rhs, (0, dt), ys[-1], args=(F[k],), rtol=1e-11, atol=1e-14, method="DOP853"
+            )
+            ys.append(s.y[:, -1])
+        x = np.array(ys)[:, 0]
+        zeros = jnp.zeros(n)
+        args = (jnp.asarray(F), jnp.asarray(x), zeros, zeros, dt, jnp.asarray(n), n)
+        e = windowed_errors(_params(**loc), *args)
+        e0 = windowed_errors(_params(), *args)  # without the localized terms
+        return float(np.max(np.abs(np.asarray(e)))), float(np.max(np.abs(np.asarray(e0)))), x
+
+    e1, e01, x = run(2e-3, 400)
+    e2, _, _ = run(1e-3, 800)
+    span = np.ptp(x)
+    assert np.min(x) < loc["x_step"] - loc["w_step"] and np.max(x) > loc["x_step"] + 3e-3
+    assert e01 > 20 * e1  # the localized terms matter
+    assert e1 < 2e-2 * span and e2 < 1e-2 * span
+    assert 1.6 < e1 / e2 < 2.6  # first order in dt
+
+
 def test_position_dependence_held_beyond_range_equals_constant_coefficients():
     # with x_lo = x_hi = x_c the clamped a(x), b(x) are a, b everywhere: the same errors as
     # the model without position dependence

@@ -38,7 +38,14 @@ import numpy as np
 from jaxtyping import Array
 
 from .._filters import FilterBank
-from .._model_effects import Coulomb, Offset, PolynomialPosition, Spring, zero_phase_velocity
+from .._model_effects import (
+    Coulomb,
+    LocalizedPosition,
+    Offset,
+    PolynomialPosition,
+    Spring,
+    zero_phase_velocity,
+)
 from .._models import AbstractEffect, Column
 from .._record import Record
 
@@ -53,7 +60,9 @@ class Context(eqx.Module):
         mode: (ω [rad/s], ζ) of the flexible-mode columns, once profiled (else ``()``).
         mode_input: whether the flexible mode has its input-share column (κ free; else the
             collocated mode, κ = 0; chosen by the diagnosis).
-        position_degree: degree of the position-dependent a(x), b(x) (chosen by the diagnosis).
+        position_degree: degree of the position-dependent a(x), b(x) (chosen by the diagnosis);
+            0 for the localized step and bump of :class:`~lionjax.LocalizedPosition`.
+        position_local: its (x₀ [m], w [m]), once profiled (else ``()``).
     """
 
     omega_v: float
@@ -63,6 +72,7 @@ class Context(eqx.Module):
     mode: tuple = ()
     mode_input: bool = True
     position_degree: int = 1
+    position_local: tuple = ()
 
 
 class Limits(eqx.Module):
@@ -368,12 +378,15 @@ class SpringCandidate(AbstractCandidate):
 
 class PositionCandidate(AbstractCandidate):
     """a(x), b(x) polynomial in position, degree 1 … 3 (exact §3-style columns,
-    :class:`~lionjax.PolynomialPosition`), two parameters per degree: each degree is fitted on
-    the training record and the one with the best validated score (its own 2K parameters
-    penalised) is kept (:func:`lionjax.diagnose`), with or without a(x), b(x) held at their
+    :class:`~lionjax.PolynomialPosition`), two parameters per degree, or a step and a bump
+    confined around x₀ of width w (:class:`~lionjax.LocalizedPosition`, "degree 0"): four
+    parameters, x₀ and w profiled on the training RSS (counted: six). Each is fitted on the
+    training record and the one with the best validated score (its own parameters penalised)
+    is kept (:func:`lionjax.diagnose`); a polynomial with or without a(x), b(x) held at their
     values at the ends of the training positions beyond them (tried where validation leaves
-    that range; ``x_lo``, ``x_hi`` reported when held). Reports the coefficients of (x − x_c)ᵏ
-    and the expansion point x_c."""
+    that range; ``x_lo``, ``x_hi`` reported when held). Reports the polynomial's coefficients
+    of (x − x_c)ᵏ and the expansion point x_c, or the step's and bump's amplitudes with
+    ``x_step`` (x₀) and ``w_step`` (w)."""
 
     name: ClassVar[str] = "position_dependent"
     n_params: ClassVar[int] = 2  # per degree
@@ -388,16 +401,30 @@ class PositionCandidate(AbstractCandidate):
         "x_center": "m",
         "x_lo": "m",
         "x_hi": "m",
+        "a_step": "1/s",
+        "b_step": "1/kg",
+        "a_bump": "1/s",
+        "b_bump": "1/kg",
+        "x_step": "m",
+        "w_step": "m",
     }
 
     def effects(self, ctx):
+        if ctx.position_degree == 0:
+            if not ctx.position_local:
+                raise ValueError("PositionCandidate: the localized (x₀, w) is not profiled yet")
+            return (LocalizedPosition(*ctx.position_local),)
         return (PolynomialPosition(ctx.x_center, ctx.x_scale, ctx.position_degree),)
 
     def params(self, ctx):
-        return self.n_params * ctx.position_degree
+        return LOCAL_PARAMS if ctx.position_degree == 0 else self.n_params * ctx.position_degree
 
     def implausible(self, phys, lim):
         return _b_positive(phys)
+
+
+#: Parameters the localized position counts: its four amplitudes and the profiled x₀, w.
+LOCAL_PARAMS = 6
 
 
 class DelayCandidate(AbstractCandidate):

@@ -63,7 +63,12 @@ import numpy as np
 
 from .._errors import InputError
 from .._filters import FilterBank
-from .._model_effects import MAX_POSITION_DEGREE, position_terms, position_values
+from .._model_effects import (
+    MAX_POSITION_DEGREE,
+    local_values,
+    position_terms,
+    position_values,
+)
 from .._models import Augmented, MassDamper
 from .._record import Record
 from .._tables import jsonable
@@ -82,6 +87,8 @@ from ._fit import (
     TooWide,
     apply_input,
     decimation_to_fit,
+    edge_pad,
+    filter_signals,
     fit_batch,
     impulse_gains,
     longest_records,
@@ -145,6 +152,16 @@ MODE_N = 16
 #: damping ratios it may reach: MODE_ZETA_RANGE).
 MODE_ROUNDS = 4
 MODE_STEPS = 16
+#: The localized position's (x₀, w) grid: the training positions' LOCAL_RANGE quantiles span R;
+#: widths w = R·LOCAL_WIDTHS, centres across R spaced by max(w, R/LOCAL_SPACING); then a pattern
+#: search in (x₀, ln w) (LOCAL_ROUNDS step halvings, at most LOCAL_STEPS rings) with w kept in
+#: R·LOCAL_W_RANGE.
+LOCAL_RANGE = (0.02, 0.98)
+LOCAL_WIDTHS = (1 / 48, 1 / 24, 1 / 12, 1 / 6, 1 / 3)
+LOCAL_SPACING = 24
+LOCAL_ROUNDS = 3
+LOCAL_STEPS = 12
+LOCAL_W_RANGE = (1 / 100, 1.0)
 #: Soft-saturation levels in the F_max grid.
 SOFT_N = 15
 #: Shortest stick [s] the friction candidates' stick variant masks (_Fitter.stuck).
@@ -256,6 +273,11 @@ class Fitted:
         return _n_eff(self.residual)
 
 
+def _has_position(cands: Sequence[AbstractCandidate]) -> bool:
+    """Whether a structure holds the position-dependent a(x), b(x)."""
+    return any(c.profiled == "degree" for c in cands)
+
+
 def _has_mode(cands: Sequence[AbstractCandidate]) -> bool:
     """Whether a structure holds the flexible mode's columns."""
     return any(c.profiled == "mode" for c in cands)
@@ -274,11 +296,35 @@ def _effects_of(cands: Sequence[AbstractCandidate], ctx: Context):
 class Variant(NamedTuple):
     """The variants a candidate's fit is chosen among, by validated score (:func:`diagnose`)."""
 
-    degree: int  # of the position-dependent a(x), b(x)
+    degree: int  # of the position-dependent a(x), b(x); 0: the localized step and bump
     mode_input: bool  # the flexible mode's κ column (else collocated, κ = 0)
     fmax_shape: int  # the saturation's shape: +1 hard, −1 soft, 0 both
     position_clamp: bool  # a(x), b(x) held beyond the training positions
     stick: bool  # friction's force columns masked where the axis sticks
+
+
+def _pattern_search(start, best, steps, move, rss_of, seen, rounds: int, max_steps: int):
+    """(point, RSS) of a pattern search in two parameters from ``start`` (its RSS ``best``): the
+    8 neighbours ``move(point, i, j, steps)`` (i, j ∈ {−1, 0, 1}, clamped by ``move``) of the
+    best so far, moving while one is better and halving both ``steps`` when none is (``rounds``
+    halvings, at most ``max_steps`` rings). ``rss_of(points)`` gives the RSS of new points;
+    ``seen`` {point: RSS} is shared across searches (successive rings and clamps repeat
+    points)."""
+    p, halvings = start, 0
+    for _ in range(max_steps):
+        ring = [move(p, i, j, steps) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+        todo = list(dict.fromkeys(q for q in ring if q not in seen))
+        if todo:
+            seen.update(zip(todo, np.asarray(rss_of(todo)).tolist(), strict=True))
+        r = np.array([seen[q] for q in ring])
+        if float(np.min(r)) < best:
+            p, best = ring[int(np.argmin(r))], float(np.min(r))
+            continue
+        halvings += 1
+        if halvings > rounds:
+            break
+        steps = tuple(0.5 * s for s in steps)
+    return p, best
 
 
 class _Fitter:
@@ -307,6 +353,7 @@ class _Fitter:
         self._seed: tuple | None = None  # (mode_seed's (ω, ζ) or None,), once computed
         self._h_valid: dict = {}  # rms((s²/D)[x]) on validation per mode (ω, ζ)
         self.degree = 1  # of the position-dependent a(x), b(x): chosen in diagnose(), then fixed
+        self._local: tuple[float, float] | None = None  # the localized (x₀, w), once profiled
         # the saturation's shape, +1 hard or −1 soft (the sign of its F_max grid), or 0 both:
         # chosen in diagnose(), then fixed
         self.fmax_shape = 0
@@ -328,7 +375,12 @@ class _Fitter:
     def _context(self, mode=None) -> Context:
         mode = self.mode if mode is None else mode
         ctx = self.ctx if not mode else dataclasses.replace(self.ctx, mode=tuple(mode))
-        return dataclasses.replace(ctx, position_degree=self.degree, mode_input=self.mode_input)
+        return dataclasses.replace(
+            ctx,
+            position_degree=self.degree,
+            mode_input=self.mode_input,
+            position_local=self._local or (),
+        )
 
     @property
     def variant(self) -> Variant:
@@ -470,6 +522,64 @@ class _Fitter:
             names += [nx, nF]
         return names
 
+    def _profile_local(self, cands) -> tuple[float, float]:
+        """(x₀, w) of the localized step and bump (:class:`~lionjax.LocalizedPosition`): least
+        training RSS of the structure (u = F; the other columns' Gram shared,
+        :func:`rss_with_columns`) over the grid of :data:`LOCAL_WIDTHS` and centres, then a
+        pattern search from the best. A narrow dip is invisible from a centre more than a few w
+        away, so the grid's centres are spaced by w down to R/:data:`LOCAL_SPACING`."""
+        base = self._model([c for c in cands if not _has_position([c])])
+        regs = self._regs(cands)[0]
+        x = np.asarray(self.train.x, np.float64)
+        F = np.asarray(self.train.F, np.float64)
+        if regs.force_mask is not None:
+            F = F * regs.force_mask
+        lo, hi = (float(q) for q in np.quantile(x, LOCAL_RANGE))
+        R = hi - lo
+        if not R > 0:  # the axis does not move: nothing to localise (the fit says so)
+            return (lo, max(abs(lo), 1.0) * 1e-3)
+        w_lo, w_hi = (R * f for f in LOCAL_W_RANGE)
+        # points per filter call: 4 signals each, (4·m, Tp, 4) float64 held at once
+        per = int(min(16, max(2, 2e8 // (regs.Tp * 4 * 32))))
+
+        def rss_of(points) -> np.ndarray:
+            out = []
+            for i in range(0, len(points), per):
+                chunk = points[i : i + per]
+                U = []
+                for c, w in chunk:
+                    vs, vb, ms, mb = local_values(x, c, w)
+                    U += [vs, ms * F, vb, mb * F]
+                U = np.stack([edge_pad(u, regs.Tp) for u in U])
+                foh = np.tile([1.0, 0.0, 1.0, 0.0], len(chunk))
+                V = filter_signals(regs.dsc, U, foh)[:, : regs.T]
+                V = V.reshape(len(chunk), 4, regs.T, 4)
+                cols = np.stack([V[:, 0, :, 1], -V[:, 1, :, 0], V[:, 2, :, 1], -V[:, 3, :, 0]], 1)
+                out.append(rss_with_columns(regs, base, cols))
+            return np.concatenate(out)
+
+        grid = []
+        for f in LOCAL_WIDTHS:
+            w = R * f
+            n = int(round(R / max(w, R / LOCAL_SPACING))) + 1
+            grid += [(float(c), w) for c in np.linspace(lo, hi, n)]
+        rss = rss_of(grid)
+        i = int(np.argmin(rss))
+        (c, w), best = grid[i], float(rss[i])
+        seen = dict(zip(grid, rss.tolist(), strict=True))
+
+        def move(q, i, j, steps):
+            return (
+                min(max(q[0] + i * steps[0], lo), hi),
+                min(max(q[1] * math.exp(j * steps[1]), w_lo), w_hi),
+            )
+
+        steps = (0.5 * max(w, R / LOCAL_SPACING), 0.5 * math.log(2.0))
+        (c, w), _ = _pattern_search(
+            (c, w), best, steps, move, rss_of, seen, LOCAL_ROUNDS, LOCAL_STEPS
+        )
+        return float(c), float(w)
+
     def _profile_mode(self, cands) -> tuple[float, float]:
         """(ω, ζ) of the flexible mode: least training RSS of the structure over the grid
         (frequencies × :data:`MODE_ZETAS`), then a pattern search from the best
@@ -515,47 +625,29 @@ class _Fitter:
             q = (seed[0], min(max(seed[1], lo), hi))
             starts.append((q, float(rss_of([q], (self.mode_input,))[self.mode_input][0])))
         seen: dict[tuple[float, float], float] = {}  # successive rings (and clamps) share points
-        found = [self._pattern_search(q, r, ws, rss_of, seen) for q, r in starts]
+        found = [self._mode_search(q, r, ws, rss_of, seen) for q, r in starts]
         (w, z), _ = min(found, key=lambda t: t[1])
         return float(w), float(z)
 
-    def _pattern_search(self, start, best, ws, rss_of, seen):
-        """((ω, ζ), RSS) of the pattern search from ``start`` (its RSS ``best``)."""
-        (w, z) = start
-        # pattern search: the 8 neighbours of the best on a 3×3 grid in (ln ω, ln ζ), within the
-        # grid's frequencies and MODE_ZETA_RANGE; move while a neighbour is better, halve the
-        # steps when none is (MODE_ROUNDS halvings, at most MODE_STEPS rings). Unbounded, it
-        # walked to 0.34 Hz on a 4 s record, where the mode's free response is a slow trend.
-        # A lightly damped mode's valley is narrow and curved in (ω, ζ): a
-        # zoom that halved every round stopped on its flank (17.6 Hz, ζ 0.047 for a true
-        # 16.9 Hz, 0.023, from the coarse best at 20 Hz, 0.1), and at ζ = 0.02 the half-power
-        # band is ±2 % where the coarse grid's step is ±13 %
-        sw, sz = 0.5 * math.log(ws[1] / ws[0]), 0.5 * math.log(3.0)
+    def _mode_search(self, start, best, ws, rss_of, seen):
+        """((ω, ζ), RSS) of the pattern search from ``start`` (its RSS ``best``) in (ln ω,
+        ln ζ), within the grid's frequencies and MODE_ZETA_RANGE (:func:`_pattern_search`).
+        Unbounded, it walked to 0.34 Hz on a 4 s record, where the mode's free response is a
+        slow trend. A lightly damped mode's valley is narrow and curved in (ω, ζ): a zoom that
+        halved every round stopped on its flank (17.6 Hz, ζ 0.047 for a true 16.9 Hz, 0.023,
+        from the coarse best at 20 Hz, 0.1), and at ζ = 0.02 the half-power band is ±2 % where
+        the coarse grid's step is ±13 %."""
         lo, hi = MODE_ZETA_RANGE
-        halvings = 0
-        for _ in range(MODE_STEPS):
-            ring = [
-                (
-                    min(max(w * math.exp(i * sw), ws[0]), ws[-1]),
-                    min(max(z * math.exp(j * sz), lo), hi),
-                )
-                for i in (-1, 0, 1)
-                for j in (-1, 0, 1)
-                if i or j
-            ]
-            todo = list(dict.fromkeys(q for q in ring if q not in seen))
-            if todo:
-                r = rss_of(todo, (self.mode_input,))[self.mode_input]
-                seen.update(zip(todo, r, strict=True))
-            r = np.array([seen[q] for q in ring])
-            if float(np.min(r)) < best:
-                (w, z), best = ring[int(np.argmin(r))], float(np.min(r))
-                continue
-            halvings += 1
-            if halvings > MODE_ROUNDS:
-                break
-            sw, sz = 0.5 * sw, 0.5 * sz
-        return (w, z), best
+
+        def move(q, i, j, steps):
+            return (
+                min(max(q[0] * math.exp(i * steps[0]), ws[0]), ws[-1]),
+                min(max(q[1] * math.exp(j * steps[1]), lo), hi),
+            )
+
+        steps = (0.5 * math.log(ws[1] / ws[0]), 0.5 * math.log(3.0))
+        rss = lambda todo: rss_of(todo, (self.mode_input,))[self.mode_input]  # noqa: E731
+        return _pattern_search(start, best, steps, move, rss, seen, MODE_ROUNDS, MODE_STEPS)
 
     def _profile(self, model, tau, fmax, which, regs):
         st = self.st
@@ -613,6 +705,8 @@ class _Fitter:
             # alone on the baseline), then fixed in stacks
             if self.mode is None:
                 self._modes[self.mode_input] = self._profile_mode(cands)
+        if self.degree == 0 and self._local is None and _has_position(cands):
+            self._local = self._profile_local(cands)
         rtr, rva = self._regs(cands)
         if _has_mode(cands) and mode_signal_names(*self.mode)[0] not in rtr.cache:
             for regs, rec in ((rtr, self.train), (rva, self.valid)):
@@ -644,7 +738,9 @@ class _Fitter:
                 ((hx, _),) = mode_signals(self.valid.x, self.valid.F, dt, [self.mode], self.rva.Tp)
                 self._h_valid[self.mode] = float(np.std(hx[: self.valid.n_samples]))
             phys["deflection"] = abs(phys.get("mass_ratio", 0.0)) * self._h_valid[self.mode]
-        if any(c.profiled == "degree" for c in cands):
+        if _has_position(cands) and self.degree == 0:
+            phys["x_step"], phys["w_step"] = self._local
+        elif _has_position(cands):
             phys["x_center"] = self.st.x_center
             if self.position_clamp:
                 phys["x_lo"], phys["x_hi"] = self.st.x_range
@@ -1229,6 +1325,10 @@ def diagnose(
                 for clamp in ((False, True) if outside["position"] > 0 else (False,))
                 for d in range(1, MAX_POSITION_DEGREE + 1)
             ]
+            # and the localized step and bump (its x₀, w profiled on train; bounded, so never
+            # held): a transition or a dip a few % of the travel wide, which a cubic over the
+            # whole travel cannot follow
+            variants.append(now._replace(degree=0, position_clamp=False))
         elif c.profiled == "mode":
             variants = [now._replace(mode_input=m) for m in (False, True)]
         elif c.profiled == "fmax":

@@ -121,6 +121,24 @@ def physical_memory() -> int | None:
 F_DEP = {"F": None} | {
     f: m for f, m in (position_terms(k)[1:] for k in range(1, MAX_POSITION_DEGREE + 1))
 }
+#: Prefixes of the localized position's F-dependent signals (:func:`local_signal_names`: one
+#: name per (x₀, w)) and of their multipliers.
+_LOCAL_F = {"lstepF@": "lstep@", "lbumpF@": "lbump@"}
+
+
+def f_dependent(signal: str) -> bool:
+    """Whether ``signal`` is (a function of x) × F (:data:`F_DEP`, or a localized position's)."""
+    return signal in F_DEP or signal.startswith(tuple(_LOCAL_F))
+
+
+def f_multiplier(signal: str) -> str | None:
+    """The raw signal name of an F-dependent signal's multiplier (None for F itself)."""
+    if signal in F_DEP:
+        return F_DEP[signal]
+    pre = next(p for p in _LOCAL_F if signal.startswith(p))
+    return _LOCAL_F[pre] + signal[len(pre) :]
+
+
 #: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
 #: compiled program per bucket; most structures have F and ξF only).
 K_BUCKETS = (2, 4)
@@ -679,7 +697,7 @@ class Regressors:
                 f"structure with {p} columns and {n_nuis} initial-state columns exceeds "
                 f"P_MAX = {P_MAX}"
             )
-        fixed = sorted({c.signal for c in cols if c.signal not in F_DEP})
+        fixed = sorted({c.signal for c in cols if not f_dependent(c.signal)})
         raw = self._raw(model, [s for s in fixed if s != "x"])
         raw["x"] = (self.x, "foh")
         filt = self.filtered(raw)
@@ -693,17 +711,17 @@ class Regressors:
             }
             masked = self.filtered({f"{n}|stick": (m * raw[n][0], raw[n][1]) for n in forces})
         Wfix = np.zeros((self.Tp, P_MAX))
-        n_dep = sum(c.signal in F_DEP for c in cols)
+        n_dep = sum(f_dependent(c.signal) for c in cols)
         K = next((k for k in K_BUCKETS if k >= n_dep), n_dep)
         mult = np.zeros((K, self.Tp))
         onehot = np.zeros((K, P_MAX))
         kk = 0
         fdep: list[str] = []
         for j, c in enumerate(cols):
-            if c.signal in F_DEP:
+            if f_dependent(c.signal):
                 if c.order != 0 or kk >= K_MAX:
                     raise ValueError(f"unsupported F-dependent column {c}")
-                if F_DEP[c.signal] is None:
+                if f_multiplier(c.signal) is None:
                     g = np.ones(self.T)
                 else:
                     g = self._multiplier(model, c.signal)
@@ -730,7 +748,7 @@ class Regressors:
     def _multiplier(self, model, signal: str) -> np.ndarray:
         """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the model's own
         signals of a record with F = 1."""
-        name = F_DEP[signal]
+        name = f_multiplier(signal)
         if name in self.known:
             return self.known[name]
         ones = Record(self.record.x, jnp.ones_like(self.record.x), self.record.dt)

@@ -7,8 +7,9 @@ solution
     φ₁ = (1 − e^{−ah})/a,     φ₂ = (h − φ₁)/a            (series for |ah| ≤ 10⁻²).
 
 :func:`windowed_errors` steps the model with effects (offset F₀, spring k, Coulomb friction F_c
-with sticking, position-dependent a(x), b(x)) over a record, restarting every H samples from
-given states: the "windowed simulation" the diagnosis scores a model by. It is tested against
+with sticking, position-dependent a(x), b(x): polynomial and localized) over a record,
+restarting every H samples from given states: the "windowed simulation" the diagnosis scores a
+model by. It is tested against
 :func:`lionjax.twin.simulate` (one window, linear model) and against scipy's exact ZOH
 discretisation (restarts from arbitrary states).
 """
@@ -20,7 +21,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 #: The parameters :func:`windowed_errors` reads (SI: 1/s, 1/kg, N, N, N, N/m, m, 1/(s·m),
-#: 1/(kg·m), then the coefficients of (x − x_c)² and (x − x_c)³ in a(x) and b(x)).
+#: 1/(kg·m), then the coefficients of (x − x_c)² and (x − x_c)³ in a(x) and b(x), then the
+#: localized step and bump of a(x), b(x) [1/s, 1/kg, 1/s, 1/kg] at x_step [m] of width w_step
+#: [m]: :class:`lionjax.LocalizedPosition`).
 WINDOW_PARAMETERS = (
     "a",
     "b",
@@ -35,6 +38,12 @@ WINDOW_PARAMETERS = (
     "b_x2",
     "a_x3",
     "b_x3",
+    "a_step",
+    "b_step",
+    "a_bump",
+    "b_bump",
+    "x_step",
+    "w_step",
 )
 
 
@@ -85,6 +94,10 @@ def windowed_errors(
     a2, a3, b2, b3 = p["a_x2"], p["a_x3"], p["b_x2"], p["b_x3"]
     # optional: a(x), b(x) held at their values at x_lo, x_hi beyond them
     x_lo, x_hi = p.get("x_lo", -jnp.inf), p.get("x_hi", jnp.inf)
+    # optional: the localized step and bump (LocalizedPosition)
+    a_s, b_s, a_b, b_b = (p.get(k, 0.0) for k in ("a_step", "b_step", "a_bump", "b_bump"))
+    x_s, w_s = p.get("x_step", 0.0), p.get("w_step", 1.0)
+    w_s = jnp.where(w_s > 0, w_s, 1.0)
 
     def body(carry, inp):
         x, v = carry
@@ -92,8 +105,10 @@ def windowed_errors(
         x = jnp.where(rs, xs, x)
         v = jnp.where(rs, vs, v)
         dx = jnp.clip(x, x_lo, x_hi) - p["xc"]
-        ak = a + dx * (p["da_dx"] + dx * (a2 + dx * a3))
-        bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3))
+        th = jnp.tanh((x - x_s) / w_s)
+        s2 = 1.0 - th * th
+        ak = a + dx * (p["da_dx"] + dx * (a2 + dx * a3)) + a_s * th + a_b * s2
+        bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3)) + b_s * th + b_b * s2
         other = uk + p["F0"] - p["k"] * x
         s = jnp.sign(v)
         s = jnp.where(s == 0, (other > Fp).astype(s.dtype) - (other < -Fn).astype(s.dtype), s)
