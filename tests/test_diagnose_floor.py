@@ -112,14 +112,26 @@ def test_closed_loop_delay_at_the_floor_needs_the_simulation():
 
 def test_unexplained_is_no_surer_than_train_covers_validation():
     """A tanh position dependence whose validation positions lie wholly outside train's range
-    (an open-loop record that drifts): nothing fitted on train can describe it there, so
-    ``unexplained`` (the verdict) carries at most 1 − that share (such a record was
-    ``unexplained`` at 1.00; this one, of held-out run P, is at 0.00)."""
+    (an open-loop record that drifts): the polynomials fitted on train cannot describe it there,
+    so with them alone ``unexplained`` (the verdict) carries at most 1 − that share (such a
+    record was ``unexplained`` at 1.00; this one, of held-out run P, is at 0.00). The localized
+    step, bounded beyond its width, does extrapolate: with it the record is named, its centre
+    and width within a few % of the drawn ones."""
     train, valid, info = blind.make_case("position_dependent", 26070014, source="twin")
-    d = lj.diagnose(train, valid)
+    poly = tuple(
+        lj.diagnosis.PositionCandidate(localized=False) if c.name == "position_dependent" else c
+        for c in lj.diagnosis.DEFAULT_CANDIDATES
+    )
+    d = lj.diagnose(train, valid, candidates=poly)
     out = d.to_json()["baseline"]["valid_outside_train"]
     assert out["position"] > 0.99
     assert d.verdict == "unexplained" and d.confidence <= 1.0 - out["position"] + 1e-12
+    d = lj.diagnose(train, valid)
+    p = info["effects"][0]["params"]
+    assert d.verdict == "position_dependent"
+    pos = next(e for e in d.effects if e.name == "position_dependent").params
+    assert abs(pos["x_step"] - p["center"]) < 0.25 * p["length"]
+    assert 0.8 < pos["w_step"] / p["length"] < 1.25
 
 
 def test_line_left_by_a_stack_that_explains_the_gap_is_noise():

@@ -93,14 +93,22 @@ def test_widest_stack_fits(monkeypatch):
     """Cogging (lionjax's twin, 1.40 kHz) stacks a spring and a cubic a(x), b(x) (8 columns),
     then tries the flexible mode on them: 12 columns and 5 refitted initial-state ones, wider
     than the design held (16) — the run crashed. The default library's widest stack fits; a
-    structure wider than the design is skipped, not raised (the old width: the same stack)."""
+    structure wider than the design is skipped, not raised (the old width: the same stack).
+    (The localized step and bump, 4 columns, takes the cubic's place on this record: the
+    polynomial-only candidate keeps the widest stack.)"""
     from lionjax.diagnosis import _fit
+    from lionjax.diagnosis import DEFAULT_CANDIDATES, PositionCandidate
 
+    cands = tuple(
+        PositionCandidate(localized=False) if c.name == "position_dependent" else c
+        for c in DEFAULT_CANDIDATES
+    )
     train, valid, _ = blind.make_case("cogging", 13110006, source="twin")
-    d = lj.diagnose(train, valid)
+    d = lj.diagnose(train, valid, candidates=cands)
     assert d.stack[:2] == ["spring", "position_dependent"]
+    assert "a_x3" in next(e for e in d.effects if e.name == "position_dependent").params
     monkeypatch.setattr(_fit, "P_MAX", 16)
-    assert lj.diagnose(train, valid).stack == d.stack
+    assert lj.diagnose(train, valid, candidates=cands).stack == d.stack
 
 
 def test_friction_fitted_slightly_negative_in_one_direction():

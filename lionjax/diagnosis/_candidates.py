@@ -386,8 +386,9 @@ class PositionCandidate(AbstractCandidate):
     values at the ends of the training positions beyond them (tried where validation leaves
     that range; ``x_lo``, ``x_hi`` reported when held). Reports the polynomial's coefficients
     of (x − x_c)ᵏ and the expansion point x_c, or the step's and bump's amplitudes with
-    ``x_step`` (x₀) and ``w_step`` (w)."""
+    ``x_step`` (x₀) and ``w_step`` (w). ``localized=False``: the polynomials only."""
 
+    localized: bool = True
     name: ClassVar[str] = "position_dependent"
     n_params: ClassVar[int] = 2  # per degree
     profiled: ClassVar[str | None] = "degree"

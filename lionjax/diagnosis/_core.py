@@ -157,10 +157,10 @@ MODE_STEPS = 16
 #: search in (x₀, ln w) (LOCAL_ROUNDS step halvings, at most LOCAL_STEPS rings) with w kept in
 #: R·LOCAL_W_RANGE.
 LOCAL_RANGE = (0.02, 0.98)
-LOCAL_WIDTHS = (1 / 48, 1 / 24, 1 / 12, 1 / 6, 1 / 3)
-LOCAL_SPACING = 24
-LOCAL_ROUNDS = 3
-LOCAL_STEPS = 12
+LOCAL_WIDTHS = (1 / 40, 1 / 12, 1 / 4)
+LOCAL_SPACING = 32
+LOCAL_ROUNDS = 2
+LOCAL_STEPS = 8
 LOCAL_W_RANGE = (1 / 100, 1.0)
 #: Soft-saturation levels in the F_max grid.
 SOFT_N = 15
@@ -1328,7 +1328,8 @@ def diagnose(
             # and the localized step and bump (its x₀, w profiled on train; bounded, so never
             # held): a transition or a dip a few % of the travel wide, which a cubic over the
             # whole travel cannot follow
-            variants.append(now._replace(degree=0, position_clamp=False))
+            if getattr(c, "localized", False):
+                variants.append(now._replace(degree=0, position_clamp=False))
         elif c.profiled == "mode":
             variants = [now._replace(mode_input=m) for m in (False, True)]
         elif c.profiled == "fmax":
