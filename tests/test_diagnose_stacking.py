@@ -96,8 +96,7 @@ def test_widest_stack_fits(monkeypatch):
     structure wider than the design is skipped, not raised (the old width: the same stack).
     (The localized step and bump, 4 columns, takes the cubic's place on this record: the
     polynomial-only candidate keeps the widest stack.)"""
-    from lionjax.diagnosis import _fit
-    from lionjax.diagnosis import DEFAULT_CANDIDATES, PositionCandidate
+    from lionjax.diagnosis import DEFAULT_CANDIDATES, PositionCandidate, _fit
 
     cands = tuple(
         PositionCandidate(localized=False) if c.name == "position_dependent" else c
