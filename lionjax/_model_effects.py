@@ -228,19 +228,18 @@ class PolynomialPosition(AbstractEffect):
         return {n: theta[..., j] / self.scale ** (j // 2 + 1) for j, n in enumerate(names)}
 
 
+#: Name prefixes of :class:`LocalizedPosition`'s F-dependent signals (tanh ξ·F, sech²ξ·F) and
+#: of their multipliers (tanh ξ, sech²ξ); the rest of a name is its (x₀, w).
+LOCAL_F_MULTIPLIERS = {"lstepF@": "lstep@", "lbumpF@": "lbump@"}
+
+
 def local_signal_names(center: float, width: float) -> tuple[str, str, str, str, str, str]:
     """Raw signal names of :class:`LocalizedPosition` at (x₀, w): its two a-signals
     w·log cosh ξ and w·tanh ξ, its two b-signals tanh ξ·F and sech²ξ·F, and those signals'
     multipliers tanh ξ and sech²ξ of F (one set per (x₀, w): a profile holds many)."""
     key = f"{float(center):.12g},{float(width):.12g}"
-    return (
-        f"lstep_g@{key}",
-        f"lbump_g@{key}",
-        f"lstepF@{key}",
-        f"lbumpF@{key}",
-        f"lstep@{key}",
-        f"lbump@{key}",
-    )
+    (fs, ms), (fb, mb) = LOCAL_F_MULTIPLIERS.items()
+    return f"lstep_g@{key}", f"lbump_g@{key}", fs + key, fb + key, ms + key, mb + key
 
 
 def local_values(x, center, width):

@@ -376,6 +376,10 @@ class SpringCandidate(AbstractCandidate):
         return _b_positive(phys)
 
 
+#: Parameters the localized position counts: its four amplitudes and the profiled x₀, w.
+LOCAL_PARAMS = 6
+
+
 class PositionCandidate(AbstractCandidate):
     """a(x), b(x) polynomial in position, degree 1 … 3 (exact §3-style columns,
     :class:`~lionjax.PolynomialPosition`), two parameters per degree, or a step and a bump
@@ -422,10 +426,6 @@ class PositionCandidate(AbstractCandidate):
 
     def implausible(self, phys, lim):
         return _b_positive(phys)
-
-
-#: Parameters the localized position counts: its four amplitudes and the profiled x₀, w.
-LOCAL_PARAMS = 6
 
 
 class DelayCandidate(AbstractCandidate):

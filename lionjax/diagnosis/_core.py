@@ -738,12 +738,13 @@ class _Fitter:
                 ((hx, _),) = mode_signals(self.valid.x, self.valid.F, dt, [self.mode], self.rva.Tp)
                 self._h_valid[self.mode] = float(np.std(hx[: self.valid.n_samples]))
             phys["deflection"] = abs(phys.get("mass_ratio", 0.0)) * self._h_valid[self.mode]
-        if _has_position(cands) and self.degree == 0:
-            phys["x_step"], phys["w_step"] = self._local
-        elif _has_position(cands):
-            phys["x_center"] = self.st.x_center
-            if self.position_clamp:
-                phys["x_lo"], phys["x_hi"] = self.st.x_range
+        if _has_position(cands):
+            if self.degree == 0:
+                phys["x_step"], phys["w_step"] = self._local
+            else:
+                phys["x_center"] = self.st.x_center
+                if self.position_clamp:
+                    phys["x_lo"], phys["x_hi"] = self.st.x_range
         sim = self._simulate(phys, u_va, cands)
         return Fitted(
             names=names,

@@ -42,7 +42,7 @@ import numpy as np
 
 from .._filters import FilterBank, powers
 from .._least_squares import gram_lstsq
-from .._model_effects import MAX_POSITION_DEGREE, position_terms
+from .._model_effects import LOCAL_F_MULTIPLIERS, MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
 from ..twin._windows import windowed_errors
@@ -121,22 +121,20 @@ def physical_memory() -> int | None:
 F_DEP = {"F": None} | {
     f: m for f, m in (position_terms(k)[1:] for k in range(1, MAX_POSITION_DEGREE + 1))
 }
-#: Prefixes of the localized position's F-dependent signals (:func:`local_signal_names`: one
-#: name per (x₀, w)) and of their multipliers.
-_LOCAL_F = {"lstepF@": "lstep@", "lbumpF@": "lbump@"}
 
 
 def f_dependent(signal: str) -> bool:
-    """Whether ``signal`` is (a function of x) × F (:data:`F_DEP`, or a localized position's)."""
-    return signal in F_DEP or signal.startswith(tuple(_LOCAL_F))
+    """Whether ``signal`` is (a function of x) × F (:data:`F_DEP`, or a localized position's,
+    :data:`~lionjax._model_effects.LOCAL_F_MULTIPLIERS`)."""
+    return signal in F_DEP or signal.startswith(tuple(LOCAL_F_MULTIPLIERS))
 
 
 def f_multiplier(signal: str) -> str | None:
     """The raw signal name of an F-dependent signal's multiplier (None for F itself)."""
     if signal in F_DEP:
         return F_DEP[signal]
-    pre = next(p for p in _LOCAL_F if signal.startswith(p))
-    return _LOCAL_F[pre] + signal[len(pre) :]
+    pre = next(p for p in LOCAL_F_MULTIPLIERS if signal.startswith(p))
+    return LOCAL_F_MULTIPLIERS[pre] + signal[len(pre) :]
 
 
 #: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
@@ -746,13 +744,22 @@ class Regressors:
         return Wfix, mult, onehot, pad, p, Wdef
 
     def _multiplier(self, model, signal: str) -> np.ndarray:
-        """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the model's own
-        signals of a record with F = 1."""
+        """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the signals of the
+        effect that owns it on a record with F = 1 (then kept in ``known``: a long record
+        rebuilds its layouts)."""
         name = f_multiplier(signal)
-        if name in self.known:
-            return self.known[name]
-        ones = Record(self.record.x, jnp.ones_like(self.record.x), self.record.dt)
-        return np.asarray(model.signals(ones)[signal][0], np.float64)
+        if name not in self.known:
+            ones = Record(self.record.x, jnp.ones_like(self.record.x), self.record.dt)
+            owner = next(
+                (
+                    e
+                    for e in getattr(model, "effects", ())
+                    if signal in {c.signal for c in e.columns()}
+                ),
+                model,
+            )
+            self.known[name] = np.asarray(owner.signals(ones)[signal][0], np.float64)
+        return self.known[name]
 
     def _args(self, model):
         return self._cached(("layout", _model_key(model)), lambda: self.layout(model))
