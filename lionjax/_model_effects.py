@@ -32,6 +32,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -253,6 +254,14 @@ def local_values(x, center, width):
     return width * logcosh, width * t, t, 1.0 - t * t
 
 
+@jax.jit
+def _local_signals(x, F, center, width):
+    """(w·log cosh ξ, w·tanh ξ, tanh ξ·F, sech²ξ·F) in one program per record shape, (x₀, w)
+    traced (eagerly, each of local_values' operations compiled anew for every record length)."""
+    vs, vb, ms, mb = local_values(x, center, width)
+    return vs, vb, ms * F, mb * F
+
+
 class LocalizedPosition(AbstractEffect):
     """A change of a and b confined around x₀ (width w): a step and a bump in
     ξ = (x − x₀)/w,
@@ -300,13 +309,8 @@ class LocalizedPosition(AbstractEffect):
 
     def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
         gs, gb, fs, fb, _, _ = local_signal_names(self.center, self.width)
-        vs, vb, ms, mb = local_values(record.x, self.center, self.width)
-        return {
-            gs: (vs, "foh"),
-            gb: (vb, "foh"),
-            fs: (ms * record.F, "zoh"),
-            fb: (mb * record.F, "zoh"),
-        }
+        vs, vb, us, ub = _local_signals(record.x, record.F, self.center, self.width)
+        return {gs: (vs, "foh"), gb: (vb, "foh"), fs: (us, "zoh"), fb: (ub, "zoh")}
 
     def physical(self, theta: Array, b: Array) -> dict[str, Array]:
         return {n: theta[..., j] for j, n in enumerate(("a_step", "b_step", "a_bump", "b_bump"))}

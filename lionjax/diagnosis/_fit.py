@@ -653,7 +653,7 @@ class Regressors:
             self.known.pop(n, None)
             self.cache.pop(n, None)
         for k in [k for k in self.cache if isinstance(k, tuple) and k[0] in _PER_STRUCTURE]:
-            if any(c.signal in names for c in k[1]):
+            if any(signal in names for signal, _, _ in k[1]):
                 del self.cache[k]
 
     def nuisance(self, model: AbstractModel) -> np.ndarray:
@@ -686,7 +686,7 @@ class Regressors:
         """(Wfix (Tp, P), mult (K, Tp), onehot (K, P), pad (Tp, P), p, Wdef (Tp, P)) of a
         structure: fixed columns, F-dependent signals' multipliers and slots, the unit columns
         of unused slots, the column count and the design for u = F."""
-        cols = model.columns()
+        cols = _columns(model)
         p = len(cols)
         nuis = self.nuisance(model)
         n_nuis = nuis.shape[1]
@@ -799,8 +799,31 @@ class Regressors:
 _PER_STRUCTURE = ("layout", "nuisance", "gram")
 
 
+#: (model, its columns, its key) by id(model): the fits ask a structure for its columns many
+#: times (a profile grid, a layout, a Gram, a nuisance), and building them costs ~0.5 ms (each
+#: column an equinox Module). Holding the model keeps its id from being reused; bounded.
+_COLUMNS: dict[int, tuple] = {}
+
+
+def _columns_and_key(model) -> tuple[tuple, tuple]:
+    hit = _COLUMNS.get(id(model))
+    if hit is None or hit[0] is not model:
+        cols = tuple(model.columns())
+        if len(_COLUMNS) >= 4096:
+            _COLUMNS.clear()
+        hit = _COLUMNS[id(model)] = (model, cols, tuple((c.signal, c.order, c.sign) for c in cols))
+    return hit[1], hit[2]
+
+
+def _columns(model) -> tuple:
+    """``model.columns()``, once per model object."""
+    return _columns_and_key(model)[0]
+
+
 def _model_key(model) -> tuple:
-    return tuple(c for c in model.columns())
+    """The structure's columns as (signal, order, sign) tuples: the cache key of its layout,
+    Gram and nuisance."""
+    return _columns_and_key(model)[1]
 
 
 def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
@@ -853,7 +876,7 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
 
     Returns θ ``(G, p)``, the RSS ``(G,)``, σ²(ΦᵀΦ)⁻¹ ``(G, p, p)`` and condition numbers.
     """
-    p = len(model.columns())
+    p = len(_columns(model))
     coef, rss, gi, cond = _solve_grid(regs, model, inputs)
     n_cols = p + regs.nuisance(model).shape[1]
     s2 = rss / max(regs.T - n_cols, 1)

@@ -177,11 +177,34 @@ def _advance(axis, solver, y, s, r, length, F, n_substeps, max_events, n_bisect)
     return jax.lax.fori_loop(0, n_substeps, body, (y, s, r))
 
 
+def _padded_samples(n: int) -> int:
+    """The scan length that simulates ``n`` samples: n rounded up to a multiple of 2^(⌊log₂ n⌋ − 3)
+    (at most 1/8 more steps, whose outputs are dropped), so that records of nearby lengths share
+    one compiled program."""
+    q = 1 << max(n.bit_length() - 4, 0)
+    return -(-n // q) * q
+
+
+def _buffer_length(plant: Plant, dt: float) -> int:
+    """Length of the delayed-command buffer: ⌈Σ max_delay/dt⌉ + 2 rounded up to a power of two
+    (1 without a delay), so that nearby sample rates share one compiled program."""
+    delays = [e for e in plant.effects if isinstance(e, InputDelay)]
+    if not delays:
+        return 1
+    n = int(math.ceil(sum(d.max_delay for d in delays) / dt)) + 2
+    return 1 << (n - 1).bit_length()
+
+
 @eqx.filter_jit
 def _simulate(
-    plant, f_exc, x0, v0, key, closed_loop, t0, *, dt, n_samples, n_substeps, max_events, solver
+    plant, f_exc, x0, v0, key, closed_loop, t0, dt, *, n_buf, n_substeps, max_events, solver
 ):
+    """The scan of :func:`simulate` over the samples of ``f_exc`` (its length static), ``dt`` a
+    traced scalar (one program for every sample rate): (x measured, F logged, x, v, F_cmd,
+    F_applied), each (T,)."""
+    n_samples = f_exc.shape[0]
     dtype = jnp.result_type(float)
+    dt = jnp.asarray(dt, dtype)
     effects = plant.effects
     inputs = tuple(e for e in effects if isinstance(e, AbstractInputEffect))
     delays = tuple(e for e in effects if isinstance(e, InputDelay))
@@ -227,12 +250,9 @@ def _simulate(
             tau > max_delay * (1 + 1e-9),
             "InputDelay: tau exceeds max_delay; raise max_delay",
         )
-        n_buf = int(math.ceil(max_delay / dt)) + 2
         D = tau / dt
         n_del = jnp.clip(jnp.floor(D), 0, n_buf - 2).astype(jnp.int32)
         frac = jnp.clip(D - n_del, 0.0, 1.0)
-    else:
-        n_buf = 1
 
     def measure(x, F, k):
         kk = jax.random.fold_in(key, k)
@@ -278,7 +298,7 @@ def _simulate(
                 y,
                 s,
                 r,
-                jnp.asarray(dt, dtype),
+                dt,
                 F_app,
                 n_substeps,
                 max_events,
@@ -289,9 +309,7 @@ def _simulate(
 
     ks = jnp.arange(n_samples)
     init = (y0, s0, r0, x0, jnp.zeros((n_buf,), dtype))
-    _, (xm, F_log, x_true, v_true, F_cmd, F_app) = jax.lax.scan(body, init, (ks, f_exc))
-    extras = {"x_true": x_true, "v_true": v_true, "F_cmd": F_cmd, "F_applied": F_app}
-    return Record(xm, F_log, dt, t0, extras)
+    return jax.lax.scan(body, init, (ks, f_exc))[1]
 
 
 def simulate(
@@ -328,9 +346,11 @@ def simulate(
         plant: the twin.
         excitation: an :class:`AbstractExcitation` (sampled at the t_k) or force samples [N] of
             shape ``(T,)``.
-        dt: sample interval [s] (static; default 1 kHz).
-        n_samples: number of samples T (static). Default: from ``duration``, else the length of
-            the force samples.
+        dt: sample interval [s], a Python float (default 1 kHz). Traced: every sample rate runs
+            the same compiled program.
+        n_samples: number of samples T. Default: from ``duration``, else the length of the force
+            samples. Lengths share a compiled program per bucket (T rounded up to a multiple of
+            2^(⌊log₂ T⌋ − 3): at most 1/8 more steps, whose outputs are dropped).
         duration: record length [s]: T = round(duration/dt) + 1 samples cover [t0, t0 + duration].
         x0, v0: initial position [m] and velocity [m/s].
         key: JAX PRNG key for the noise effects (required if the plant has any). Same key, same
@@ -357,7 +377,7 @@ def simulate(
     if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
         raise InputError(
             f"simulate: argument 'dt' must be a positive Python float [s], got {dt!r}. The "
-            "sample interval is static (it fixes the time grid)."
+            "sample interval fixes the record's time grid."
         )
     dt = float(dt)
     if isinstance(excitation, AbstractExcitation):
@@ -410,7 +430,11 @@ def simulate(
         f_exc = excitation.sample(n_samples, dt, t0)
     else:
         f_exc = jnp.asarray(excitation, jnp.result_type(float))
-    return _simulate(
+    # one program per (plant structure, length bucket): dt traced, the force samples held at
+    # their last value over the padding, whose outputs (later in time) are dropped
+    n_pad = _padded_samples(n_samples)
+    f_exc = jnp.concatenate([f_exc, jnp.broadcast_to(f_exc[-1], (n_pad - n_samples,))])
+    out = _simulate(
         plant,
         f_exc,
         x0,
@@ -418,9 +442,12 @@ def simulate(
         key,
         closed_loop,
         t0,
-        dt=dt,
-        n_samples=n_samples,
+        jnp.asarray(dt, jnp.result_type(float)),
+        n_buf=_buffer_length(plant, dt),
         n_substeps=n_substeps,
         max_events=max_events,
         solver=solver,
     )
+    xm, F_log, x_true, v_true, F_cmd, F_app = (o[:n_samples] for o in out)
+    extras = {"x_true": x_true, "v_true": v_true, "F_cmd": F_cmd, "F_applied": F_app}
+    return Record(xm, F_log, dt, t0, extras)
