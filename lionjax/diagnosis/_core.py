@@ -1702,7 +1702,7 @@ def diagnose(
     from ._where import where_findings
 
     series = {
-        "t": np.asarray(valid.t),
+        "t": float(valid.t0) + float(valid.dt) * np.arange(valid.n_samples),
         "x": np.asarray(valid.x),
         "F": np.asarray(valid.F),
         "v": np.asarray(fitter.v_valid),
