@@ -480,6 +480,30 @@ def test_vmap_equals_loop():
         np.testing.assert_allclose(batch.extras["x_true"][i], xr, atol=X_TOL)
 
 
+@pytest.mark.parametrize("dt", [DT, 1 / 1733.3])
+def test_a_record_is_the_start_of_a_longer_one(dt):
+    """Records of any length share a compiled program per length bucket (the scan runs past T
+    and drops the rest): a record of T samples equals the first T samples of a longer one, in
+    closed loop with friction, a fractional delay, noise and quantisation, at a round and a
+    non-round sample interval (dt is traced), across and within buckets."""
+    F = sine_force(700, amp=1.5, f=1.3)
+    plant = base(
+        lp.CoulombFriction(0.1),
+        lp.InputDelay(2.3e-3),
+        lp.PositionNoise(1e-5),
+        lp.EncoderQuantisation(),
+    )
+    kw = dict(dt=dt, key=jax.random.key(5), closed_loop=lp.CentringPD(200.0, 1.0, 0.0))
+    full = lp.simulate(plant, jnp.asarray(F), **kw)
+    for n in (300, 650):  # buckets of 320 and 704 samples; 700 is in the second
+        part = lp.simulate(plant, jnp.asarray(F[:n]), **kw)
+        assert part.n_samples == n
+        for k in ("x", "F"):
+            np.testing.assert_array_equal(getattr(part, k), getattr(full, k)[:n])
+        for k, v in part.extras.items():
+            np.testing.assert_array_equal(v, full.extras[k][:n])
+
+
 def test_vmap_over_delay_needs_max_delay():
     F = jnp.asarray(sine_force(200))
     taus = jnp.array([0.0, 1.5e-3, 3.2e-3])
