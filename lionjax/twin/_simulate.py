@@ -200,11 +200,10 @@ def _simulate(
     plant, f_exc, x0, v0, key, closed_loop, t0, dt, *, n_buf, n_substeps, max_events, solver
 ):
     """The scan of :func:`simulate` over the samples of ``f_exc`` (its length static), ``dt`` a
-    traced scalar (one program for every sample rate): (x measured, F logged, x, v, F_cmd,
+    traced scalar array of the default float dtype (one program for every sample rate): (x measured, F logged, x, v, F_cmd,
     F_applied), each (T,)."""
     n_samples = f_exc.shape[0]
     dtype = jnp.result_type(float)
-    dt = jnp.asarray(dt, dtype)
     effects = plant.effects
     inputs = tuple(e for e in effects if isinstance(e, AbstractInputEffect))
     delays = tuple(e for e in effects if isinstance(e, InputDelay))
