@@ -200,8 +200,8 @@ def _simulate(
     plant, f_exc, x0, v0, key, closed_loop, t0, dt, *, n_buf, n_substeps, max_events, solver
 ):
     """The scan of :func:`simulate` over the samples of ``f_exc`` (its length static), ``dt`` a
-    traced scalar array of the default float dtype (one program for every sample rate): (x measured, F logged, x, v, F_cmd,
-    F_applied), each (T,)."""
+    traced scalar array of the default float dtype (one program for every sample rate):
+    (x measured, F logged, x, v, F_cmd, F_applied), each (T,)."""
     n_samples = f_exc.shape[0]
     dtype = jnp.result_type(float)
     effects = plant.effects
