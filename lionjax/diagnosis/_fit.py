@@ -57,8 +57,13 @@ class TooWide(ValueError):
     friction and a flexible mode) has 12 + 5."""
 
 
-#: Length of every profile grid (τ, F_max); shorter grids are padded by repeating a value.
+#: Batch of Gram systems solved at once (:func:`solve_grams`): a batch is padded to a multiple
+#: of it with identity systems.
 GRID = 32
+#: Grid points (τ, F_max) whose F-dependent columns one call of :func:`_grid_columns` filters: a
+#: profile grid runs in batches of this size (the last one padded), so one program serves every
+#: grid length and a grid of 8 or 15 points filters 8 or 16, not 32.
+GRID_BATCH = 8
 #: Padded lengths above this filter a profile grid 4 points at a time and rebuild each
 #: structure's dense (Tp, ·) design and Gram instead of caching them (memory). A 10-minute
 #: record at 1 kHz (padded to 2²⁰) took 243 s and 17.9 GB with them cached, 245 s and 5.8 GB
@@ -138,8 +143,8 @@ def f_multiplier(signal: str) -> str | None:
 
 
 #: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
-#: compiled program per bucket; most structures have F and ξF only).
-K_BUCKETS = (2, 4)
+#: compiled program per bucket; most structures have F alone, or F and ξF).
+K_BUCKETS = (1, 2, 4)
 K_MAX = K_BUCKETS[-1]
 
 
@@ -255,22 +260,34 @@ def _filter_many(dsc: Discrete, U, foh):
     return jax.vmap(_filt, in_axes=(None, 0, 0))(dsc, U, foh)
 
 
-#: Signals filtered per call of the batched filter (fixed: one program per padded length).
+#: Signals filtered per call of the batched filter: the most, and the smaller batches a call may
+#: take (one program per padded length and batch). The filter's cost is linear in the signals it
+#: filters, and most calls filter one or two (a fixed batch of 8 spent 3/4 of the diagnosis'
+#: filtering on zeros).
 S_BATCH = 8
+S_BUCKETS = (1, 2, 8)
+#: Modes (x and F each) filtered per call of :func:`_mode_filters`, by the same rule.
+MODE_BUCKETS = (1, 2, 4)
+
+
+def _bucket(m: int, buckets: Sequence[int]) -> int:
+    """The smallest of ``buckets`` that holds ``m`` items (the largest when none does)."""
+    return next((b for b in buckets if b >= m), buckets[-1])
 
 
 def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
-    """(S, Tp, 4) filtered signals, in fixed batches of :data:`S_BATCH`."""
+    """(S, Tp, 4) filtered signals, in batches of :data:`S_BUCKETS`."""
     S, Tp = U.shape
     out = []
     for i in range(0, S, S_BATCH):
         u = U[i : i + S_BATCH]
         f = foh[i : i + S_BATCH]
         m = u.shape[0]
-        if m < S_BATCH:
-            u = np.concatenate([u, np.zeros((S_BATCH - m, Tp))])
-            f = np.concatenate([f, np.zeros(S_BATCH - m)])
-        out.append(np.asarray(_filter_many(dsc, jnp.asarray(u), jnp.asarray(f)))[:m])
+        b = _bucket(m, S_BUCKETS)
+        if m < b:
+            u = np.concatenate([u, np.zeros((b - m, Tp))])
+            f = np.concatenate([f, np.zeros(b - m)])
+        out.append(np.asarray(_filter_many(dsc, u, f))[:m])
     return np.concatenate(out)
 
 
@@ -301,7 +318,7 @@ def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
     Tp = padded_length(T)
     bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
     dsc = Discrete.of(bank, dt)
-    sm, g = _zero_phase(dsc, jnp.asarray(edge_pad(x, Tp)), _i(T), _f(dt))
+    sm, g = _zero_phase(dsc, edge_pad(x, Tp), _i(T), _f(dt))
     return np.asarray(sm)[:T], np.asarray(g)[:T]
 
 
@@ -321,19 +338,23 @@ def _filter_systems(dsc: Discrete, U, foh):
 def _mode_filters(record_x, record_F, modes, Tp: int, discretes) -> list[np.ndarray]:
     """x (first-order hold) and F (zero-order hold) of a record through one filter per mode,
     ``discretes(chunk)`` giving the batch of :class:`Discrete` (x's, F's) of each (ω, ζ) of a
-    chunk; on bucketed shapes in fixed batches of :data:`S_BATCH` signals. Returns, per mode,
-    the outputs ``(2, Tp, 4)`` of x and F."""
+    chunk; on bucketed shapes in batches of :data:`S_BUCKETS` signals (the filters of a chunk
+    are built for :data:`S_BATCH` signals, one program, and the batch filtered is the smallest
+    bucket that holds the chunk's). Returns, per mode, the outputs ``(2, Tp, 4)`` of x and F."""
     xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
     out = []
     per = S_BATCH // 2
     for i in range(0, len(modes), per):
         chunk = list(modes[i : i + per])
         m = len(chunk)
+        b = _bucket(m, MODE_BUCKETS)  # modes filtered
         chunk += [chunk[-1]] * (per - m)
-        U = np.stack([u for _ in chunk for u in (xp, Fp)])
-        foh = np.tile([1.0, 0.0], per)
+        U = np.stack([u for _ in chunk[:b] for u in (xp, Fp)])
+        foh = np.tile([1.0, 0.0], b)
         dsc = discretes(chunk)
-        V = np.asarray(_filter_systems(dsc, jnp.asarray(U), jnp.asarray(foh)), np.float64)
+        if b < per:
+            dsc = jax.tree.map(lambda a, n=2 * b: a[:n], dsc)
+        V = np.asarray(_filter_systems(dsc, U, foh), np.float64)
         out += [V[2 * j : 2 * j + 2] for j in range(m)]
     return out
 
@@ -429,7 +450,7 @@ def mode_seed(record_x, record_F, dt: float, lam: float, Tp: int) -> tuple[float
     T = int(np.asarray(record_x).size)
     U = np.stack([edge_pad(record_x, Tp), edge_pad(record_F, Tp)])
     V = np.asarray(
-        _filter_systems(_seed_discretes(_f(lam), _f(dt)), jnp.asarray(U), jnp.asarray([1.0, 0.0])),
+        _filter_systems(_seed_discretes(_f(lam), _f(dt)), U, np.array([1.0, 0.0])),
         np.float64,
     )
     n0 = min(int(math.ceil(10.0 / (lam * dt))), T // 4)
@@ -569,7 +590,7 @@ def solve_grams(G: np.ndarray, n_rows: int):
     n = G.shape[0]
     eye = np.broadcast_to(np.eye(G.shape[-1]), (-n % GRID,) + G.shape[1:])
     with jax.enable_x64(True):
-        out = _gram_fits(jnp.asarray(np.concatenate([G, eye])), jnp.asarray(float(n_rows)))
+        out = _gram_fits(np.concatenate([G, eye]), np.float64(n_rows))
         return tuple(np.asarray(o)[:n] for o in out)
 
 
@@ -587,11 +608,11 @@ def _grid_columns(dsc, F, mult, mask, dt, taus, fmaxs, T):
 
 
 def _f(v):
-    return jnp.asarray(np.float64(v))
+    return np.asarray(v, np.float64)
 
 
 def _i(v):
-    return jnp.asarray(np.int64(v))
+    return np.asarray(v, np.int64)
 
 
 class Regressors:
@@ -840,7 +861,7 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
         A, G0 = regs.gram(model, grid=True, args=args)
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
-        gb = GRID if regs.Tp <= BIG else 4  # long records: bounded memory, a separate program
+        gb = GRID_BATCH if regs.Tp <= BIG else 4  # long records: bounded memory
         for i in range(0, len(inputs), gb):
             t, f = taus[i : i + gb], fmaxs[i : i + gb]
             m = t.size
@@ -849,11 +870,11 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
             V = _grid_columns(
                 regs.dsc,
                 regs.Fp,
-                jnp.asarray(mult),
-                jnp.asarray(regs.mask),
+                mult,
+                regs.mask,
                 _f(regs.dt),
-                jnp.asarray(t),
-                jnp.asarray(f),
+                t,
+                f,
                 _i(regs.T),
             )
             V = np.asarray(V, np.float64)[:m]
@@ -943,7 +964,7 @@ def simulate_windows(p, u, x_meas, x_start, v_start, dt, H: int) -> np.ndarray:
     H = int(H)
     Tn = (T // H) * H
     Tp = padded_length(T)
-    args = [jnp.asarray(edge_pad(s, Tp)) for s in (u, x_meas, x_start, v_start)]
+    args = [edge_pad(s, Tp) for s in (u, x_meas, x_start, v_start)]
     pj = {k: _f(v) for k, v in p.items()}
     e = windowed_errors(pj, *args, _f(dt), _i(H), _i(Tn))
     return np.asarray(e)[:T]
