@@ -59,34 +59,38 @@ def test_mode_signals_and_soft_saturation_against_scipy():
 
 
 @pytest.mark.filterwarnings("ignore::scipy.signal.BadCoefficients")  # λ³sʲ⁺¹: trailing zeros
-def test_mode_columns_against_scipy():
-    """The flexible mode's ε₁ columns λ³s^(j+1)/((s + λ)³D), j = 1…3, taken as one exact filter
-    of order 5 (x under the first-order hold of its hold-corrected samples, F under a zero-order
-    hold), against scipy's cont2discrete + dlsim of the same transfer functions, 1e-9 once the
-    initial states (steady vs scipy's zero) have decayed."""
+@pytest.mark.parametrize(
+    "fs, f_filter, f_mode, zeta",
+    [(1003.7, 40.0, 21.0, 0.2), (1003.7, 40.0, 8.0, 0.1), (277.3, 11.0, 60.0, 0.05)],
+)
+def test_mode_columns_against_scipy(fs, f_filter, f_mode, zeta):
+    """The flexible mode's ε₁ columns λ³s⁴/((s + λ)³D)[x] (x under the first-order hold of its
+    hold-corrected samples) and λ³s²/((s + λ)³D)[F] (F under a zero-order hold), computed as the
+    diagnosis filter's output followed by an exact stage of order 2, against scipy's
+    cont2discrete + dlsim of the order-5 transfer functions: 1e-9 once the initial states
+    (steady vs scipy's zero) have decayed (25 time constants). A mode below the filter corner,
+    a lightly damped one further below, and one above a low sample rate's filter."""
     from scipy import signal
 
-    from lionjax.diagnosis._fit import hold_corrected, mode_columns, padded_length
+    from lionjax.diagnosis._fit import Regressors, hold_corrected, mode_columns
 
-    dt, T = 1 / 1003.7, 4000
+    dt, T = 1 / fs, 12000
     t = np.arange(T) * dt
     rng = np.random.default_rng(3)
     x = sum(1e-3 * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (0.7, 3.1, 9.0, 27.0))
     F = np.repeat(rng.standard_normal(T // 10), 10)
-    w, z, lam = 2 * np.pi * 21.0, 0.2, 2 * np.pi * 40.0
-    ((Vx, VF),) = mode_columns(x, F, dt, [(w, z)], lam, padded_length(T))
+    w, z, lam = 2 * np.pi * f_mode, zeta, 2 * np.pi * f_filter
+    bank = lj.FilterBank.from_poles(np.full(3, -lam), unit_dc_gain=True)
+    regs = Regressors(lj.Record(x, F, dt), bank)
+    ((cx, cF),) = mode_columns(regs, [(w, z)], lam)
     den = np.polymul(np.poly([-lam] * 3), [1.0, 2 * z * w, w * w])
     xc = np.asarray(hold_corrected(x, 1.0))
-    tail = slice(1500, T - 1)  # 1/ζω = 38 ms: 1.5 s is 40 time constants
-    # j = 1…3 (the diagnosis reads j = 1 of F and j = 3 of x; j = 4 has a feedthrough, whose
-    # λ³(u − Σλᵢzᵢ) cancels to ~1e-8 of its size in either implementation)
-    for j in range(3):
-        num = np.zeros(j + 3)
-        num[0] = lam**3
-        yF = signal.dlsim(signal.cont2discrete((num, den), dt, "zoh"), F, t=t)[1][:, 0]
-        np.testing.assert_allclose(VF[tail, j], yF[tail], atol=1e-9 * np.max(np.abs(yF)))
-        yx = signal.dlsim(signal.cont2discrete((num, den), dt, "foh"), xc, t=t)[1][:, 0]
-        np.testing.assert_allclose(Vx[tail, j], yx[tail], atol=1e-9 * np.max(np.abs(yx)))
+    tail = slice(int(25 / min(z * w, lam) / dt), T - 1)
+    assert tail.start < T // 2
+    yF = signal.dlsim(signal.cont2discrete(([lam**3, 0, 0], den), dt, "zoh"), F, t=t)[1][:, 0]
+    np.testing.assert_allclose(cF[tail], yF[tail], atol=1e-9 * np.max(np.abs(yF)))
+    yx = signal.dlsim(signal.cont2discrete(([lam**3, 0, 0, 0, 0], den), dt, "foh"), xc, t=t)
+    np.testing.assert_allclose(cx[tail], yx[1][tail, 0], atol=1e-9 * np.max(np.abs(yx[1])))
 
 
 def _noise_free_noncollocated_mode(monkeypatch, seed):

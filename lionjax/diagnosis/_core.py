@@ -515,9 +515,13 @@ class _Fitter:
         :func:`mode_columns`); their names."""
         names = []
         lam = 2 * math.pi * self.st.filter_hz
-        cols = mode_columns(rec.x, rec.F, self.st.dt, modes, lam, regs.Tp)
-        for (w, z), (Vx, VF) in zip(modes, cols, strict=True):
+        cols = mode_columns(regs, modes, lam)
+        for (w, z), (cx, cF) in zip(modes, cols, strict=True):
             nx, nF = mode_signal_names(w, z)
+            # the filtered cache holds (Tp, 4) per signal; the mode's columns read x's order 2
+            # and F's order 0 (ModeColumns.columns), the others are not computed (NaN)
+            Vx, VF = np.full((regs.Tp, 4), np.nan), np.full((regs.Tp, 4), np.nan)
+            Vx[:, 2], VF[:, 0] = cx, cF
             regs.cache[nx], regs.cache[nF] = Vx, VF
             names += [nx, nF]
         return names
@@ -595,13 +599,13 @@ class _Fitter:
             rss: dict[bool, list] = {v: [] for v in variants}
             for i in range(0, len(modes), 8):
                 chunk = modes[i : i + 8]
-                Vs = mode_columns(self.train.x, self.train.F, self.st.dt, chunk, lam, regs.Tp)
+                Vs = mode_columns(regs, chunk, lam)
                 # the mode's columns (h_x, h_F) and its free response (refitted, not counted)
                 free = [mode_free_response(w, z, self.st.dt, regs.T).T for w, z in chunk]
                 cols = np.stack(
                     [
-                        np.concatenate([[-Vx[: regs.T, 2], VF[: regs.T, 0]], g])
-                        for (Vx, VF), g in zip(Vs, free, strict=True)
+                        np.concatenate([[-cx[: regs.T], cF[: regs.T]], g])
+                        for (cx, cF), g in zip(Vs, free, strict=True)
                     ]
                 )
                 for v in variants:
