@@ -58,6 +58,7 @@ import numbers
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -1159,6 +1160,18 @@ DEAD_ZONE_LOOKALIKE_SHARE = 0.8
 # ----------------------------------------------------------------------------- diagnose
 
 
+def _in_float64(fn):
+    """``fn`` run with ``jax_enable_x64`` switched on (and restored after)."""
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        with jax.enable_x64(True):
+            return fn(*args, **kwargs)
+
+    return run
+
+
+@_in_float64
 def diagnose(
     train: Record,
     valid: Record | None = None,
@@ -1223,6 +1236,10 @@ def diagnose(
     lists every name (``"none"`` included) within a weight ratio of 1/20 of the verdict, so a
     near-tie (an offset vs a spring with equilibrium in closed loop) is reported rather than
     decided by library order.
+
+    Precision: the diagnosis computes in float64 whether or not ``jax_enable_x64`` is on (as
+    the command line does), so the same records give the same verdict in either setting; a
+    float32 record is read as it is (its rounding, ~6·10⁻⁸ of |x|, stays in the data).
     """
     for nm, rec in (("train", train), ("valid", valid)):
         if rec is not None and not isinstance(rec, Record):
