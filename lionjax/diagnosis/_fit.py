@@ -219,40 +219,51 @@ def hold_corrected(u, foh):
     return u - foh * d2 / 12.0
 
 
+def _recursion(Phi, inputs, drive, z0):
+    """States z[k] (T, n) of z[k + 1] = Φz[k] + drive(inputs[k]), z[0] = ``z0``: every linear
+    filter of the diagnosis runs through it. ``inputs`` is a tuple of arrays with leading axis
+    T, ``drive`` maps their rows (batched over chunks) to the (·, n) input terms.
+
+    In M chunks of L samples (L·M = T, L ≈ √T): the zero-state response of every chunk in
+    parallel (L sequential steps), the chunks' start states by z_{m+1} = Φᴸz_m + (chunk m's end
+    state) (M steps), then Φʲ·z_m added back. Linear and exact; ~2√T sequential steps instead of
+    T (a scan step costs microseconds on CPU). Products at full precision: a float32 dot runs at
+    TF32 by default on a GPU, and the recursion accumulates over the whole record."""
+    n = Phi.shape[0]
+    T = inputs[0].shape[0]
+    L = 1 << (T.bit_length() // 2) if T & (T - 1) == 0 else T  # T a power of two: L ≈ √T
+    M = T // L
+    Phi_T = Phi.T
+
+    def step(z, inp):
+        return z @ Phi_T + drive(*inp), z
+
+    # (L, M, …): the chunks side by side
+    chunks = tuple(jnp.swapaxes(a.reshape((M, L) + a.shape[1:]), 0, 1) for a in inputs)
+    with jax.default_matmul_precision("highest"):
+        zL, zs = jax.lax.scan(step, jnp.zeros((M, n), Phi.dtype), chunks)
+        Pw = powers(Phi, L)  # Φʲ, j < L
+        PL = Phi @ Pw[-1]  # Φᴸ
+
+        def bstep(z, zl):
+            return PL @ z + zl, z
+
+        _, S = jax.lax.scan(bstep, z0, zL)  # (M, n) chunk start states
+        z = zs + jnp.einsum("jab,mb->jma", Pw, S)  # (L, M, n)
+    return jnp.swapaxes(z, 0, 1).reshape(T, n)
+
+
 def _filt_chunked(dsc: Discrete, u, foh):
     """(V₁…V₄) of one signal, as :meth:`FilterBank.__call__` with ``init="steady"``; ``foh`` is
     1.0 for a first-order hold of the :func:`hold_corrected` samples, 0.0 for a zero-order hold
-    (traced).
-
-    The recursion z[k+1] = Φz[k] + Γ₀u[k] + Γ₁Δu[k] runs in M chunks of L samples (L·M = T,
-    L ≈ √T): the zero-state response of every chunk in parallel (L sequential steps), the chunks'
-    start states by z_{m+1} = Φᴸz_m + (chunk m's end state) (M steps), then Φʲ·z_m added back.
-    Linear and exact; ~2√T sequential steps instead of T (a scan step costs microseconds on CPU).
-    """
+    (traced): z[k+1] = Φz[k] + Γ₀u[k] + Γ₁Δu[k] by :func:`_recursion`."""
     n = dsc.Phi.shape[0]
-    T = u.shape[0]
     u_at, u = u, hold_corrected(u, foh)  # the feedthrough D·u reads the samples themselves
-    L = 1 << (T.bit_length() // 2) if T & (T - 1) == 0 else T  # T a power of two: L ≈ √T
-    M = T // L
     z0 = jnp.zeros((n,), u.dtype).at[0].set(u[0] / dsc.c_last)
     du = foh * (jnp.concatenate([u[1:], u[-1:]]) - u)
-    Phi_T = dsc.Phi.T
-
-    def step(z, inp):
-        uk, duk = inp
-        return z @ Phi_T + uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1, z
-
-    zL, zs = jax.lax.scan(step, jnp.zeros((M, n), u.dtype), (u.reshape(M, L).T, du.reshape(M, L).T))
-
-    Pw = powers(dsc.Phi, L)  # Φʲ, j < L
-    PL = dsc.Phi @ Pw[-1]  # Φᴸ
-
-    def bstep(z, zl):
-        return PL @ z + zl, z
-
-    _, S = jax.lax.scan(bstep, z0, zL)  # (M, n) chunk start states
-    z = zs + jnp.einsum("jab,mb->jma", Pw, S)  # (L, M, n)
-    z = jnp.swapaxes(z, 0, 1).reshape(T, n)
+    z = _recursion(
+        dsc.Phi, (u, du), lambda uk, duk: uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1, z0
+    )
     return z @ dsc.C.T + u_at[:, None] * dsc.D
 
 
@@ -468,32 +479,6 @@ def _mode_stage(omega, zeta, lam, dt, drive: int):
     return E[3:5, 3:5], E[3:5, :3], E[3:5, 5], E[3:5, 6]
 
 
-def _recursion(Phi, b, p0):
-    """States p[k] (T, n) of p[k + 1] = Φp[k] + b[k], p[0] = ``p0``, in chunks of L ≈ √T as
-    :func:`_filt_chunked` (products at full precision: they accumulate over the record)."""
-    T, n = b.shape
-    L = 1 << (T.bit_length() // 2) if T & (T - 1) == 0 else T
-    M = T // L
-    Phi_T = Phi.T
-
-    def step(z, bk):
-        return z @ Phi_T + bk, z
-
-    with jax.default_matmul_precision("highest"):
-        zL, zs = jax.lax.scan(
-            step, jnp.zeros((M, n), b.dtype), jnp.swapaxes(b.reshape(M, L, n), 0, 1)
-        )
-        Pw = powers(Phi, L)
-        PL = Phi @ Pw[-1]
-
-        def bstep(z, zl):
-            return PL @ z + zl, z
-
-        _, S = jax.lax.scan(bstep, p0, zL)
-        z = zs + jnp.einsum("jab,mb->jma", Pw, S)
-    return jnp.swapaxes(z, 0, 1).reshape(T, n)
-
-
 @jax.jit
 def _mode_stages(omega, zeta, lam, dt):
     """:func:`_mode_stage` of x's (driven by v̂₂) and F's (by v̂₀) for each mode (m,): arrays
@@ -531,7 +516,10 @@ def _mode_cascade(stages, zeta, lam, Vx, x, VF, F):
     p0 = jnp.concatenate(
         [jnp.zeros((m, 2), F.dtype), jnp.tile(jnp.stack([F[0], 0.0 * F[0]]), (m, 1))]
     )
-    P = jax.vmap(_recursion)(jnp.concatenate([Ppp[:, 0], Ppp[:, 1]]), jnp.concatenate([bx, bF]), p0)
+    Phis = jnp.concatenate([Ppp[:, 0], Ppp[:, 1]])
+    P = jax.vmap(lambda Phi, b, z0: _recursion(Phi, (b,), lambda bk: bk, z0))(
+        Phis, jnp.concatenate([bx, bF]), p0
+    )
     px, pF = P[:m], P[m:]
     z = zeta[:, None]
     # (s²/D)[V₃] = λ²(s²/D)[v̂₂] = λ²(v̂₂ − p₀ − 2ζp₁), and (s²/D)[V₁] = V₁ − p₀ − 2ζp₁
