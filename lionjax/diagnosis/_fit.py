@@ -24,9 +24,13 @@ Compilation. Every compiled program here sees only *bucketed* shapes and *traced
   rate, filter corner or grid does not recompile;
 - the least-squares design has a fixed number of columns (:data:`P_MAX`): a structure's unused
   columns are unit vectors on padded rows (orthogonal to the data, singular value 1, so the fit,
-  its Gram inverse and the condition number of the used columns are unchanged), and profile grids
-  have a fixed length (:data:`GRID`). So one program fits every candidate and every stack, and
-  the solve (on (P + 1)² Grams) does not depend on the record length at all.
+  its Gram inverse and the condition number of the used columns are unchanged), and Grams are
+  solved in batches of :data:`GRID`. So one program fits every candidate and every stack, and
+  the solve (on (P + 1)² Grams) does not depend on the record length at all;
+- batches come in a few sizes: signals filtered 1, 2 or 8 at a time (:data:`S_BUCKETS`), modes
+  1, 2 or 4 (:data:`MODE_BUCKETS`), F-dependent slots 1, 2 or 4 (:data:`K_BUCKETS`), profile
+  grids 8 points per call (:data:`GRID_BATCH`): a call filters what it needs, not a fixed batch
+  of zeros, at a few programs per length bucket.
 """
 
 from __future__ import annotations
