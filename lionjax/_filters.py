@@ -179,11 +179,9 @@ class FilterBank(eqx.Module):
         s = w0 ** jnp.arange(n, dtype=A.dtype)  # S = diag(s)
         A_bal = A * s[None, :] / s[:, None]
         B_bal = B / s * s[-1]  # S⁻¹B·ω₀ⁿ⁻¹ = e_n
-        M = jnp.zeros((n + 2, n + 2), A.dtype)
-        M = M.at[:n, :n].set(A_bal * h).at[:n, n].set(B_bal * h).at[n, n + 1].set(1.0)
-        E = expm(M)  # elementwise products: exact float32 on a GPU, see lionjax._linalg
-        Phi = E[:n, :n] * s[:, None] / s[None, :]
-        return Phi, E[:n, n] * s / s[-1], E[:n, n + 1] * s / s[-1]
+        Phi, G0, G1 = sample_hold(A_bal * h, B_bal * h)
+        Phi = Phi * s[:, None] / s[None, :]
+        return Phi, G0 * s / s[-1], G1 * s / s[-1]
 
     def steady_state(self, u0: ArrayLike) -> Array:
         """Filter state of a signal held at ``u0`` forever before the record starts."""
@@ -235,6 +233,22 @@ class FilterBank(eqx.Module):
 
         _, zs = jax.lax.scan(step, z0, (u, du))
         return zs @ C.T + u[:, None] * D
+
+
+def sample_hold(
+    Ah: Float[Array, "n n"], Bh: Float[Array, " n"]
+) -> tuple[Float[Array, "n n"], Float[Array, " n"], Float[Array, " n"]]:
+    """(Φ, Γ₀, Γ₁) of ż = Az + Bu sampled exactly over one interval h, given Ah and Bh: with
+    u(t) = u_k + Δu_k·(t − t_k)/h on [t_k, t_k + h] (a first-order hold; Δu_k = 0 for a
+    zero-order hold), z_{k+1} = Φz_k + Γ₀u_k + Γ₁Δu_k. One block exponential of
+    [[Ah, Bh, 0], [0, 0, 1], [0, 0, 0]], whose first rows are (Φ, Γ₀, Γ₁) (Van Loan). Scale A
+    and B first where their entries differ by orders of magnitude
+    (:meth:`FilterBank.discretise`)."""
+    n = Ah.shape[-1]
+    M = jnp.zeros((n + 2, n + 2), Ah.dtype)
+    M = M.at[:n, :n].set(Ah).at[:n, n].set(Bh).at[n, n + 1].set(1.0)
+    E = expm(M)  # elementwise products: exact float32 on a GPU, see lionjax._linalg
+    return E[:n, :n], E[:n, n], E[:n, n + 1]
 
 
 def powers(Phi: Float[Array, "n n"], n_samples: int) -> Float[Array, "T n n"]:

@@ -44,9 +44,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._filters import FilterBank, powers
+from .._filters import FilterBank, powers, sample_hold
 from .._least_squares import gram_lstsq
-from .._linalg import expm
 from .._model_effects import LOCAL_F_MULTIPLIERS, MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
@@ -280,9 +279,9 @@ def _filter_many(dsc: Discrete, U, foh):
 #: take (one program per padded length and batch). The filter's cost is linear in the signals it
 #: filters, and most calls filter one or two (a fixed batch of 8 spent 3/4 of the diagnosis'
 #: filtering on zeros).
-S_BATCH = 8
 S_BUCKETS = (1, 2, 8)
-#: Modes filtered per call of :func:`mode_columns` and :func:`_mode_filters`, by the same rule.
+S_BATCH = S_BUCKETS[-1]
+#: Modes filtered per call of :func:`mode_columns` and :func:`mode_signals`, by the same rule.
 MODE_BUCKETS = (1, 2, 4)
 
 
@@ -351,51 +350,33 @@ def _filter_systems(dsc: Discrete, U, foh):
     return jax.vmap(_filt)(dsc, U, foh)
 
 
-def _mode_filters(record_x, record_F, modes, Tp: int, discretes) -> list[np.ndarray]:
-    """x (first-order hold) and F (zero-order hold) of a record through one filter per mode,
-    ``discretes(chunk)`` giving the batch of :class:`Discrete` (x's, F's) of each (ω, ζ) of a
-    chunk; on bucketed shapes in batches of :data:`S_BUCKETS` signals (the filters of a chunk
-    are built for :data:`S_BATCH` signals, one program, and the batch filtered is the smallest
-    bucket that holds the chunk's). Returns, per mode, the outputs ``(2, Tp, 4)`` of x and F."""
-    xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
-    out = []
-    per = S_BATCH // 2
-    for i in range(0, len(modes), per):
-        chunk = list(modes[i : i + per])
-        m = len(chunk)
-        b = _bucket(m, MODE_BUCKETS)  # modes filtered
-        chunk += [chunk[-1]] * (per - m)
-        U = np.stack([u for _ in chunk[:b] for u in (xp, Fp)])
-        foh = np.tile([1.0, 0.0], b)
-        dsc = discretes(chunk)
-        if b < per:
-            dsc = jax.tree.map(lambda a, n=2 * b: a[:n], dsc)
-        V = np.asarray(_filter_systems(dsc, U, foh), np.float64)
-        out += [V[2 * j : 2 * j + 2] for j in range(m)]
-    return out
-
-
 def mode_signals(
     record_x, record_F, dt: float, modes, Tp: int
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(h_x, h_F) of a record for each mode (ω [rad/s], ζ) in ``modes``: h = (s²/D)[·],
     D = s² + 2ζωs + ω², x under the first-order hold of its :func:`hold_corrected` samples, F
     under a zero-order hold, through :func:`~lionjax.diagnosis._candidates.mode_bank` and
-    :func:`~lionjax.diagnosis._candidates.mode_output`, on bucketed shapes in fixed batches
+    :func:`~lionjax.diagnosis._candidates.mode_output`, on bucketed shapes: each mode's x and F
+    through its own filter, modes in batches of :data:`MODE_BUCKETS`
     (:meth:`~lionjax.diagnosis._candidates.ModeColumns.signals` calls it)."""
     from ._candidates import mode_bank, mode_output
 
-    def discretes(chunk):
-        ds = [Discrete.of(mode_bank(w, z), dt) for w, z in chunk for _ in (0, 1)]
-        return jax.tree.map(lambda *a: jnp.stack(a), *ds)
-
     T = np.asarray(record_x).size
+    xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
     out = []
-    for (w, _), V in zip(
-        modes, _mode_filters(record_x, record_F, modes, Tp, discretes), strict=True
-    ):
-        h = mode_output(V[:, :T], float(w))
-        out.append((h[0], h[1]))
+    per = MODE_BUCKETS[-1]
+    for i in range(0, len(modes), per):
+        chunk = list(modes[i : i + per])
+        m = len(chunk)
+        chunk += [chunk[-1]] * (_bucket(m, MODE_BUCKETS) - m)
+        ds = [Discrete.of(mode_bank(w, z), dt) for w, z in chunk for _ in (0, 1)]
+        dsc = jax.tree.map(lambda *a: jnp.stack(a), *ds)  # (x's, F's) of each mode
+        U = np.stack([u for _ in chunk for u in (xp, Fp)])
+        foh = np.tile([1.0, 0.0], len(chunk))
+        V = np.asarray(_filter_systems(dsc, U, foh), np.float64)
+        for j, (w, _) in enumerate(chunk[:m]):
+            h = mode_output(V[2 * j : 2 * j + 2, :T], float(w))
+            out.append((h[0], h[1]))
     return out
 
 
@@ -468,8 +449,8 @@ def _mode_stage(omega, zeta, lam, dt, drive: int):
     filter λ³/(s + λ)³ in balanced states v̂ⱼ = Vⱼ₊₁/λʲ (v̂ = (V₁, V₂/λ, V₃/λ²): v̂₀' = λv̂₁,
     v̂₁' = λv̂₂, v̂₂' = λ(u − 3v̂₂ − 3v̂₁ − v̂₀)), followed by the mode stage p = (p₀, p₁),
     p₀ = ω²/D[v̂_drive], p₁ = p₀'/ω (p₀' = ωp₁, p₁' = ω(v̂_drive − p₀ − 2ζp₁)). The pair is one
-    linear system of order 5 whose exact first-order-hold sampling (:meth:`FilterBank.discretise`'s
-    block exponential) is block-triangular: the rows of p are all the mode needs, since v̂ is
+    linear system of order 5 whose exact first-order-hold sampling (:func:`sample_hold`) is
+    block-triangular: the rows of p are all the mode needs, since v̂ is
     the diagnosis filter's own (already computed) output. Every entry of the matrix is O(λh) or
     O(ωh): balanced for any pole."""
     A = jnp.zeros((5, 5), omega.dtype)
@@ -477,10 +458,9 @@ def _mode_stage(omega, zeta, lam, dt, drive: int):
     A = A.at[2, 0].set(-lam).at[2, 1].set(-3 * lam).at[2, 2].set(-3 * lam)
     A = A.at[3, 4].set(omega)
     A = A.at[4, drive].set(omega).at[4, 3].set(-omega).at[4, 4].set(-2 * zeta * omega)
-    M = jnp.zeros((7, 7), omega.dtype)
-    M = M.at[:5, :5].set(A * dt).at[2, 5].set(lam * dt).at[5, 6].set(1.0)
-    E = expm(M)  # elementwise products: exact float32 on a GPU, see lionjax._linalg
-    return E[3:5, 3:5], E[3:5, :3], E[3:5, 5], E[3:5, 6]
+    B = jnp.zeros((5,), omega.dtype).at[2].set(lam)
+    Phi, G0, G1 = sample_hold(A * dt, B * dt)
+    return Phi[3:5, 3:5], Phi[3:5, :3], G0[3:5], G1[3:5]
 
 
 @jax.jit
@@ -550,7 +530,7 @@ def mode_columns(regs: Regressors, modes, lam: float) -> list[tuple[np.ndarray, 
     noise-free 905 Hz record (f_mode 17 Hz) the two-stage columns left a quarter of the excess
     error at the true (ω, ζ). Modes run in batches of :data:`MODE_BUCKETS`."""
     filt = regs.filtered({"x": (regs.x, "foh"), "F": (regs.F, "zoh")})
-    args = (filt["x"], edge_pad(regs.x, regs.Tp), filt["F"], edge_pad(regs.F, regs.Tp))
+    args = (filt["x"], edge_pad(regs.x, regs.Tp), filt["F"], regs.Fp)
     out = []
     per = MODE_BUCKETS[-1]
     for i in range(0, len(modes), per):
