@@ -482,11 +482,16 @@ def test_vmap_equals_loop():
 
 @pytest.mark.parametrize("dt", [DT, 1 / 1733.3])
 def test_a_record_is_the_start_of_a_longer_one(dt):
-    """Records of any length share a compiled program per length bucket (the scan runs past T
-    and drops the rest): a record of T samples equals the first T samples of a longer one, in
+    """Records of any length share one compiled program (the scan advances in chunks of
+    lp._simulate.CHUNK samples and drops what the last one runs past T; under a trace, one scan
+    per length bucket): a record of T samples equals the first T samples of a longer one, in
     closed loop with friction, a fractional delay, noise and quantisation, at a round and a
-    non-round sample interval (dt is traced), across and within buckets."""
-    F = sine_force(700, amp=1.5, f=1.3)
+    non-round sample interval (dt is traced), within the first chunk and across chunks; and the
+    traced path (inside jit) gives the same record."""
+    from lionjax.twin._simulate import CHUNK
+
+    n_full = 2 * CHUNK + 452
+    F = sine_force(n_full, amp=1.5, f=1.3)
     plant = base(
         lp.CoulombFriction(0.1),
         lp.InputDelay(2.3e-3),
@@ -495,13 +500,16 @@ def test_a_record_is_the_start_of_a_longer_one(dt):
     )
     kw = dict(dt=dt, key=jax.random.key(5), closed_loop=lp.CentringPD(200.0, 1.0, 0.0))
     full = lp.simulate(plant, jnp.asarray(F), **kw)
-    for n in (300, 650):  # buckets of 320 and 704 samples; 700 is in the second
+    for n in (300, CHUNK, CHUNK + 476):
         part = lp.simulate(plant, jnp.asarray(F[:n]), **kw)
         assert part.n_samples == n
         for k in ("x", "F"):
             np.testing.assert_array_equal(getattr(part, k), getattr(full, k)[:n])
         for k, v in part.extras.items():
             np.testing.assert_array_equal(v, full.extras[k][:n])
+    traced = eqx.filter_jit(lambda f: lp.simulate(plant, f, **kw))(jnp.asarray(F))
+    for k in ("x", "F"):
+        np.testing.assert_allclose(getattr(traced, k), getattr(full, k), rtol=0, atol=1e-12)
 
 
 def test_vmap_over_delay_needs_max_delay():

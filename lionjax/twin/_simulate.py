@@ -8,10 +8,12 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._errors import InputError
 from .._record import Record
+from .._solution_tools import is_traced
 from ._effects import (
     AbstractCoefficientEffect,
     AbstractForceEffect,
@@ -177,10 +179,16 @@ def _advance(axis, solver, y, s, r, length, F, n_substeps, max_events, n_bisect)
     return jax.lax.fori_loop(0, n_substeps, body, (y, s, r))
 
 
+#: Samples per call of the compiled scan when ``simulate`` runs outside a trace: one program per
+#: plant structure serves every record length (the last chunk runs past T, and its extra
+#: outputs, later in time, are dropped).
+CHUNK = 1024
+
+
 def _padded_samples(n: int) -> int:
-    """The scan length that simulates ``n`` samples: n rounded up to a multiple of 2^(⌊log₂ n⌋ − 3)
-    (at most 1/8 more steps, whose outputs are dropped), so that records of nearby lengths share
-    one compiled program."""
+    """The scan length that simulates ``n`` samples under a trace (vmap, jit): n rounded up to a
+    multiple of 2^(⌊log₂ n⌋ − 3) (at most 1/8 more steps, whose outputs are dropped), so that
+    records of nearby lengths share one compiled program."""
     q = 1 << max(n.bit_length() - 4, 0)
     return -(-n // q) * q
 
@@ -195,22 +203,45 @@ def _buffer_length(plant: Plant, dt: float) -> int:
     return 1 << (n - 1).bit_length()
 
 
+def _parts(plant):
+    """The plant's effects by role: (inputs, delays, forces, frictions, coefficients, sensors)."""
+    return tuple(
+        tuple(e for e in plant.effects if isinstance(e, kind))
+        for kind in (
+            AbstractInputEffect,
+            InputDelay,
+            AbstractForceEffect,
+            AbstractFriction,
+            AbstractCoefficientEffect,
+            AbstractMeasurement,
+        )
+    )
+
+
 @eqx.filter_jit
-def _simulate(
-    plant, f_exc, x0, v0, key, closed_loop, t0, dt, *, n_buf, n_substeps, max_events, solver
-):
-    """The scan of :func:`simulate` over the samples of ``f_exc`` (its length static), ``dt`` a
-    traced scalar array of the default float dtype (one program for every sample rate):
-    (x measured, F logged, x, v, F_cmd, F_applied), each (T,)."""
-    n_samples = f_exc.shape[0]
+def _start(plant, x0, v0, *, n_buf):
+    """The scan's carry at the first sample: (y, s, r, previous measured x, command buffer)."""
     dtype = jnp.result_type(float)
-    effects = plant.effects
-    inputs = tuple(e for e in effects if isinstance(e, AbstractInputEffect))
-    delays = tuple(e for e in effects if isinstance(e, InputDelay))
-    forces = tuple(e for e in effects if isinstance(e, AbstractForceEffect))
-    frictions = tuple(e for e in effects if isinstance(e, AbstractFriction))
-    coefficients = tuple(e for e in effects if isinstance(e, AbstractCoefficientEffect))
-    sensors = tuple(e for e in effects if isinstance(e, AbstractMeasurement))
+    _, _, forces, frictions, _, _ = _parts(plant)
+    bounds = jnp.asarray(plant.bounds, dtype)
+    x0 = jnp.asarray(x0, dtype)
+    v0 = jnp.asarray(v0, dtype)
+    z0 = [f.init_states(x0, v0).astype(dtype) for f in forces]
+    y0 = jnp.concatenate([jnp.stack([x0, v0]), *z0])
+    r0 = (jnp.sum(bounds < x0) + jnp.sum((bounds == x0) & (v0 > 0))).astype(jnp.int32)
+    s0 = jnp.sign(v0).astype(jnp.int32) if frictions else jnp.array(1, jnp.int32)
+    return (y0, s0, r0, x0, jnp.zeros((n_buf,), dtype))
+
+
+@eqx.filter_jit
+def _run(plant, carry, ks, f_exc, key, closed_loop, dt, *, n_substeps, max_events, solver):
+    """The scan of :func:`simulate` over the samples ``ks`` (their global indices, shape
+    static) with excitation ``f_exc`` from ``carry`` (:func:`_start`'s, or a previous call's),
+    ``dt`` a traced scalar array of the default float dtype (one program for every sample rate):
+    (carry after the last sample, (x measured, F logged, x, v, F_cmd, F_applied) each (T,))."""
+    dtype = jnp.result_type(float)
+    inputs, delays, forces, frictions, coefficients, sensors = _parts(plant)
+    n_buf = carry[4].shape[0]
 
     slices, i = [], 2
     for f in forces:
@@ -228,12 +259,6 @@ def _simulate(
         coefficients=coefficients,
         slices=tuple(slices),
     )
-    x0 = jnp.asarray(x0, dtype)
-    v0 = jnp.asarray(v0, dtype)
-    z0 = [f.init_states(x0, v0).astype(dtype) for f in forces]
-    y0 = jnp.concatenate([jnp.stack([x0, v0]), *z0])
-    r0 = (jnp.sum(bounds < x0) + jnp.sum((bounds == x0) & (v0 > 0))).astype(jnp.int32)
-    s0 = jnp.sign(v0).astype(jnp.int32) if frictions else jnp.array(1, jnp.int32)
     n_bisect = jnp.finfo(dtype).nmant + 3
 
     def apply_inputs(F):
@@ -259,6 +284,9 @@ def _simulate(
             x, F = sensor.measure(x, F, jax.random.fold_in(kk, j))
         return x, F
 
+    def advance(y, s, r, length, F):
+        return _advance(axis, solver, y, s, r, length, F, n_substeps, max_events, n_bisect)
+
     def body(carry, inp):
         y, s, r, xm_prev, buf = carry
         k, fe = inp
@@ -273,42 +301,16 @@ def _simulate(
         if delays:
             F_early = apply_inputs(buf[n_del + 1])
             F_late = apply_inputs(buf[n_del])
-            y1, s1, r1 = _advance(
-                axis, solver, y, s, r, frac * dt, F_early, n_substeps, max_events, n_bisect
-            )
-            y1, s1, r1 = _advance(
-                axis,
-                solver,
-                y1,
-                s1,
-                r1,
-                (1 - frac) * dt,
-                F_late,
-                n_substeps,
-                max_events,
-                n_bisect,
-            )
+            y1, s1, r1 = advance(y, s, r, frac * dt, F_early)
+            y1, s1, r1 = advance(y1, s1, r1, (1 - frac) * dt, F_late)
             F_app = jnp.where(frac > 0, F_early, F_late)
         else:
             F_app = apply_inputs(F_cmd)
-            y1, s1, r1 = _advance(
-                axis,
-                solver,
-                y,
-                s,
-                r,
-                dt,
-                F_app,
-                n_substeps,
-                max_events,
-                n_bisect,
-            )
+            y1, s1, r1 = advance(y, s, r, dt, F_app)
         out = (xm, F_log, y[0], y[1], F_cmd, F_app)
         return (y1, s1, r1, xm, buf), out
 
-    ks = jnp.arange(n_samples)
-    init = (y0, s0, r0, x0, jnp.zeros((n_buf,), dtype))
-    return jax.lax.scan(body, init, (ks, f_exc))[1]
+    return jax.lax.scan(body, carry, (ks, f_exc))
 
 
 def simulate(
@@ -348,8 +350,10 @@ def simulate(
         dt: sample interval [s], a Python float (default 1 kHz). Traced: every sample rate runs
             the same compiled program.
         n_samples: number of samples T. Default: from ``duration``, else the length of the force
-            samples. Lengths share a compiled program per bucket (T rounded up to a multiple of
-            2^(⌊log₂ T⌋ − 3): at most 1/8 more steps, whose outputs are dropped).
+            samples. Every length runs one compiled program (per plant structure): the scan
+            advances in chunks of :data:`CHUNK` samples, the last one run past T and its extra
+            outputs dropped. Under a trace (vmap, jit) it is one scan over T rounded up to a
+            multiple of 2^(⌊log₂ T⌋ − 3) (at most 1/8 more steps), a program per length bucket.
         duration: record length [s]: T = round(duration/dt) + 1 samples cover [t0, t0 + duration].
         x0, v0: initial position [m] and velocity [m/s].
         key: JAX PRNG key for the noise effects (required if the plant has any). Same key, same
@@ -429,24 +433,33 @@ def simulate(
         f_exc = excitation.sample(n_samples, dt, t0)
     else:
         f_exc = jnp.asarray(excitation, jnp.result_type(float))
-    # one program per (plant structure, length bucket): dt traced, the force samples held at
-    # their last value over the padding, whose outputs (later in time) are dropped
-    n_pad = _padded_samples(n_samples)
-    f_exc = jnp.concatenate([f_exc, jnp.broadcast_to(f_exc[-1], (n_pad - n_samples,))])
-    out = _simulate(
-        plant,
-        f_exc,
-        x0,
-        v0,
-        key,
-        closed_loop,
-        t0,
-        jnp.asarray(dt, jnp.result_type(float)),
-        n_buf=_buffer_length(plant, dt),
-        n_substeps=n_substeps,
-        max_events=max_events,
-        solver=solver,
-    )
-    xm, F_log, x_true, v_true, F_cmd, F_app = (o[:n_samples] for o in out)
+    dt_arr = jnp.asarray(dt, jnp.result_type(float))
+    statics = dict(n_substeps=n_substeps, max_events=max_events, solver=solver)
+    carry = _start(plant, x0, v0, n_buf=_buffer_length(plant, dt))
+    if is_traced((plant, f_exc, x0, v0, key, closed_loop)):
+        # under vmap or jit: one scan, inside the caller's program, per (plant structure,
+        # length bucket); the force samples held at their last value over the padding
+        n_pad = _padded_samples(n_samples)
+        f_exc = jnp.concatenate([f_exc, jnp.broadcast_to(f_exc[-1], (n_pad - n_samples,))])
+        ks = jnp.arange(n_pad)
+        _, out = _run(plant, carry, ks, f_exc, key, closed_loop, dt_arr, **statics)
+        xm, F_log, x_true, v_true, F_cmd, F_app = (o[:n_samples] for o in out)
+    else:
+        # one compiled chunk of CHUNK samples per plant structure, whatever the length; the
+        # force samples held at their last value over the last chunk's padding
+        n_pad = -(-n_samples // CHUNK) * CHUNK
+        f = np.asarray(f_exc)
+        f = np.concatenate([f, np.full(n_pad - n_samples, f[-1])])
+        parts = []
+        for k0 in range(0, n_pad, CHUNK):
+            ks = np.arange(k0, k0 + CHUNK, dtype=jnp.result_type(int))
+            carry, out = _run(
+                plant, carry, ks, f[k0 : k0 + CHUNK], key, closed_loop, dt_arr, **statics
+            )
+            parts.append(out)
+        xm, F_log, x_true, v_true, F_cmd, F_app = (
+            jnp.asarray(np.concatenate([np.asarray(p[i]) for p in parts])[:n_samples])
+            for i in range(6)
+        )
     extras = {"x_true": x_true, "v_true": v_true, "F_cmd": F_cmd, "F_applied": F_app}
     return Record(xm, F_log, dt, t0, extras)
