@@ -256,8 +256,8 @@ def local_values(x, center, width):
 
 @jax.jit
 def _local_signals(x, F, center, width):
-    """(w·log cosh ξ, w·tanh ξ, tanh ξ·F, sech²ξ·F) in one program per record shape, (x₀, w)
-    traced (eagerly, each of local_values' operations compiled anew for every record length)."""
+    """(w·log cosh ξ, w·tanh ξ, tanh ξ·F, sech²ξ·F) under a trace, (x₀, w) traced (concrete
+    records take local_values' numpy path)."""
     vs, vb, ms, mb = local_values(x, center, width)
     return vs, vb, ms * F, mb * F
 
@@ -309,7 +309,12 @@ class LocalizedPosition(AbstractEffect):
 
     def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
         gs, gb, fs, fb, _, _ = local_signal_names(self.center, self.width)
-        vs, vb, us, ub = _local_signals(record.x, record.F, self.center, self.width)
+        if isinstance(record.x, jax.core.Tracer) or isinstance(record.F, jax.core.Tracer):
+            vs, vb, us, ub = _local_signals(record.x, record.F, self.center, self.width)
+        else:  # concrete: numpy (no program compiled per record length)
+            vs, vb, ms, mb = local_values(np.asarray(record.x), self.center, self.width)
+            F = np.asarray(record.F)
+            us, ub = ms * F, mb * F
         return {gs: (vs, "foh"), gb: (vb, "foh"), fs: (us, "zoh"), fb: (ub, "zoh")}
 
     def physical(self, theta: Array, b: Array) -> dict[str, Array]:

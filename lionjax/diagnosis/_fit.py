@@ -826,7 +826,7 @@ class Regressors:
         rebuilds its layouts)."""
         name = f_multiplier(signal)
         if name not in self.known:
-            ones = Record(self.record.x, jnp.ones_like(self.record.x), self.record.dt)
+            ones = Record(self.record.x, np.ones(np.shape(self.record.x)), self.record.dt)
             owner = next(
                 (
                     e
