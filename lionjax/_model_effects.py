@@ -309,11 +309,11 @@ class LocalizedPosition(AbstractEffect):
 
     def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
         gs, gb, fs, fb, _, _ = local_signal_names(self.center, self.width)
-        if isinstance(record.x, jax.core.Tracer) or isinstance(record.F, jax.core.Tracer):
+        x, F = concrete(record.x), concrete(record.F)
+        if x is None or F is None:
             vs, vb, us, ub = _local_signals(record.x, record.F, self.center, self.width)
         else:  # concrete: numpy (no program compiled per record length)
-            vs, vb, ms, mb = local_values(np.asarray(record.x), self.center, self.width)
-            F = np.asarray(record.F)
+            vs, vb, ms, mb = local_values(x, self.center, self.width)
             us, ub = ms * F, mb * F
         return {gs: (vs, "foh"), gb: (vb, "foh"), fs: (us, "zoh"), fb: (ub, "zoh")}
 

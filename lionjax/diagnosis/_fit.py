@@ -280,28 +280,26 @@ def _filter_many(dsc: Discrete, U, foh):
 #: filters, and most calls filter one or two (a fixed batch of 8 spent 3/4 of the diagnosis'
 #: filtering on zeros).
 S_BUCKETS = (1, 2, 8)
-S_BATCH = S_BUCKETS[-1]
 #: Modes filtered per call of :func:`mode_columns` and :func:`mode_signals`, by the same rule.
 MODE_BUCKETS = (1, 2, 4)
 
 
-def _bucket(m: int, buckets: Sequence[int]) -> int:
-    """The smallest of ``buckets`` that holds ``m`` items (the largest when none does)."""
-    return next((b for b in buckets if b >= m), buckets[-1])
+def _batches(a: np.ndarray, buckets: Sequence[int]):
+    """``a`` (n, …) in batches of at most ``buckets[-1]`` rows, each padded to the smallest
+    bucket that holds it by repeating its last row: yields (batch, number of real rows). A
+    batched program computes each row alone, so the padding rows' outputs are dropped."""
+    per = buckets[-1]
+    for i in range(0, len(a), per):
+        chunk = a[i : i + per]
+        m = len(chunk)
+        b = next(b for b in buckets if b >= m)
+        yield np.concatenate([chunk, np.repeat(chunk[-1:], b - m, axis=0)]), m
 
 
 def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
     """(S, Tp, 4) filtered signals, in batches of :data:`S_BUCKETS`."""
-    S, Tp = U.shape
     out = []
-    for i in range(0, S, S_BATCH):
-        u = U[i : i + S_BATCH]
-        f = foh[i : i + S_BATCH]
-        m = u.shape[0]
-        b = _bucket(m, S_BUCKETS)
-        if m < b:
-            u = np.concatenate([u, np.zeros((b - m, Tp))])
-            f = np.concatenate([f, np.zeros(b - m)])
+    for (u, m), (f, _) in zip(_batches(U, S_BUCKETS), _batches(foh, S_BUCKETS), strict=True):
         out.append(np.asarray(_filter_many(dsc, u, f))[:m])
     return np.concatenate(out)
 
@@ -364,11 +362,7 @@ def mode_signals(
     T = np.asarray(record_x).size
     xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
     out = []
-    per = MODE_BUCKETS[-1]
-    for i in range(0, len(modes), per):
-        chunk = list(modes[i : i + per])
-        m = len(chunk)
-        chunk += [chunk[-1]] * (_bucket(m, MODE_BUCKETS) - m)
+    for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), MODE_BUCKETS):
         ds = [Discrete.of(mode_bank(w, z), dt) for w, z in chunk for _ in (0, 1)]
         dsc = jax.tree.map(lambda *a: jnp.stack(a), *ds)  # (x's, F's) of each mode
         U = np.stack([u for _ in chunk for u in (xp, Fp)])
@@ -532,12 +526,7 @@ def mode_columns(regs: Regressors, modes, lam: float) -> list[tuple[np.ndarray, 
     filt = regs.filtered({"x": (regs.x, "foh"), "F": (regs.F, "zoh")})
     args = (filt["x"], edge_pad(regs.x, regs.Tp), filt["F"], regs.Fp)
     out = []
-    per = MODE_BUCKETS[-1]
-    for i in range(0, len(modes), per):
-        chunk = np.asarray(modes[i : i + per], np.float64).reshape(-1, 2)
-        m = chunk.shape[0]
-        b = _bucket(m, MODE_BUCKETS)
-        chunk = np.concatenate([chunk, np.repeat(chunk[-1:], b - m, axis=0)])
+    for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), MODE_BUCKETS):
         stages = _mode_stages(chunk[:, 0], chunk[:, 1], _f(lam), _f(regs.dt))
         cx, cF = _mode_cascade(stages, chunk[:, 1], _f(lam), *args)
         cx, cF = np.asarray(cx, np.float64), np.asarray(cF, np.float64)
