@@ -950,12 +950,14 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
     return coef[:, :p], rss, cov, cond
 
 
-def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -> np.ndarray:
+def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray, coef: bool = False):
     """Training RSS of ``model`` (u = F) with K more ε₁ columns, for each of m sets ``cols``
     (m, K, T) (filtered, signs included): the profile of a column family over a nonlinear
     parameter (the flexible mode's ω, ζ) without building a design per grid point. The new
     columns take the K first unused slots (whose unit pad columns leave the design); only their
-    Gram blocks are new."""
+    Gram blocks are new. With ``coef``: (the fitted coefficients (m, n + K), the RSS, n), n the
+    structure's columns and initial-state nuisance (the new columns' first slot), for
+    :func:`rss_fixed_with_columns` on another record."""
     args = regs._args(model)
     n = args[4] + regs.nuisance(model).shape[1]
     m, K, _ = cols.shape
@@ -966,7 +968,41 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray) -
     V[:, :, : regs.T] = cols
     O = np.zeros((K, P_MAX + 1))
     O[np.arange(K), n + np.arange(K)] = 1.0
-    return solve_grams(_gram_with_columns(G0, A, V, O), regs.T)[1]
+    c, rss = solve_grams(_gram_with_columns(G0, A, V, O), regs.T)[:2]
+    return (c[:, : n + K], rss, n) if coef else rss
+
+
+def rss_fixed_with_columns(
+    regs: Regressors, model: AbstractModel, cols: np.ndarray, coef: np.ndarray, n_fixed: int
+) -> np.ndarray:
+    """ε₁'s RSS on ``regs.record`` (validation) of ``model`` (u = F) with K more columns
+    ``cols`` (m, K, T), for each of m coefficient vectors ``coef`` (m, n + K) fitted on another
+    record (:func:`rss_with_columns` with ``coef=True``; n the structure's p columns and its
+    initial-state nuisance): the p columns and the first ``n_fixed`` new ones are held at
+    ``coef``; the nuisance and the other new columns (a flexible mode's free response) are
+    refitted on this record, as :func:`residual` does. The residual is formed directly (one
+    product with the structure's design, no Gram of the new columns)."""
+    args = regs._args(model)
+    p = args[4]
+    n = p + regs.nuisance(model).shape[1]
+    A, _ = regs.gram(model, args=args)
+    T = regs.T
+    coef = np.asarray(coef, np.float64)
+    # r = W·c + y with the held columns; the refitted ones (nuisance N, free response g)
+    # projected out through their Gram [[NᵀN, Nᵀg], [gᵀN, gᵀg]]
+    r = A[:T, :p] @ coef[:, :p].T + A[:T, P_MAX][:, None]  # (T, m)
+    r += np.sum(coef[:, n : n + n_fixed, None] * cols[:, :n_fixed], 1).T
+    N, g = A[:T, p:n], np.ascontiguousarray(cols[:, n_fixed:])  # (T, q), (m, k, T)
+    m, q, k = g.shape[0], n - p, g.shape[1]
+    Ng = np.swapaxes(g @ N, 1, 2)  # (m, q, k)
+    BtB = np.empty((m, q + k, q + k))
+    BtB[:, :q, :q] = N.T @ N
+    BtB[:, :q, q:] = Ng
+    BtB[:, q:, :q] = np.swapaxes(Ng, 1, 2)
+    BtB[:, q:, q:] = g @ np.swapaxes(g, 1, 2)
+    Btr = np.concatenate([(N.T @ r).T, (g @ r.T[:, :, None])[..., 0]], 1)  # (m, q + k)
+    eta = np.linalg.solve(BtB, Btr[..., None])[..., 0]
+    return np.sum(r * r, 0) - np.sum(eta * Btr, 1)
 
 
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
