@@ -208,6 +208,11 @@ def test_mode_plausible_only_lightly_damped_and_heavy_only_collocated():
         assert ("position noise" in c.implausible(phys, noisy)) == bad
     phys = base | dict(mass_ratio=0.5, zeta_mode=0.1, beta=0.0, deflection=0.9e-3)
     assert "position noise" in c.implausible(phys, Limits(1.0, 1e-3, position_noise=1e-3))
+    # a mode on the first or last frequency of the search (f_mode = 20 Hz here) was not located
+    phys = base | dict(mass_ratio=0.5, zeta_mode=0.1, beta=0.0)
+    for band, edge in (((20.0, 80.0), True), ((5.0, 20.0), True), ((19.9, 20.1), False)):
+        lim = Limits(F_abs_max=1.0, dt=1e-3, mode_band=band)
+        assert ("edge of the searched band" in c.implausible(phys, lim)) == edge
 
 
 def test_open_loop_mode_above_the_noise_is_named():

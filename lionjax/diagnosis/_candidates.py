@@ -80,14 +80,16 @@ class Limits(eqx.Module):
     smaller of their largest |F|: an input map must act on the record it is validated on, too),
     the sample interval [s], the validation record's position noise [m] (the robust spread of its
     third differences, encoder quantisation included), ``closed_loop``: F answers the position
-    (and so its noise), and ``loop_noise``: closed loop with the baseline's error at or below the
-    estimated noise floor."""
+    (and so its noise), ``loop_noise``: closed loop with the baseline's error at or below the
+    estimated noise floor, and ``mode_band``: the first and last frequency [Hz] the flexible
+    mode's profile searches."""
 
     F_abs_max: float
     dt: float
     position_noise: float = 0.0
     closed_loop: bool = False
     loop_noise: bool = False
+    mode_band: tuple[float, float] = (0.0, math.inf)  # the mode search's frequencies [Hz]
 
 
 class DirectionalFriction(AbstractEffect):
@@ -283,6 +285,8 @@ MODE_OVER_HOLD = 3.0
 #: light mode (μ ≤ MAX_MODE_MASS) in open loop.
 MODE_OVER_NOISE = 2.0
 MODE_OVER_NOISE_OPEN = 1.0
+#: How close to the frequency search's ends (relative) a flexible mode counts as on its edge.
+MODE_EDGE = 1e-3
 #: Damping ratios a flexible mode's profile searches: beyond :data:`MAX_MODE_ZETA`, so that a
 #: damped look-alike lands where it is (and is refused) rather than on the plausible edge.
 MODE_ZETA_RANGE = (0.005, 0.4)
@@ -489,7 +493,8 @@ class FlexibleModeCandidate(AbstractCandidate):
     diagnosis keeps the variant with the better validated score — in closed loop the free κ
     also fits the feedback of position noise into F, and biases μ). Plausible when 0 < μ ≤
     :data:`MAX_MODE_MASS` (≤ :data:`MAX_HEAVY_MODE_MASS` for a collocated mode, |κ| ≤
-    :data:`HEAVY_MODE_KAPPA`), ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤ 1.5, μ ≥
+    :data:`HEAVY_MODE_KAPPA`), ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤ 1.5, f_mode inside the
+    searched band (not on its first or last frequency: ``Limits.mode_band``), μ ≥
     :data:`MODE_OVER_HOLD`·(ωh)²/12 and its deflection rms(μ·(s²/D)[x]) on the validation record
     (``deflection`` [m]) at least :data:`MODE_OVER_NOISE` times the position noise in closed
     loop or for μ > :data:`MAX_MODE_MASS` (:data:`MODE_OVER_NOISE_OPEN` otherwise). Held-out
@@ -551,6 +556,14 @@ class FlexibleModeCandidate(AbstractCandidate):
             )
         if not -0.5 <= r.get("input_share", 0) <= 1.5:
             return "no flexible mode: input share outside [−0.5, 1.5]"
+        # on the search's first or last frequency the valley lies beyond it: no resonance was
+        # located (held-out backlash records were fitted on the lowest, 1.5 Hz at 386 Hz)
+        f, (f_lo, f_hi) = r.get("f_mode", 0.0), lim.mode_band
+        if not f_lo * (1 + MODE_EDGE) < f < f_hi / (1 + MODE_EDGE):
+            return (
+                f"no flexible mode: f_mode {f:.3g} Hz on the edge of the searched band "
+                f"[{f_lo:.3g}, {f_hi:.3g}] Hz (no resonance located)"
+            )
         if r.get("zeta_mode", 0.0) > MAX_MODE_ZETA:
             return (
                 f"no flexible mode: its damping ratio {r['zeta_mode']:.3g} is above "

@@ -627,10 +627,10 @@ class _Fitter:
                 cols, cols_v = columns(regs, chunk), columns(va, chunk)
                 for v in variants:
                     keep = slice(None) if v else [0, 2, 3]
-                    c, _, _ = rss_with_columns(regs, base, cols[:, keep], coef=True)
-                    rss[v].append(
-                        rss_fixed_with_columns(va, base, cols_v[:, keep], c, 2 if v else 1)
-                    )
+                    c, _, n = rss_with_columns(regs, base, cols[:, keep], coef=True)
+                    r = rss_fixed_with_columns(va, base, cols_v[:, keep], c, 2 if v else 1)
+                    # a negative mass ratio is no mode: the search stays where μ > 0
+                    rss[v].append(np.where(c[:, n] > 0, r, np.inf))
             return {k: np.concatenate(v) for k, v in rss.items()}
 
         ws = 2 * math.pi * np.asarray(self.st.mode_grid)
@@ -1328,6 +1328,7 @@ def diagnose(
         sx,
         closed_loop=closed_loop,
         loop_noise=closed_loop and base.ms_valid <= floor**2,
+        mode_band=(st.mode_grid[0], st.mode_grid[-1]),
     )
 
     def score_of(cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
