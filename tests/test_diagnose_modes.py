@@ -227,3 +227,55 @@ def test_open_loop_mode_above_the_noise_is_named():
     assert d.final["f_mode"] == pytest.approx(truth["frequency"], rel=0.02)
     assert d.final["mass_ratio"] == pytest.approx(truth["mass_ratio"], rel=0.05)
     assert d.noise["position_std"] < d.final["deflection"] < 2 * d.noise["position_std"]
+
+
+def test_validation_rss_of_a_training_fit_against_numpy():
+    """The flexible mode's profile fits each point on train (``rss_with_columns``) and judges
+    it on validation (``rss_fixed_with_columns``: the structure's and the mode's coefficients
+    held, the filter's initial state and the mode's free response refitted). Against numpy's
+    lstsq on the explicit designs ε₁ = V₃ + aV₂ − bQ₁ + Σ cⱼ·colⱼ + N·η (N the filter's free
+    response): the training coefficients and RSS, and the validation RSS, to 1e-9 relative."""
+    from lionjax._models import Augmented, MassDamper
+    from lionjax.diagnosis._fit import Regressors, rss_fixed_with_columns, rss_with_columns
+
+    dt, T, lam = 1 / 997.3, 4000, 2 * np.pi * 30.0
+    bank = lj.FilterBank.from_poles(np.full(3, -lam), unit_dc_gain=True)
+    model = Augmented(MassDamper(), ())
+    rng = np.random.default_rng(11)
+    t = np.arange(T) * dt
+    regs, designs = [], []
+    for _ in range(2):
+        F = np.repeat(rng.standard_normal(T // 20), 20)
+        x = np.cumsum(np.cumsum(F)) * dt * dt * 0.05 + 1e-6 * rng.standard_normal(T)
+        r = Regressors(lj.Record(x, F, dt), bank)
+        V = r.filtered({"x": (r.x, "foh"), "F": (r.F, "zoh")})
+        Vx, VF = np.asarray(V["x"])[:T], np.asarray(V["F"])[:T]
+        regs.append(r)
+        designs.append((np.stack([Vx[:, 1], -VF[:, 0]], 1), Vx[:, 2], np.asarray(r.N)[:T]))
+    # two sets of K = 4 extra columns per record: 2 held (a mode's), 2 refitted (its free
+    # response), smooth enough to be identifiable
+    m, K = 2, 4
+    cols = [
+        np.stack(
+            [
+                np.stack([np.sin(2 * np.pi * (3 + i + k) * t + j) for k in range(K)])
+                for i in range(m)
+            ]
+        )
+        for j in range(2)
+    ]
+    c, rss, n = rss_with_columns(regs[0], model, cols[0], coef=True)
+    W, y, N = designs[0]
+    assert n == W.shape[1] + N.shape[1]
+    for i in range(m):
+        D = np.concatenate([W, N, cols[0][i].T], 1)
+        ref, res = np.linalg.lstsq(D, -y, rcond=None)[:2]
+        np.testing.assert_allclose(c[i], ref, rtol=1e-9, atol=1e-9 * np.max(np.abs(ref)))
+        np.testing.assert_allclose(rss[i], res[0], rtol=1e-9)
+    got = rss_fixed_with_columns(regs[1], model, cols[1], c, 2)
+    W, y, N = designs[1]
+    for i in range(m):
+        held = W @ c[i, :2] + y + cols[1][i, :2].T @ c[i, n : n + 2]
+        B = np.concatenate([N, cols[1][i, 2:].T], 1)
+        eta = np.linalg.lstsq(B, -held, rcond=None)[0]
+        np.testing.assert_allclose(got[i], np.sum((held + B @ eta) ** 2), rtol=1e-9)

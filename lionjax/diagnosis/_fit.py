@@ -988,21 +988,23 @@ def rss_fixed_with_columns(
     A, _ = regs.gram(model, args=args)
     T = regs.T
     coef = np.asarray(coef, np.float64)
-    # r = W·c + y with the held columns; the refitted ones (nuisance N, free response g)
-    # projected out through their Gram [[NᵀN, Nᵀg], [gᵀN, gᵀg]]
+    # r = W·c + y with the held columns; the refitted ones B = [N | g] (nuisance, free
+    # response) by the package's one solve on the augmented Gram [B | r]ᵀ[B | r], placed in the
+    # solver's fixed size with unit diagonals in the unused slots (as residual() does)
     r = A[:T, :p] @ coef[:, :p].T + A[:T, P_MAX][:, None]  # (T, m)
     r += np.sum(coef[:, n : n + n_fixed, None] * cols[:, :n_fixed], 1).T
     N, g = A[:T, p:n], np.ascontiguousarray(cols[:, n_fixed:])  # (T, q), (m, k, T)
     m, q, k = g.shape[0], n - p, g.shape[1]
-    Ng = np.swapaxes(g @ N, 1, 2)  # (m, q, k)
-    BtB = np.empty((m, q + k, q + k))
-    BtB[:, :q, :q] = N.T @ N
-    BtB[:, :q, q:] = Ng
-    BtB[:, q:, :q] = np.swapaxes(Ng, 1, 2)
-    BtB[:, q:, q:] = g @ np.swapaxes(g, 1, 2)
-    Btr = np.concatenate([(N.T @ r).T, (g @ r.T[:, :, None])[..., 0]], 1)  # (m, q + k)
-    eta = np.linalg.solve(BtB, Btr[..., None])[..., 0]
-    return np.sum(r * r, 0) - np.sum(eta * Btr, 1)
+    G = np.broadcast_to(np.eye(P_MAX + 1), (m, P_MAX + 1, P_MAX + 1)).copy()
+    Ng = g @ N  # (m, k, q)
+    G[:, :q, :q] = N.T @ N
+    G[:, q : q + k, :q] = Ng
+    G[:, :q, q : q + k] = np.swapaxes(Ng, 1, 2)
+    G[:, q : q + k, q : q + k] = g @ np.swapaxes(g, 1, 2)
+    Br = np.concatenate([(N.T @ r).T, (g @ r.T[:, :, None])[..., 0]], 1)  # (m, q + k)
+    G[:, : q + k, P_MAX] = G[:, P_MAX, : q + k] = Br
+    G[:, P_MAX, P_MAX] = np.sum(r * r, 0)
+    return solve_grams(G, T)[1]
 
 
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
