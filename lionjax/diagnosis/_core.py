@@ -601,7 +601,8 @@ class _Fitter:
         records: μ 0.43–0.74 for 0.09–0.9, 15–22 Hz for 18–44 Hz), whose fit then validated far
         worse than no mode (scores −540 and −1800); the validation record's noise is
         independent, and there the drawn mode is least (development draws: 41 → 43 of 49 modes
-        named, the other classes' verdicts unchanged)."""
+        named, the other classes' verdicts unchanged; 44 with the search kept where μ > 0, since
+        a negative mass ratio is no mode)."""
         base = self._model([c for c in cands if not _has_mode([c])], mode=())
         regs, va = self.rtr, self.rva
         lam = 2 * math.pi * self.st.filter_hz
