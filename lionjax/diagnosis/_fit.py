@@ -639,6 +639,18 @@ def solve_grams(G: np.ndarray, n_rows: int):
         return tuple(np.asarray(o)[:n] for o in out)
 
 
+def _solve_small_grams(g: np.ndarray, n_rows: int):
+    """:func:`solve_grams` of augmented Grams g (m, j + 1, j + 1), j ≤ P_MAX, each placed in
+    the solver's fixed size (P_MAX + 1)² with unit diagonals in the unused slots (the Gram of
+    the unit pad columns of :meth:`Regressors.layout`, which hold no part of the record): one
+    compiled program whatever j. The coefficients' first j slots are g's."""
+    m, j = g.shape[0], g.shape[-1] - 1
+    G = np.broadcast_to(np.eye(P_MAX + 1), (m, P_MAX + 1, P_MAX + 1)).copy()
+    idx = np.r_[np.arange(j), P_MAX]
+    G[:, idx[:, None], idx[None, :]] = g
+    return solve_grams(G, n_rows)
+
+
 @jax.jit
 def _grid_columns(dsc, F, mult, mask, dt, taus, fmaxs, T):
     """Masked F-dependent columns (GRID, K, Tp) of the input maps (τᵢ, F_maxᵢ), unsigned: every
@@ -980,8 +992,9 @@ def rss_fixed_with_columns(
     record (:func:`rss_with_columns` with ``coef=True``; n the structure's p columns and its
     initial-state nuisance): the p columns and the first ``n_fixed`` new ones are held at
     ``coef``; the nuisance and the other new columns (a flexible mode's free response) are
-    refitted on this record, as :func:`residual` does. The residual is formed directly (one
-    product with the structure's design, no Gram of the new columns)."""
+    refitted on this record, as :func:`residual` does. The held part of the residual is formed
+    directly (one product with the structure's design); only the refitted columns' small
+    augmented Gram is built."""
     args = regs._args(model)
     p = args[4]
     n = p + regs.nuisance(model).shape[1]
@@ -989,22 +1002,22 @@ def rss_fixed_with_columns(
     T = regs.T
     coef = np.asarray(coef, np.float64)
     # r = W·c + y with the held columns; the refitted ones B = [N | g] (nuisance, free
-    # response) by the package's one solve on the augmented Gram [B | r]ᵀ[B | r], placed in the
-    # solver's fixed size with unit diagonals in the unused slots (as residual() does)
+    # response) by least squares on each set's augmented Gram [B | r]ᵀ[B | r], built by blocks
+    # (N is shared: a batched product of [B | r] with itself made the diagnosis measurably slower)
     r = A[:T, :p] @ coef[:, :p].T + A[:T, P_MAX][:, None]  # (T, m)
     r += np.sum(coef[:, n : n + n_fixed, None] * cols[:, :n_fixed], 1).T
     N, g = A[:T, p:n], np.ascontiguousarray(cols[:, n_fixed:])  # (T, q), (m, k, T)
     m, q, k = g.shape[0], n - p, g.shape[1]
-    G = np.broadcast_to(np.eye(P_MAX + 1), (m, P_MAX + 1, P_MAX + 1)).copy()
-    Ng = g @ N  # (m, k, q)
-    G[:, :q, :q] = N.T @ N
-    G[:, q : q + k, :q] = Ng
-    G[:, :q, q : q + k] = np.swapaxes(Ng, 1, 2)
-    G[:, q : q + k, q : q + k] = g @ np.swapaxes(g, 1, 2)
-    Br = np.concatenate([(N.T @ r).T, (g @ r.T[:, :, None])[..., 0]], 1)  # (m, q + k)
-    G[:, : q + k, P_MAX] = G[:, P_MAX, : q + k] = Br
-    G[:, P_MAX, P_MAX] = np.sum(r * r, 0)
-    return solve_grams(G, T)[1]
+    Gb = np.empty((m, q + k + 1, q + k + 1))
+    Gb[:, :q, :q] = N.T @ N
+    Gb[:, q : q + k, :q] = g @ N
+    Gb[:, :q, q : q + k] = np.swapaxes(Gb[:, q : q + k, :q], 1, 2)
+    Gb[:, q : q + k, q : q + k] = g @ np.swapaxes(g, 1, 2)
+    Gb[:, :-1, -1] = Gb[:, -1, :-1] = np.concatenate(
+        [(N.T @ r).T, (g @ r.T[:, :, None])[..., 0]], 1
+    )
+    Gb[:, -1, -1] = np.sum(r * r, 0)
+    return _solve_small_grams(Gb, T)[1]
 
 
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
@@ -1020,14 +1033,9 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     r0 = W @ np.asarray(theta) + regs.W0
     nuis = regs.nuisance(model)
     n = nuis.shape[1]
-    # the nuisance's least squares on the masked record, its augmented Gram (n + 1)² placed in
-    # the solver's fixed size with unit diagonals in the unused slots (the Gram of the unit pad
-    # columns of :meth:`Regressors.layout`, which hold no part of the record)
+    # the nuisance's least squares on the masked record
     g = _augmented_gram(nuis * regs.mask[:, None], r0 * regs.mask)
-    G = np.eye(P_MAX + 1)
-    idx = np.r_[np.arange(n), P_MAX]
-    G[np.ix_(idx, idx)] = g
-    eta = solve_grams(G[None], regs.T)[0][0, :n]
+    eta = _solve_small_grams(g[None], regs.T)[0][0, :n]
     return (r0 + nuis @ eta)[: regs.T]
 
 
