@@ -797,6 +797,7 @@ def _evidence(d) -> dict:
         "remaining_excess_share": final.get("remaining_excess_share"),
         "structure_base": base.get("structure"),
         "structure_final": final.get("structure"),
+        "periodic": final.get("periodic_lookalike"),
         "noise_ratio": (base["equation_gap"] / base["noise_floor"]) if base else None,
         "valid_outside_train": base.get("valid_outside_train"),
     }
