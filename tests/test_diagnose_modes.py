@@ -213,6 +213,12 @@ def test_mode_plausible_only_lightly_damped_and_heavy_only_collocated():
     for band, edge in (((20.0, 80.0), True), ((5.0, 20.0), True), ((19.9, 20.1), False)):
         lim = Limits(F_abs_max=1.0, dt=1e-3, mode_band=band)
         assert ("edge of the searched band" in c.implausible(phys, lim)) == edge
+    # within 3× the hold error (ωh)²/12 = 0.0329 at 35 Hz, 350 Hz: the sampling's look-alike
+    # (κ = 0), unless the input passes through the mode (κ ≈ 1: non-collocated)
+    lim = Limits(F_abs_max=1.0, dt=1 / 350)
+    for beta, bad in ((0.0, True), (0.6, True), (1.0, False), (2.0, False)):  # κ = β/b, b = 2
+        phys = base | dict(f_mode=35.0, mass_ratio=0.089, zeta_mode=0.18, beta=beta)
+        assert ("hold error" in c.implausible(phys, lim)) == bad
 
 
 def test_open_loop_mode_above_the_noise_is_named():
