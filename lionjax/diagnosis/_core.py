@@ -497,19 +497,20 @@ class _Fitter:
                     ]
                 )
 
+            # each peak and its neighbours 1/16 cycle off, then 9 points 1/64 cycle apart
+            # around the best: two batched fits (a call costs more than its columns here)
+            peaks = self._period_screen(rtr, model, x_lo, R, k_hi)
             try:
-                # each peak and its neighbours 1/16 cycle off, then 9 points 1/64 cycle apart
-                # around the best: two batched fits (a call costs more than its columns here)
-                peaks = self._period_screen(rtr, model, x_lo, R, k_hi)
-                ks = (peaks[:, None] + np.array([-1.0, 0.0, 1.0]) / 16).ravel()
-                k0 = ks[int(np.argmin(rss_with_columns(rtr, model, columns(rtr, ks))))]
-                ks = k0 + np.arange(-4, 5) / 64
-                coef, rss, _ = rss_with_columns(rtr, model, columns(rtr, ks), coef=True)
-                i = int(np.argmin(rss))
-                r = rss_fixed_with_columns(
-                    rva, model, columns(rva, ks[i : i + 1]), coef[i : i + 1], 2
-                )
-                out = (float(r[0]) / self.valid.n_samples, R / float(ks[i]))
+                if peaks.size:  # (none where every force is masked)
+                    ks = (peaks[:, None] + np.array([-1.0, 0.0, 1.0]) / 16).ravel()
+                    k0 = ks[int(np.argmin(rss_with_columns(rtr, model, columns(rtr, ks))))]
+                    ks = k0 + np.arange(-4, 5) / 64
+                    coef, rss, _ = rss_with_columns(rtr, model, columns(rtr, ks), coef=True)
+                    i = int(np.argmin(rss))
+                    r = rss_fixed_with_columns(
+                        rva, model, columns(rva, ks[i : i + 1]), coef[i : i + 1], 2
+                    )
+                    out = (float(r[0]) / self.valid.n_samples, R / float(ks[i]))
             except TooWide:
                 pass
         self._lookalike[key] = out
@@ -522,10 +523,11 @@ class _Fitter:
         bᵀ(C⊥ᵀC⊥)⁻¹b, b = Cᵀr (r the structure's residual, ⊥ W) and C⊥ᵀC⊥ = CᵀC −
         CᵀW(WᵀW)⁻¹WᵀC. Every inner product with a filtered column is one with the raw sinusoid
         of the filter's adjoint (Λ run backwards in time) of r and of W's columns, which the
-        position histogram of those gives for every κ by one FFT each; CᵀC is taken as
-        ½Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²·I (the sinusoid's frequency at speed v̂ is κ|v̂|/R; the exact
-        value is within a few % on moving records). The estimate only ranks κ: the chosen
-        ones are fitted exactly."""
+        position histogram of those gives for every κ by one FFT each; CᵀC is taken as the
+        unfiltered sinusoids' Gram (from the mask's histogram at 2κ) times the filter's mean
+        loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm² (the sinusoid's frequency at speed v̂ is κ|v̂|/R;
+        within a few % of the exact diagonal on moving records). The estimate only ranks κ:
+        the chosen ones are fitted exactly. Empty where every force is masked."""
         A, G = regs.gram(model)
         T = regs.T
         n = regs._args(model)[4] + regs.nuisance(model).shape[1]
@@ -538,6 +540,9 @@ class _Fitter:
             regs.dsc, np.stack([edge_pad(u, regs.Tp) for u in U]), np.zeros(U.shape[0])
         )[:, :T, 0][:, ::-1]
         m = np.ones(T) if regs.force_mask is None else regs.force_mask[:T]
+        h0 = float(np.sum(m * m))
+        if h0 <= 0:
+            return np.zeros(0)
         nb = PERIOD_BINS
         bins = np.clip(((regs.x - x_lo) / R * nb).astype(np.int64), 0, nb - 1)
         H = np.stack([np.bincount(bins, weights=g * m, minlength=nb) for g in [*back, m]])
@@ -557,7 +562,6 @@ class _Fitter:
         vc = np.sqrt(edges[1:] * edges[:-1])
         w = 2 * math.pi * ks[:, None] * vc[None, :] / R
         D = 0.5 * ((lam * lam / (lam * lam + w * w)) ** 3) @ cnt  # (K,)
-        h0 = float(np.sum(m * m))
         # the unfiltered Gram [[Σcos², Σcos·sin], [·, Σsin²]] scaled by the filter's loss
         C2 = 0.5 * np.stack(
             [np.stack([h0 + S2.real, -S2.imag], -1), np.stack([-S2.imag, h0 - S2.real], -1)], -2
@@ -1817,7 +1821,9 @@ def diagnose(
         else -math.inf
     )
     ex_cur = excess(cur.ms_valid)
-    periodic_share = 1 - excess(periodic_ms) / ex_cur if ex_cur > 0 else 0.0
+    periodic_share = (
+        1 - excess(periodic_ms) / ex_cur if ex_cur > 0 and math.isfinite(periodic_ms) else 0.0
+    )
     periodic_better = (
         periodic_score > PERIODIC_SCORE_FACTOR * threshold and periodic_share >= min_share
     )
