@@ -1478,9 +1478,13 @@ def diagnose(
     )
 
     def score_of(cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
+        return score_ms(cur, new.ms_valid, p, lo_rms)
+
+    def score_ms(cur: Fitted, ms_new: float, p: int, lo_rms: float) -> float:
+        # (new's validated mean square ms_new: a look-alike's, which is no Fitted)
         # mean squares below lo_rms² (a floor) count as lo_rms²: a gain there is on noise
         lo = max(lo_rms**2, 1e-300)
-        gain = math.log(max(cur.ms_valid, lo) / max(new.ms_valid, lo))
+        gain = math.log(max(cur.ms_valid, lo) / max(ms_new, lo))
         # N_eff of the residual the comparison starts from: after a first effect the residual is
         # whiter than the baseline's (a spring's misfit dominated it), and the baseline's N_eff
         # would deflate the evidence for a second effect (a closed-loop delay under a spring, τ
@@ -1816,7 +1820,7 @@ def diagnose(
     else:
         periodic_ms, period = fitter.periodic_lookalike(stack)
     periodic_score = (
-        cur.n_eff * math.log(cur.ms_valid / periodic_ms) - 3 * math.log(cur.n_eff)
+        score_ms(cur, periodic_ms, 3, 0.0)
         if math.isfinite(periodic_ms) and periodic_ms > 0
         else -math.inf
     )
