@@ -85,7 +85,7 @@ def test_mode_columns_against_scipy(fs, f_filter, f_mode, zeta):
     w, z, lam = 2 * np.pi * f_mode, zeta, 2 * np.pi * f_filter
     bank = lj.FilterBank.from_poles(np.full(3, -lam), unit_dc_gain=True)
     regs = Regressors(lj.Record(x, F, dt), bank)
-    ((cx, cF),) = mode_columns(regs, [(w, z)], lam)
+    (cx,), (cF,) = mode_columns(regs, [(w, z)], lam)
     den = np.polymul(np.poly([-lam] * 3), [1.0, 2 * z * w, w * w])
     xc = np.asarray(hold_corrected(x, 1.0))
     tail = slice(int(25 / min(z * w, lam) / dt), T - 1)

@@ -95,7 +95,7 @@ from ._fit import (
     longest_records,
     memory_estimate,
     mode_columns,
-    mode_free_response,
+    mode_free_responses,
     mode_seed,
     mode_signals,
     physical_memory,
@@ -656,8 +656,7 @@ class _Fitter:
         :func:`mode_columns`); their names."""
         names = []
         lam = 2 * math.pi * self.st.filter_hz
-        cols = mode_columns(regs, modes, lam)
-        for (w, z), (cx, cF) in zip(modes, cols, strict=True):
+        for (w, z), cx, cF in zip(modes, *mode_columns(regs, modes, lam), strict=True):
             nx, nF = mode_signal_names(w, z)
             # the filtered cache holds (Tp, 4) per signal; the mode's columns read x's order 2
             # and F's order 0 (ModeColumns.columns), the others are not computed (NaN)
@@ -749,14 +748,11 @@ class _Fitter:
         def columns(r: Regressors, chunk) -> np.ndarray:
             # the mode's columns (h_x, h_F) and its free response (refitted, not counted) on
             # one record, (m, 4, T)
-            Vs = mode_columns(r, chunk, lam)
-            free = [mode_free_response(w, z, self.st.dt, r.T).T for w, z in chunk]
-            return np.stack(
-                [
-                    np.concatenate([[-cx[: r.T], cF[: r.T]], g])
-                    for (cx, cF), g in zip(Vs, free, strict=True)
-                ]
-            )
+            cx, cF = mode_columns(r, chunk, lam)
+            out = np.empty((len(chunk), 4, r.T))
+            out[:, 0], out[:, 1] = -cx[:, : r.T], cF[:, : r.T]
+            out[:, 2:] = mode_free_responses(chunk, self.st.dt, r.T)
+            return out
 
         def rss_of(modes, variants) -> dict[bool, np.ndarray]:
             # validation RSS of the training fit at each mode, with (True) and/or without

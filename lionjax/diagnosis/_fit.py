@@ -380,9 +380,17 @@ def mode_free_response(omega: float, zeta: float, dt: float, Tp: int) -> np.ndar
     t = 0); a record that starts with the mode deflected carries this transient in them
     (time constant 1/ζω: 0.4 s at 17 Hz, ζ = 0.02), which only these two columns, refitted on
     each record like the filter's initial state, absorb."""
-    t = np.arange(Tp) * float(dt)
-    wd = omega * math.sqrt(max(1.0 - zeta * zeta, 0.0))
-    env = np.exp(-zeta * omega * t)
+    return mode_free_responses([(omega, zeta)], dt, Tp)[0].T
+
+
+def mode_free_responses(modes, dt: float, T: int) -> np.ndarray:
+    """(m, 2, T) :func:`mode_free_response` of each mode (ω [rad/s], ζ) in ``modes`` (m, 2), in
+    one pass (the mode profile asks for a few hundred)."""
+    modes = np.asarray(modes, np.float64).reshape(-1, 2)
+    w, z = modes[:, :1], modes[:, 1:]
+    t = np.arange(T) * float(dt)
+    wd = w * np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    env = np.exp(-z * w * t)
     return np.stack([env * np.cos(wd * t), env * np.sin(wd * t)], 1)
 
 
@@ -507,12 +515,12 @@ def _mode_cascade(stages, zeta, lam, Vx, x, VF, F):
     )
 
 
-def mode_columns(regs: Regressors, modes, lam: float) -> list[tuple[np.ndarray, np.ndarray]]:
+def mode_columns(regs: Regressors, modes, lam: float) -> tuple[np.ndarray, np.ndarray]:
     """The flexible mode's two ε₁ columns on ``regs``' record for each mode (ω [rad/s], ζ) in
-    ``modes``: λ³s⁴/((s + λ)³D)[x] (x's V₃ of h_x = (s²/D)[x], under the first-order hold of
-    its :func:`hold_corrected` samples) and λ³s²/((s + λ)³D)[F] (F's V₁ of h_F, under the
-    zero-order hold), each ``(Tp,)``, D = s² + 2ζωs + ω², λ the diagnosis filter's triple
-    pole (``regs.bank`` = λ³/(s + λ)³).
+    ``modes`` (m, 2): λ³s⁴/((s + λ)³D)[x] (x's V₃ of h_x = (s²/D)[x], under the first-order
+    hold of its :func:`hold_corrected` samples) and λ³s²/((s + λ)³D)[F] (F's V₁ of h_F, under
+    the zero-order hold), two arrays ``(m, Tp)``, D = s² + 2ζωs + ω², λ the diagnosis filter's
+    triple pole (``regs.bank`` = λ³/(s + λ)³).
 
     Exact: the mode's filter of order 5 is the diagnosis filter (whose output the regressors
     hold) followed by a stage of order 2 (:func:`_mode_stage`), sampled exactly as one system,
@@ -525,13 +533,13 @@ def mode_columns(regs: Regressors, modes, lam: float) -> list[tuple[np.ndarray, 
     error at the true (ω, ζ). Modes run in batches of :data:`MODE_BUCKETS`."""
     filt = regs.filtered({"x": (regs.x, "foh"), "F": (regs.F, "zoh")})
     args = (filt["x"], edge_pad(regs.x, regs.Tp), filt["F"], regs.Fp)
-    out = []
+    xs, Fs = [], []
     for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), MODE_BUCKETS):
         stages = _mode_stages(chunk[:, 0], chunk[:, 1], _f(lam), _f(regs.dt))
         cx, cF = _mode_cascade(stages, chunk[:, 1], _f(lam), *args)
-        cx, cF = np.asarray(cx, np.float64), np.asarray(cF, np.float64)
-        out += [(cx[j], cF[j]) for j in range(m)]
-    return out
+        xs.append(np.asarray(cx, np.float64)[:m])
+        Fs.append(np.asarray(cF, np.float64)[:m])
+    return np.concatenate(xs), np.concatenate(Fs)
 
 
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
