@@ -44,21 +44,3 @@ jax.config.update(
     "jax_persistent_cache_min_entry_size_bytes",
     int(os.environ["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"]),
 )
-
-
-def pytest_collection_modifyitems(config, items):
-    """The units of ``--dist loadgroup`` (README's test command): each file is one unit (as with
-    ``loadfile``: a module's fixtures are built once), except that the diagnosis files
-    (test_diagnose*.py) form one unit, so one worker traces and compiles the diagnosis's programs
-    for each length bucket instead of both (measured on the 2-core machine, cold cache: the six
-    files took 171 worker-seconds split over two workers, 117 s in one process). The unit
-    starts first: the longest one, so that the other worker's files fill around it."""
-    import pytest
-
-    def group(item) -> str:
-        name = item.path.name
-        return "diagnosis" if name.startswith("test_diagnose") else str(item.path)
-
-    for item in items:
-        item.add_marker(pytest.mark.xdist_group(group(item)))
-    items.sort(key=lambda item: group(item) != "diagnosis")  # stable: files keep their order
