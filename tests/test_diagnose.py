@@ -112,7 +112,12 @@ def test_bad_arguments():
 
 
 def test_blind_small():
-    classes = ("none", *FIXED, "dead_zone")  # (two-effect records: test_diagnose_stacking)
+    """The blind benchmark's harness (``blind.run``) with the real diagnosis, end to end, on one
+    twin record per outcome it scores: clean (``none``), two named effects, and one outside the
+    library (``unexplained``). The library's other effects are named in the files of
+    held-out cases (test_diagnose_stacking.py, test_diagnose_floor.py, test_diagnose_rates.py);
+    the full benchmark (benchmarks/diagnosis_blind.py) is the measure."""
+    classes = ("none", "offset", "spring", "dead_zone")
     out = blind.run(
         per_class=1,
         seed0=500,
@@ -123,8 +128,9 @@ def test_blind_small():
         progress=False,
     )
     rows = out["records"]
+    assert [r["class"] for r in rows] == list(classes)
     single = [r for r in rows if r["class"] in FIXED]
-    assert np.mean([r["verdict"] == r["class"] for r in single]) >= 5 / 6
+    assert all(r["verdict"] == r["class"] for r in single)
     clean = [r for r in rows if r["class"] == "none"]
     assert all(r["verdict"] == "none" for r in clean)
     ool = [r for r in rows if r["class"] == "dead_zone"]  # outside the library

@@ -745,13 +745,13 @@ class _Fitter:
         regs, va = self.rtr, self.rva
         lam = 2 * math.pi * self.st.filter_hz
 
-        def columns(r: Regressors, chunk) -> np.ndarray:
-            # the mode's columns (h_x, h_F) and its free response (refitted, not counted) on
-            # one record, (m, 4, T)
+        def columns(r: Regressors, chunk, free) -> np.ndarray:
+            # the mode's columns (h_x, h_F) and its free response ``free`` (refitted, not
+            # counted) on one record, (m, 4, T)
             cx, cF = mode_columns(r, chunk, lam)
             out = np.empty((len(chunk), 4, r.T))
             out[:, 0], out[:, 1] = -cx[:, : r.T], cF[:, : r.T]
-            out[:, 2:] = mode_free_responses(chunk, self.st.dt, r.T)
+            out[:, 2:] = free[:, :, : r.T]
             return out
 
         def rss_of(modes, variants) -> dict[bool, np.ndarray]:
@@ -760,7 +760,9 @@ class _Fitter:
             rss: dict[bool, list] = {v: [] for v in variants}
             for i in range(0, len(modes), 8):
                 chunk = modes[i : i + 8]
-                cols, cols_v = columns(regs, chunk), columns(va, chunk)
+                # the free response depends on the record's length only: computed once
+                free = mode_free_responses(chunk, self.st.dt, max(regs.T, va.T))
+                cols, cols_v = columns(regs, chunk, free), columns(va, chunk, free)
                 for v in variants:
                     keep = slice(None) if v else [0, 2, 3]
                     c, _, n = rss_with_columns(regs, base, cols[:, keep], coef=True)
