@@ -530,7 +530,7 @@ class _Fitter:
         the chosen ones are fitted exactly. Empty where every force is masked."""
         A, G = regs.gram(model)
         T = regs.T
-        n = regs._args(model)[4] + regs.nuisance(model).shape[1]
+        n = regs.width(model)
         c = solve_grams(G[None], T)[0][0]
         W = A[:T, :n]
         r = W @ c[:n] + A[:T, -1]

@@ -757,6 +757,11 @@ class Regressors:
             self.cache[key] = np.concatenate([self.N, *extra], 1) if extra else self.N
         return self.cache[key]
 
+    def width(self, model: AbstractModel) -> int:
+        """The structure's columns and its initial-state (:meth:`nuisance`) columns: the slots
+        of the design it fills."""
+        return len(_columns(model)) + self.nuisance(model).shape[1]
+
     def _raw(self, model: AbstractModel, names: Sequence[str]) -> dict:
         missing = {n for n in names if n not in self.known and n not in self.cache}
         for e in getattr(model, "effects", ()):  # signals the diagnosis does not precompute:
@@ -871,7 +876,7 @@ class Regressors:
 
         def make():
             Wfix, mult, onehot, pad, p, Wdef = self._args(model) if args is None else args
-            n = p + self.nuisance(model).shape[1]
+            n = self.width(model)
             A = _augmented_design(
                 (Wfix if grid else Wdef) * self.mask[:, None] + pad, self.W0 * self.mask
             )
@@ -964,8 +969,7 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
     """
     p = len(_columns(model))
     coef, rss, gi, cond = _solve_grid(regs, model, inputs)
-    n_cols = p + regs.nuisance(model).shape[1]
-    s2 = rss / max(regs.T - n_cols, 1)
+    s2 = rss / max(regs.T - regs.width(model), 1)
     cov = s2[:, None, None] * gi[:, :p, :p]
     return coef[:, :p], rss, cov, cond
 
@@ -979,7 +983,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray, c
     structure's columns and initial-state nuisance (the new columns' first slot), for
     :func:`rss_fixed_with_columns` on another record."""
     args = regs._args(model)
-    n = args[4] + regs.nuisance(model).shape[1]
+    n = regs.width(model)
     m, K, _ = cols.shape
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
@@ -1004,8 +1008,7 @@ def rss_fixed_with_columns(
     directly (one product with the structure's design); only the refitted columns' small
     augmented Gram is built."""
     args = regs._args(model)
-    p = args[4]
-    n = p + regs.nuisance(model).shape[1]
+    p, n = args[4], regs.width(model)
     A, _ = regs.gram(model, args=args)
     T = regs.T
     coef = np.asarray(coef, np.float64)
