@@ -1,7 +1,7 @@
 """The paper's experiments (lionjax.paper._experiments) against independent references.
 
 One quick reproduction (``PaperConfig.quick()``, seed 0, all effects) is computed once per
-session and checked piece by piece:
+test run and checked piece by piece:
 
 - calibration gain vs ``numpy.polyfit`` on the same readings (1e-9 relative);
 - every table entry vs a direct ``lj.lion`` call on the same record (1e-9 relative), and the
@@ -11,7 +11,7 @@ session and checked piece by piece:
 - NRMSE vs numpy; the verification of the *true* model at the quantisation level;
 - the batched effect simulation (neutral padding) vs the same device simulated alone;
 - ``lionjax reproduce``: the files it writes and their documented schema. The command runs in
-  process on this session's reproduction (the same quick configuration and seed, checked when
+  process on the test run's reproduction (the same quick configuration and seed, checked when
   the command asks for it), so the experiments are computed once for both.
 """
 
@@ -284,7 +284,7 @@ EFFECT_KEYS = {
 @pytest.fixture(scope="module")
 def out(result, tmp_path_factory):
     """``lionjax reproduce --quick --seed 0`` in process, its computation answered by this
-    session's ``result`` once the command's own arguments are checked."""
+    test run's ``result`` once the command's own arguments are checked."""
     asked = []
 
     def reproduce_paper(config, *, key, effects, progress):
@@ -292,7 +292,7 @@ def out(result, tmp_path_factory):
         np.testing.assert_array_equal(
             jax.random.key_data(key), jax.random.key_data(jax.random.key(SEED))
         )
-        progress("(the test session's reproduction)")
+        progress("(the test run's reproduction)")
         asked.append(config)
         return result
 
