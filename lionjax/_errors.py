@@ -23,6 +23,17 @@ class IdentificationError(RuntimeError):
     """The identification ran but its answer cannot be trusted (e.g. parameters not excited)."""
 
 
+class DataWarning(UserWarning):
+    """A record or setting that is probably a mistake (units, a spike, a filter too fast for
+    the sampling); the estimate is still computed. Also ``lionjax.solutions.DataWarning``."""
+
+
+class FilterSpeedWarning(DataWarning):
+    """The filter is fast for the sampling: max|pole|·dt above ``lionjax._validity.WARN_POLE_DT``
+    (0.1), so the estimate is biased (b by about −(max|pole|·dt)²/4). Also
+    ``lionjax.solutions.FilterSpeedWarning``."""
+
+
 class RESULTS(eqx.Enumeration):
     """Per-element outcome of an identification (carried through ``jit``/``vmap``)."""
 
@@ -37,8 +48,9 @@ class RESULTS(eqx.Enumeration):
         "the exact step (the default), or lower the gain."
     )
     nonfinite = (
-        "a non-finite value (NaN or inf) appeared in the estimate; check the data for NaN/inf "
-        "and the gain for overflow."
+        "a non-finite value (NaN or inf) appeared in the estimate, or the data are non-finite "
+        "or out of range (an overflow); check the data for NaN/inf and for values too large "
+        "for their units, and the gain for overflow."
     )
 
 

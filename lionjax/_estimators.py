@@ -45,7 +45,20 @@ from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
 from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2, step_products
 from ._record import Record
-from ._solution_tools import by_name, check_duration, convergence_time, finish, transient_mask
+from ._solution_tools import by_name, convergence_time, finish, transient_mask
+from ._validity import (
+    MAX_MOMENT_CONDITION,
+    check_duration,
+    check_filter_speed,
+    check_record,
+    check_theta0,
+    column_reference,
+    default_poles,
+    explain_unexcited,
+    normalise,
+    unexcited,
+    well_conditioned,
+)
 
 # ----------------------------------------------------------------------------------------------
 # Gains
@@ -163,11 +176,13 @@ class AutoGain(AbstractGain):
     Attributes:
         rate: [1/s], shape ``()``, or ``(B,)`` for one rate per record of a batch.
         max_condition: R (column-normalised) with a larger condition number is a failure
-            (unexcited parameters: ``RESULTS.unidentifiable``).
+            (unexcited parameters: ``RESULTS.unidentifiable``). Whatever the gain,
+            :func:`lion` also applies the validity layer's check with
+            ``lionjax._validity.MAX_MOMENT_CONDITION`` (the same default, 1e12).
     """
 
     rate: float | Array = 1.0
-    max_condition: float = eqx.field(static=True, default=1e12)
+    max_condition: float = eqx.field(static=True, default=MAX_MOMENT_CONDITION)
     uses_data: ClassVar[bool] = True
 
     @property
@@ -194,10 +209,9 @@ class AutoGain(AbstractGain):
                 "one record is being estimated; use lionjax.lion_batched, or index the gain "
                 "(jax.tree.map(lambda a: a[i], gain))."
             )
-        scale = jnp.sqrt(jnp.clip(jnp.diagonal(R), jnp.finfo(R.dtype).tiny, None))
-        Rn = R / scale[:, None] / scale[None, :]
+        Rn, scale = normalise(R)
         ev, V = jnp.linalg.eigh(Rn)
-        ok = ev[0] > ev[-1] / self.max_condition
+        ok = well_conditioned(ev, self.max_condition)[0]
         ev_safe = jnp.where(ok, ev, 1.0)
         Ginv = (V / ev_safe) @ V.T
         G = self.rate * Ginv / scale[:, None] / scale[None, :]
@@ -419,6 +433,8 @@ class LionSolution(eqx.Module):
         theta_final: θ at the last sample, shape ``(p,)``.
         gain: the gain matrix G used, ``(p, p)``.
         names: parameter names; result: a :class:`RESULTS` code.
+        unexcited: True for each parameter the record does not identify (``(p,)``; the
+            validity layer's check, whatever the gain: see :mod:`lionjax._validity`).
     """
 
     t: Float[Array, " K"]
@@ -429,6 +445,7 @@ class LionSolution(eqx.Module):
     gain: Float[Array, "p p"]
     names: tuple[str, ...] = eqx.field(static=True)
     result: RESULTS
+    unexcited: Bool[Array, " p"] | None = None
 
     def params(self) -> dict[str, Array]:
         """Final estimate by name."""
@@ -531,8 +548,10 @@ def lion(
     Arguments:
         model: the model structure (e.g. ``MassDamper()``, ``Piecewise((-0.01, 0.01))``).
         record: the data (one record; ``jax.vmap`` this function for many).
-        bank: the filter Λ (default ``FilterBank.from_poles([-4, -4, -4], unit_dc_gain=True)``,
-            the paper's poles with unit DC gain).
+        bank: the filter Λ (default :func:`default_bank` of the record's dt: the paper's poles
+            (s + 4)³ with unit DC gain, slowed for records sampled below 200 Hz). A filter
+            with max|pole|·dt above 0.1 warns (:class:`lionjax.solutions.FilterSpeedWarning`),
+            above 0.5 is refused (:mod:`lionjax._validity` states the measured bias).
         gain: :class:`AutoGain` (default, rate 1/s) or :class:`FixedGain` (the paper:
             ``FixedGain(1e4)`` with ``FilterBank.paper()``); G is the gain's rule applied to
             R = mean WᵀW after ``transient`` (the same rule as :func:`lionjax.lion_batched`).
@@ -544,14 +563,21 @@ def lion(
         save_every: keep every n-th sample of the trajectory (the last sample always kept).
         transient: seconds excluded when forming data-dependent gains (default 3·λₙ₋₁/λₙ, three
             times the filter's mean delay).
-        throw: raise on failure (unexcited parameters for ``AutoGain``, unstable Euler, NaN);
-            with ``False`` the failure is carried in ``result`` (use under ``vmap``, then
-            :func:`lionjax.raise_if_failed`).
+        throw: raise on failure (unexcited parameters, whatever the gain; unstable Euler;
+            NaN); with ``False`` the failure is carried in ``result`` (use under ``vmap``,
+            then :func:`lionjax.raise_if_failed`).
 
     Returns:
         A :class:`LionSolution`.
+
+    Raises:
+        InputError: a bad argument (naming it): ``theta0`` not finite or of the wrong shape, a
+            filter too fast for the sampling, a record shorter than the filter transient,
+            non-finite or out-of-range samples.
+        IdentificationError: (``throw``) the record does not identify every parameter (the
+            message names each one), an unstable Euler step, a non-finite estimate.
     """
-    bank = default_bank() if bank is None else bank
+    bank = default_bank(record.dt if isinstance(record, Record) else None) if bank is None else bank
     gain = AutoGain() if gain is None else gain
     stepper = ExactStep() if stepper is None else stepper
     if not isinstance(save_every, int) or save_every < 1:
@@ -578,9 +604,12 @@ def lion(
                 f"{type(stepper).__name__}.normalisation; give it in the stepper only."
             )
         stepper = dataclasses.replace(stepper, normalisation=normalisation)
+    check_theta0(theta0, len(model.names), model.names, "lion")
+    check_filter_speed(bank, record.dt, "lion")
     check_duration(record, bank, "lion")
+    check_record(record, "lion")
     sol = _lion(model, record, bank, gain, stepper, theta0, save_every, transient)
-    return finish(sol, throw, what="lion")
+    return finish(sol, throw, what="lion", explain=explain_unexcited)
 
 
 @eqx.filter_jit
@@ -594,11 +623,12 @@ def _lion(model, record, bank, gain, stepper, theta0, save_every, transient):
         raise InputError(
             f"lion: theta0 must have shape ({p},) for parameters {regs.names}, got {theta0.shape}."
         )
-    if gain.uses_data:
-        R = regressor_moments(regs, transient_mask(record, bank, transient))
-    else:
-        R = jnp.eye(p, dtype=dtype)
+    # R for every gain: the gain's rule may use it, the validity layer always does, over the
+    # samples the rule sees (after the transient for a data gain; a fixed gain's law uses all)
+    R = regressor_moments(regs, transient_mask(record, bank, transient if gain.uses_data else 0.0))
     G, ok = gain(R, regs.names)
+    bad = unexcited(R, column_reference(model, record, bank).astype(dtype), MAX_MOMENT_CONDITION)
+    ok = ok & ~jnp.any(bad)
     thetas, result = stepper.trajectory(model, bank, record, regs, G, theta0)
     eps = jnp.einsum("tip,tp->ti", W, thetas) + W0
     J = 0.5 * jnp.sum(eps * eps, axis=-1)
@@ -615,10 +645,19 @@ def _lion(model, record, bank, gain, stepper, theta0, save_every, transient):
         gain=G,
         names=regs.names,
         result=result,
+        unexcited=bad,
     )
     return sol
 
 
-def default_bank() -> FilterBank:
-    """The default filter: the paper's poles (s + 4)³ with unit DC gain."""
-    return FilterBank.from_poles(jnp.array([-4.0, -4.0, -4.0]), unit_dc_gain=True)
+def default_bank(dt: ArrayLike | None = None) -> FilterBank:
+    """The default filter (s + p)³ with unit DC gain, sampling-aware.
+
+    p = 4 rad/s (the paper's poles) whenever 4·dt ≤ 0.02, i.e. for every record sampled at
+    200 Hz or faster (and when ``dt`` is not given); for slower sampling p = 0.02/dt, so that
+    max|pole|·dt stays at 0.02 (bias of b about 1e-4; :mod:`lionjax._validity` gives the
+    measurement). ``dt`` [s]: a number, or one per record (the largest decides); a traced
+    ``dt`` (under ``jit``/``vmap``) gives the same value through ``jnp.minimum``.
+    """
+    p = default_poles(dt)
+    return FilterBank.from_poles(-p * jnp.ones(3), unit_dc_gain=True)

@@ -55,6 +55,13 @@ from ._outputs import ConvergenceTime, LSStatistics
 from ._record import Record
 from ._solution_tools import by_name, default_transient
 from ._tables import Table
+from ._validity import (
+    check_filter_speed,
+    check_record,
+    check_theta0,
+    duration_fix,
+    unexcited_names,
+)
 
 #: ``result`` of a record that was not run (shorter than the filter transient).
 NOT_RUN = -1
@@ -177,6 +184,7 @@ class _Rows(eqx.Module):
     condition: Array  # (R,)
     result: Array  # (R,) RESULTS codes
     std: Array | None = None  # (R, p)
+    unexcited: Array | None = None  # (R, p): parameters the record does not identify
     rms: Array | None = None  # (R,)
     final_J: Array | None = None  # (R,)
     convergence_time: Array | None = None  # (R,)
@@ -251,6 +259,7 @@ class LeastSquares(AbstractBatchMethod):
             condition=sol.condition,
             result=result_codes(sol.result),
             std=sol.std,
+            unexcited=sol.unexcited,
             rms=sol.rms,
         )
 
@@ -304,6 +313,7 @@ class Lion(AbstractBatchMethod):
                 f"identify_batch: Lion.theta0 must have shape ({p},) or ({n_records}, {p}) for "
                 f"parameters {model.names}, got {np.shape(self.theta0)}."
             )
+        check_theta0(self.theta0, p, model.names, "identify_batch: Lion", batch=n_records)
 
     def run(self, model, batch, rows, *, bank, lengths, transient, max_condition, execution):
         theta0 = None
@@ -327,6 +337,7 @@ class Lion(AbstractBatchMethod):
             theta_ls=sol.theta_ls,
             condition=sol.ls_condition,
             result=result_codes(sol.result),
+            unexcited=sol.unexcited,
             final_J=sol.J,
             convergence_time=sol.t_converged,
         )
@@ -432,9 +443,12 @@ def identify_batch(
     Raises:
         InputError: for a bad argument (naming it); never for a record that merely fails.
     """
+    given = bank
     bank = default_bank() if bank is None else bank
     method = LeastSquares() if method is None else method
     records, labels = _check(model, records, method, labels, bank)
+    if given is None:  # sampling-aware: one filter within the speed bound for every record
+        bank = default_bank(max(float(r.dt) for r in records))
     B = len(records)
     p = len(model.names)
     if not (max_condition > 1):
@@ -445,22 +459,34 @@ def identify_batch(
 
     n = np.array([r.n_samples for r in records])
     dt = np.array([float(r.dt) for r in records])
+    check_filter_speed(bank, dt, "identify_batch")
     full = lambda *shape: np.full((B,) + shape, np.nan)
     theta, theta_ls, condition = full(p), full(p), full()
     result = np.full(B, NOT_RUN, int)
     messages = [""] * B
+    nonfinite = result_codes(RESULTS.nonfinite).item()
+    # The validity layer per record: bad data (non-finite, out of range) is a failed row, not
+    # an error for the batch; the units/spike warnings name the record.
+    bad_data = np.zeros(B, bool)
+    for i, r in enumerate(records):
+        try:
+            check_record(r, f"identify_batch: record {labels[i]!r}")
+        except InputError as e:
+            bad_data[i] = True
+            result[i] = nonfinite
+            messages[i] = str(e)
     # The same rule as check_duration for one record: the record must outlast the transient.
-    run = np.flatnonzero(dt * (n - 1) >= tr)
+    run = np.flatnonzero((dt * (n - 1) >= tr) & ~bad_data)
     why = (
         f"3·λₙ₋₁/λₙ of Λ with coefficients {np.asarray(bank.coeffs).tolist()}"
         if transient is None
         else "the transient argument"
     )
-    for i in np.flatnonzero(dt * (n - 1) < tr):
+    for i in np.flatnonzero((dt * (n - 1) < tr) & ~bad_data):
         messages[i] = (
             f"not run: the record lasts {dt[i] * (n[i] - 1):.4g} s ({n[i]} samples), shorter "
-            f"than the filter transient {tr:.4g} s ({why}); use a longer record or faster "
-            "filter poles."
+            f"than the filter transient {tr:.4g} s ({why}). "
+            + duration_fix(dt[i] * (n[i] - 1), dt[i])
         )
     optional: dict[str, np.ndarray | None] = {
         key: (full(p) if key == "std" else full()) if key in method.columns else None
@@ -496,11 +522,15 @@ def identify_batch(
         unidentifiable = result_codes(RESULTS.unidentifiable).item()
         codes[~(cond < max_condition)] = unidentifiable
         result[run] = codes
-        for i, code in zip(run, codes, strict=True):
+        mask = None if rows.unexcited is None else np.asarray(rows.unexcited)
+        for j, (i, code) in enumerate(zip(run, codes, strict=True)):
             if code != 0:
                 messages[i] = result_message(int(code))
             if code == unidentifiable:
                 messages[i] += f" (condition number {condition[i]:.3g}, bound {max_condition:.3g})"
+                names = [] if mask is None else unexcited_names(model.names, mask[j])
+                if names:
+                    messages[i] += f" Not identified: {', '.join(names)}."
     failed = result != 0
     theta[failed] = np.nan
     theta_ls[failed] = np.nan

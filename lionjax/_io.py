@@ -20,11 +20,13 @@ index; nothing is dropped, clipped, interpolated or guessed unless asked for (``
 
 from __future__ import annotations
 
+import contextvars
 import csv
 import difflib
 import logging
 import os
 import zipfile
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,7 +35,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._record import JITTER_TOLERANCE, MIN_SAMPLES, Record, resample as _resample
-from ._tables import check_folder
+from ._tables import atomic_path, check_folder
 
 logger = logging.getLogger(__name__)
 
@@ -51,6 +53,15 @@ _USUAL_NAMES = {
 _RESERVED = ("dt",)
 
 PathLike = str | os.PathLike
+
+#: True while the command line runs: fixes are then worded with its options (``--resample``,
+#: ``--columns``) instead of this module's arguments.
+cli_hints: contextvars.ContextVar[bool] = contextvars.ContextVar("lionjax_cli_hints", default=False)
+
+
+def _fix(python: str, cli: str) -> str:
+    """The fix worded for the caller: the Python argument, or the command-line option."""
+    return cli if cli_hints.get() else python
 
 
 # --------------------------------------------------------------------------- arguments
@@ -145,6 +156,16 @@ def _check_path(path: PathLike, *, what: str = "path") -> Path:
             "(CSV with a header row, numpy.savez archive, MATLAB file). Convert the file or "
             "rename it if it already is one of these."
         )
+    if p.stat().st_size == 0:
+        raise InputError(
+            f"{p}: the file is empty (0 bytes); expected "
+            + {
+                ".csv": "a header row such as 't,x,F' followed by one row per sample",
+                ".npz": "an NPZ archive with arrays 't', 'x', 'F' (numpy.savez)",
+                ".mat": "a MATLAB file with variables 't', 'x', 'F'",
+            }[p.suffix.lower()]
+            + ". Was the export or copy interrupted?"
+        )
     return p
 
 
@@ -168,13 +189,13 @@ def _missing_column(
     elif name == role:
         what = f"required {kind} {role!r} ({_MEANING[role]})"
         other = close[0] if close else "NAME"
-        fix = (
-            f"If the file calls it something else, map it: columns={{{role!r}: {other!r}}} "
-            f"(command line: --columns {role}={other})."
+        fix = "If the file calls it something else, map it: " + _fix(
+            f"columns={{{role!r}: {other!r}}} (command line: --columns {role}={other}).",
+            f"--columns {role}={other}.",
         )
     else:
         what = f"{kind} {name!r} (read as {role!r}, {_MEANING[role]}, via `columns`)"
-        fix = "Fix the name in `columns` (command line: --columns)."
+        fix = _fix("Fix the name in `columns` (command line: --columns).", "Fix --columns.")
     shown = ", ".join(map(repr, found[:30])) + (" ..." if len(found) > 30 else "")
     return InputError(
         f"{path}: {what} not found. {kind.capitalize()}s found: {shown or '(none)'}.{hint} {fix}"
@@ -212,6 +233,12 @@ def _read_csv(path: Path, wanted) -> tuple[dict[str, np.ndarray], float | None]:
     for j, h in enumerate(header):
         if not h:
             raise InputError(f"{path}: header (line 1) has an empty name in column {j + 1}.")
+    if all(_is_number(h) for h in header):
+        raise InputError(
+            f"{path}: no header row: line 1 ({','.join(header)[:60]}) holds numbers; expected a "
+            "header naming the columns t,x,F (time [s], position [m], force [N]) as line 1. Add "
+            "it (e.g. the line 't,x,F' when the columns are in that order)."
+        )
     seps = [c for c in ";\t|" if len(header) == 1 and c in header[0]]
     if seps:
         raise InputError(
@@ -229,17 +256,10 @@ def _read_csv(path: Path, wanted) -> tuple[dict[str, np.ndarray], float | None]:
                 f"has {len(header)} columns ({','.join(header)}); every row needs exactly one "
                 "value per column (ragged rows are not guessed at)."
             )
-    looks_like_data = all(_is_number(h) for h in header)
     out = {}
     for name, role in wanted:
         if name not in header:
-            err = _missing_column(path, name, role, header, "column")
-            if looks_like_data:
-                err = InputError(
-                    f"{err} The first line looks like numbers, not a header: add a header row "
-                    "such as 't,x,F'."
-                )
-            raise err
+            raise _missing_column(path, name, role, header, "column")
     if not data:
         raise InputError(
             f"{path}: has a header ({','.join(header)}) but no data rows; expected one row per "
@@ -280,7 +300,19 @@ def _is_real(v) -> bool:
 def _as_float(path: Path, name: str, a: np.ndarray, *, kind: str) -> np.ndarray:
     """A stored array as float64, refusing text, objects, complex and structured arrays."""
     a = np.asarray(a)
-    if a.dtype.kind in "biuf":
+    if a.dtype.kind == "b":
+        raise InputError(
+            f"{path}: {kind} {name!r} holds booleans (True/False), expected numbers (t in s, x "
+            "in m, F in N); a logical signal is not read as 0/1. Store the measured values as a "
+            "float array."
+        )
+    if a.dtype.kind == "f" and a.dtype.itemsize < 4:
+        raise InputError(
+            f"{path}: {kind} {name!r} is stored as {a.dtype} (about 3 significant digits): its "
+            "precision is too low for identification (a time column cannot even resolve the "
+            "sampling interval). Store it as float64 (or float32)."
+        )
+    if a.dtype.kind in "iuf":
         return a.astype(np.float64)
     if a.dtype.kind in "USO":
         flat = a.ravel()
@@ -316,12 +348,19 @@ def _stored_dt(path: Path, store: Mapping, used: Iterable[str], kind: str) -> fl
 
 
 def _read_npz(path: Path, wanted) -> tuple[dict[str, np.ndarray], float | None]:
+    # the file is opened here (numpy leaves its own handle open when the archive is corrupt)
+    with open(path, "rb") as fh:
+        return _read_npz_from(path, fh, wanted)
+
+
+def _read_npz_from(path: Path, fh, wanted) -> tuple[dict[str, np.ndarray], float | None]:
     try:
-        store = np.load(path, allow_pickle=False)
+        store = np.load(fh, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise InputError(
-            f"{path}: cannot be read as an NPZ archive ({e}). Expected a file written by "
-            "numpy.savez with arrays 't', 'x', 'F'."
+            f"{path}: cannot be read as an NPZ archive ({e}); the file is truncated, corrupt or "
+            "not an NPZ archive. Expected a file written by numpy.savez with arrays 't', 'x', "
+            "'F'."
         ) from None
     if not isinstance(store, np.lib.npyio.NpzFile):
         raise InputError(
@@ -336,6 +375,11 @@ def _read_npz(path: Path, wanted) -> tuple[dict[str, np.ndarray], float | None]:
                 raise _missing_column(path, name, role, found, "array")
             try:
                 raw = store[name]
+            except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+                raise InputError(
+                    f"{path}: array {name!r} cannot be read ({type(e).__name__}: {e}); the "
+                    "archive is truncated or corrupt. Re-export it."
+                ) from None
             except ValueError as e:  # object arrays need pickle
                 raise InputError(
                     f"{path}: array {name!r} cannot be read without pickle ({e}); store it as a "
@@ -361,8 +405,12 @@ def _read_mat(path: Path, wanted) -> tuple[dict[str, np.ndarray], float | None]:
             f"{path}: MATLAB v7.3 (HDF5) files are not supported by scipy.io.loadmat. Re-save "
             "it in MATLAB with save(..., '-v7') or export it to .csv/.npz."
         ) from None
-    except (ValueError, TypeError, OSError) as e:
-        raise InputError(f"{path}: cannot be read as a MATLAB .mat file ({e}).") from None
+    except Exception as e:  # noqa: BLE001 — scipy's MatReadError, IndexError, … on a bad file
+        raise InputError(
+            f"{path}: cannot be read as a MATLAB .mat file ({type(e).__name__}: "
+            f"{str(e).strip() or 'no detail'}); the file is truncated, corrupt or not a MATLAB "
+            "file. Re-export it (MATLAB: save(..., '-v7')) or export the data to .csv/.npz."
+        ) from None
     found = [k for k in store if not k.startswith("__")]
     out = {}
     for name, role in wanted:
@@ -483,9 +531,9 @@ def load_record(
         record = build(t, x, F, ext, jitter_tolerance)
     except InputError as e:
         if not resample:
+            how = _fix("pass resample=True to load_record", "pass --resample")
             raise InputError(
-                f"{e} Or pass resample=True to load_record to resample onto a uniform grid by "
-                "linear interpolation."
+                f"{e} Or {how} to resample onto a uniform grid by linear interpolation."
             ) from None
         step = resample_dt if resample_dt is not None else stored_dt
         tu, xu, Fu = _resample(t, x, F, dt=step, source=str(p))
@@ -622,19 +670,7 @@ def save_record(path: PathLike, record: Record) -> Path:
         "F": np.asarray(record.F, dtype=np.float64),
         **{k: np.asarray(v, dtype=np.float64) for k, v in record.extras.items()},
     }
-    if suffix == ".csv":
-        np.savetxt(
-            p,
-            np.column_stack(list(cols.values())),
-            fmt="%.17g",
-            delimiter=",",
-            header=",".join(cols),
-            comments="",
-        )
-    elif suffix == ".npz":
-        with open(p, "wb") as f:  # a file object: numpy must not append a second ".npz"
-            np.savez_compressed(f, dt=np.float64(dt), **cols)
-    else:
+    if suffix == ".mat":
         try:
             import scipy.io
         except ImportError as e:
@@ -642,5 +678,21 @@ def save_record(path: PathLike, record: Record) -> Path:
                 f"{p}: writing MATLAB .mat files needs scipy, which is not installed. Install "
                 "the optional extra: pip install lionjax[mat] (or save as .npz)."
             ) from e
-        scipy.io.savemat(p, {"dt": np.float64(dt), **{k: v[:, None] for k, v in cols.items()}})
+    with atomic_path(p) as tmp:  # a failed write leaves an existing file as it was
+        if suffix == ".csv":
+            np.savetxt(
+                tmp,
+                np.column_stack(list(cols.values())),
+                fmt="%.17g",
+                delimiter=",",
+                header=",".join(cols),
+                comments="",
+            )
+        elif suffix == ".npz":
+            with open(tmp, "wb") as f:  # a file object: numpy must not append a second ".npz"
+                np.savez_compressed(f, dt=np.float64(dt), **cols)
+        else:
+            scipy.io.savemat(
+                tmp, {"dt": np.float64(dt), **{k: v[:, None] for k, v in cols.items()}}
+            )
     return p

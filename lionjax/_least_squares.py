@@ -28,17 +28,29 @@ failure naming the parameters the record does not excite (condition number above
 
 from __future__ import annotations
 
+import warnings
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
-from ._errors import RESULTS, InputError
-from ._estimators import default_bank
+from ._errors import RESULTS, DataWarning, InputError
+from ._estimators import default_bank, regressor_moments
 from ._filters import FilterBank
 from ._models import AbstractModel
 from ._record import Record
-from ._solution_tools import by_name, check_duration, finish, transient_mask
+from ._solution_tools import by_name, finish, transient_mask
+from ._validity import (
+    check_duration,
+    check_filter_speed,
+    check_record,
+    column_reference,
+    dead_columns,
+    explain_unexcited,
+    unexcited,
+    warn_poor_fit,
+)
 
 
 class LSSolution(eqx.Module):
@@ -54,6 +66,12 @@ class LSSolution(eqx.Module):
         rms: root-mean-square equation error over the used samples.
         n_used: number of samples used (after the transient).
         names: parameter names; result: :class:`RESULTS` code.
+        unexcited: True for each parameter the record does not identify, ``(p,)`` (a column
+            not excited, or a large share of a direction beyond ``max_condition``; see
+            :mod:`lionjax._validity`).
+        unexplained: RSS/‖y‖², the share of the filtered response (V₃, V₄ over the used
+            samples) that the fitted model leaves unexplained; near 1 the model explains
+            nothing (swapped columns, a force column that is not the applied force).
     """
 
     theta: Float[Array, " p"]
@@ -66,12 +84,17 @@ class LSSolution(eqx.Module):
     n_used: Float[Array, ""]
     names: tuple[str, ...] = eqx.field(static=True)
     result: RESULTS
+    unexcited: Bool[Array, " p"] | None = None
+    unexplained: Float[Array, ""] | None = None
 
     def params(self) -> dict[str, Array]:
         return by_name(self.names, self.theta)
 
 
 def _explain(sol: LSSolution) -> str:
+    named = explain_unexcited(sol)
+    if named:
+        return named
     v = np.abs(np.asarray(sol.weakest))
     cond = np.asarray(sol.condition)
     if v.ndim > 1:
@@ -202,15 +225,29 @@ def least_squares(
         rows: which equation errors enter the fit: ``(0, 1)`` (default, ε₁ and ε₂ = dε₁/dt) or
             ``(0,)`` (ε₁ alone; see the module docstring).
         max_condition: condition number of the column-normalised regressors above which the
-            record is declared not to excite the parameters (``RESULTS.unidentifiable``).
-        throw: raise on failure (naming the unexcited parameters); ``False`` under ``vmap``.
+            record is declared not to excite the parameters (``RESULTS.unidentifiable``); a
+            column that is not excited at all (:mod:`lionjax._validity`) is a failure too.
+        throw: raise on failure (naming every unexcited parameter); ``False`` under ``vmap``.
+
+    The validity layer (:mod:`lionjax._validity`) runs first: a filter too fast for the
+    sampling warns or is refused, a record shorter than the transient or with non-finite or
+    out-of-range samples is an :class:`InputError`.
     """
-    bank = default_bank() if bank is None else bank
     if not isinstance(model, AbstractModel):
         raise InputError(f"least_squares: model must be a lionjax model, got {type(model)}.")
     if not isinstance(record, Record):
         raise InputError(f"least_squares: record must be a Record, got {type(record)}.")
+    bank = default_bank(record.dt) if bank is None else bank
+    if not isinstance(bank, FilterBank) or bank.batch_shape:
+        raise InputError(
+            "least_squares: bank must be one FilterBank (coeffs of shape (n,)), got "
+            f"{type(bank).__name__}"
+            + (f" with coeffs of shape {bank.coeffs.shape}" if isinstance(bank, FilterBank) else "")
+            + "; use lionjax.least_squares_batched for one filter per record."
+        )
+    check_filter_speed(bank, record.dt, "least_squares")
     check_duration(record, bank, "least_squares")
+    check_record(record, "least_squares")
     if initial not in ("estimate", "discard"):
         raise InputError(
             f"least_squares: initial must be 'estimate' or 'discard', got {initial!r}."
@@ -219,7 +256,25 @@ def least_squares(
     if initial == "estimate" and transient is None:
         transient = 0.0
     sol = _least_squares(model, record, bank, initial == "estimate", transient, rows, max_condition)
-    return finish(sol, throw, what="least squares", explain=_explain)
+    sol = finish(sol, throw, what="least squares", explain=_explain)
+    warn_poor_fit(sol.unexplained, "least_squares")
+    return sol
+
+
+def check_identified(model, record: Record, bank: FilterBank, transient, what: str) -> None:
+    """Refuse (:class:`~lionjax.IdentificationError`, prefixed with ``what``) a record whose
+    samples after the transient do not identify ``model`` — the data a streamed estimator uses
+    (``least_squares(initial="discard")``, Lion's law after its transient, a study's a_LS) —
+    and warn (:class:`~lionjax.solutions.DataWarning`) where the fit explains next to nothing
+    (:func:`lionjax._validity.warn_poor_fit`). For callers that batch records and check each
+    one on the host first (:func:`lionjax.study`)."""
+    with warnings.catch_warnings():  # the caller has already warned about the record itself
+        warnings.simplefilter("ignore", DataWarning)
+        sol = least_squares(
+            model, record, bank=bank, initial="discard", transient=transient, throw=False
+        )
+    finish(sol, True, what=what, explain=_explain)
+    warn_poor_fit(sol.unexplained, what)
 
 
 def nuisance_columns(bank: FilterBank, dt, T: int, rows: tuple[int, ...]) -> Array:
@@ -241,7 +296,21 @@ def _least_squares(model, record, bank, nuisance, transient, rows, max_condition
     Phi = (W * w[:, None, None]).reshape(r * T, q)
     y = (regs.W0[:, rows] * w[:, None]).reshape(r * T)
     fit = linear_lstsq(Phi, y)
-    ok = fit.condition < max_condition
+    # the validity layer: every column excited (R over the weighted samples, all rows of W),
+    # and which parameters an ill-conditioned fit leaves unidentified (R's scale: cond(Φ)²)
+    R = regressor_moments(regs, w)
+    ref = column_reference(model, record, bank).astype(W.dtype)
+    bad = unexcited(R, ref, max_condition**2)
+    ok = (fit.condition < max_condition) & ~jnp.any(dead_columns(R, ref))
+    if not nuisance:
+        # after the transient the filter's free response (its initial-state error) is still in
+        # the signals: a parameter excited only through it is not identified by the record
+        # (a step response whose own transient ended before the filter's: only b/a remains)
+        N = nuisance_columns(bank, record.dt, T, rows).astype(W.dtype) * w[:, None, None]
+        aug = linear_lstsq(jnp.concatenate([Phi, N.reshape(r * T, -1)], -1), y)
+        aug_ok = aug.condition < max_condition
+        ok = ok & aug_ok
+        bad = bad | (~aug_ok & (jnp.abs(aug.weakest[:p]) > 0.3))
     theta = fit.coef[:p]
     n_used = jnp.sum(w)
     sigma2 = fit.rss / jnp.maximum(r * n_used - q, 1.0)
@@ -260,6 +329,8 @@ def _least_squares(model, record, bank, nuisance, transient, rows, max_condition
         n_used=n_used,
         names=regs.names,
         result=result,
+        unexcited=bad,
+        unexplained=fit.rss / jnp.maximum(jnp.sum(y * y), jnp.finfo(y.dtype).tiny),
     )
 
 

@@ -15,3 +15,21 @@ def figure(width: float, height: float, *, layout: str | None = "constrained"):
     fig = Figure(figsize=(width, height), layout=layout)
     FigureCanvasAgg(fig)
     return fig
+
+
+#: Figure formats the command line writes (the format is taken from the file's extension).
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def save_figure(fig, path, *, dpi: float = 110):
+    """Save ``fig`` to ``path`` atomically (:func:`lionjax._tables.atomic_path`: a failed draw or
+    write leaves an existing file as it was), in the format of its extension; returns the path."""
+    from pathlib import Path
+
+    from ._tables import atomic_path
+
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".") or "png"
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=fmt)
+    return path

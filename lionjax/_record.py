@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -60,6 +61,22 @@ class Record(eqx.Module):
             )
         if self.x.ndim < 1:
             raise InputError("Record: x must have a time axis (shape (T,)), got a scalar.")
+        if not isinstance(self.dt, jax.core.Tracer):
+            dt = np.asarray(self.dt, dtype=np.float64)
+            if not np.all(np.isfinite(dt) & (dt > 0)):
+                bad = dt.reshape(-1)[~(np.isfinite(dt.reshape(-1)) & (dt.reshape(-1) > 0))][0]
+                raise InputError(
+                    f"Record: dt must be the sampling interval in seconds, a finite number > 0, "
+                    f"got {float(bad)!r}. Pass dt = t[1] - t[0] of a uniformly sampled record "
+                    "(Record.from_samples computes it from the time column)."
+                )
+        if not isinstance(self.t0, jax.core.Tracer) and not np.all(
+            np.isfinite(np.asarray(self.t0, dtype=np.float64))
+        ):
+            raise InputError(
+                f"Record: t0 (the time of the first sample [s]) must be finite, got "
+                f"{np.asarray(self.t0).tolist()!r}."
+            )
         for k, v in self.extras.items():
             if v.shape != self.x.shape:
                 raise InputError(

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ._errors import RESULTS, InputError, raise_if_failed
+from ._errors import RESULTS, raise_if_failed
 from ._filters import FilterBank
 from ._record import Record
 
@@ -92,22 +92,6 @@ def convergence_time(theta: Array, reference: Array, seconds_at, tolerance: floa
     out = outside_band(rel, tolerance)
     last = jnp.max(jnp.where(out, jnp.arange(T, dtype=jnp.int32), -1))
     return settle_time(last, T, seconds_at)
-
-
-def check_duration(record: Record, bank: FilterBank, what: str) -> None:
-    """Refuse a record shorter than the filter transient (when the values are concrete)."""
-    if is_traced((record.dt, bank.coeffs)):
-        return
-    import numpy as np
-
-    need = float(np.max(np.asarray(default_transient(bank))))
-    have = float(np.min(np.asarray(record.dt))) * (record.n_samples - 1)
-    if have < need:
-        raise InputError(
-            f"{what}: the record lasts {have:.4g} s ({record.n_samples} samples), shorter than "
-            f"the filter transient {need:.4g} s (3·λₙ₋₁/λₙ of Λ with coefficients "
-            f"{np.asarray(bank.coeffs).tolist()}). Use a longer record or faster filter poles."
-        )
 
 
 def is_traced(tree) -> bool:

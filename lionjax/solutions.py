@@ -12,6 +12,8 @@ from ._batched import (
     ParallelSolution as ParallelSolution,
 )
 from ._errors import (
+    DataWarning as DataWarning,
+    FilterSpeedWarning as FilterSpeedWarning,
     result_code as result_code,
     result_codes as result_codes,
     result_message as result_message,

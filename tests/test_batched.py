@@ -190,10 +190,17 @@ def test_piecewise_and_normalised(recs):
     batch, _ = lj.stack_records(recs[:2])
     model = lj.Piecewise((-0.001, 0.001))
     G = lj.FixedGain(1e4)
-    sol = lj.lion_batched(model, batch, gain=G, stepper=lj.ExactStep(normalisation=0.5))
+    # the records never enter region 1 (x ≥ 0): both paths flag a_1, b_1 unidentified (issue 39,
+    # case 3) and still agree on the trajectory
+    kw = dict(gain=G, throw=False)
+    sol = lj.lion_batched(model, batch, stepper=lj.ExactStep(normalisation=0.5), **kw)
     for i, r in enumerate(recs[:2]):
-        ref = lj.lion(model, r, gain=G, normalisation=0.5)
+        ref = lj.lion(model, r, normalisation=0.5, **kw)
         np.testing.assert_allclose(sol.theta[i], ref.theta_final, rtol=1e-9, atol=1e-12)
+        bad = lj.solutions.result_codes(lj.RESULTS.unidentifiable)
+        assert lj.solutions.result_codes(sol.result)[i] == bad
+        assert lj.solutions.result_codes(ref.result) == bad
+        np.testing.assert_array_equal(sol.unexcited[i], ref.unexcited)
 
 
 def test_jit_equals_nojit(recs):

@@ -1,16 +1,25 @@
 """The ``lionjax`` command line: one subcommand per module in this package.
 
 Each subcommand module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args)``
-(returning an exit code). Errors of bad input (:class:`lionjax.InputError`) and failed
-identifications are printed as one readable line and exit with status 2.
+(returning an exit code). Every error goes through one handler (:func:`main`): bad input
+(:class:`lionjax.InputError`), a failed identification, an unwritable output file, a bad option,
+and — a bug — any other exception, is printed as one line ``lionjax COMMAND: error: …`` naming
+the file or option and the fix, and exits with status 2; never a traceback (set the environment
+variable ``LIONJAX_TRACEBACK=1`` to get one for a bug report). Warnings (a probable unit mistake,
+a filter fast for the sampling) are printed as one line ``lionjax COMMAND: warning: …``.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import sys
+import warnings
+
+#: Exit status of every error (bad input or options, failed identification, unwritable output).
+EXIT_ERROR = 2
 
 SUBCOMMANDS = ("identify", "reproduce", "diagnose", "study")
 
@@ -22,13 +31,24 @@ def _enable_x64() -> None:
     jax.config.update("jax_enable_x64", True)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the one-line error of the other errors (and a pointer to --help)."""
+
+    def error(self, message: str):
+        print(
+            f"{self.prog}: error: {message} (see '{self.prog} --help')",
+            file=sys.stderr,
+        )
+        raise SystemExit(EXIT_ERROR)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="lionjax",
         description="Identify device dynamics with Lion's method and diagnose the sim-to-real gap.",
     )
     parser.add_argument("--version", action="store_true", help="print the version and exit")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in SUBCOMMANDS:
         mod = importlib.import_module(f"lionjax.cli._{name}")
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.__doc__)
@@ -54,8 +74,10 @@ def _join_negative_values(argv: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``lionjax ARGV``; returns the exit status (0 success, 1 some records of a batch not
+    identified, 2 an error, 130 interrupted). Errors print one line and never a traceback."""
     _enable_x64()
-    from .._errors import IdentificationError, InputError
+    from .._io import cli_hints
 
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -67,15 +89,69 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command is None:
         parser.print_help()
-        return 2
+        return EXIT_ERROR
+    name = f"lionjax {args.command}"
+    token = cli_hints.set(True)
     try:
-        return int(args._run(args) or 0)
-    except (InputError, IdentificationError) as e:
-        print(f"lionjax {args.command}: error: {e}", file=sys.stderr)
-        return 2
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", UserWarning)
+            warnings.showwarning = _warning_printer(name)
+            return int(args._run(args) or 0)
     except KeyboardInterrupt:
-        print(f"lionjax {args.command}: interrupted", file=sys.stderr)
+        print(f"{name}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # the one handler
+        if os.environ.get("LIONJAX_TRACEBACK"):
+            raise
+        print(f"{name}: error: {describe(e)}", file=sys.stderr)
+        return EXIT_ERROR
+    finally:
+        cli_hints.reset(token)
+
+
+def describe(e: BaseException) -> str:
+    """The one-line message of an error raised by a subcommand (see :func:`main`)."""
+    from .._errors import IdentificationError, InputError
+    from ._common import CURRENT_FILE, one_line
+
+    if isinstance(e, InputError | IdentificationError):
+        return one_line(str(e))
+    if isinstance(e, OSError):
+        where = e.filename if e.filename is not None else CURRENT_FILE.get()
+        why = e.strerror or str(e)
+        return (
+            f"{where}: {why}. Check the path and its permissions (and the free space when "
+            "writing); an existing output file is left as it was."
+            if where
+            else f"{why}."
+        )
+    if isinstance(e, ImportError):
+        return one_line(str(e))
+    if isinstance(e, MemoryError):
+        return (
+            "out of memory; use a shorter record (or --decimate for the diagnosis) or a "
+            "machine with more memory."
+        )
+    f = CURRENT_FILE.get()
+    return one_line(
+        f"internal error{f' on {f}' if f else ''}: {type(e).__name__}: {e}. This is a bug in "
+        "lionjax, not in your input: please report it with the command line "
+        "(LIONJAX_TRACEBACK=1 shows where it happened)."
+    )
+
+
+def _warning_printer(name: str):
+    """A ``warnings.showwarning`` that prints one line ``NAME: warning: [file: ]message``."""
+    from ._common import CURRENT_FILE, one_line
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = one_line(str(message))
+        f = CURRENT_FILE.get()
+        if f and f not in text:
+            text = f"{f}: {text}"
+        print(f"{name}: warning: {text}", file=sys.stderr)
+
+    return show
 
 
 if __name__ == "__main__":  # pragma: no cover

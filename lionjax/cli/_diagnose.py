@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import argparse
 
-from .._tables import check_folder, write_json
-from ._common import format_table
+from .._errors import IdentificationError, InputError
+from .._plotting import FIGURE_SUFFIXES
+from .._tables import check_output, write_json
+from ._common import about, format_table, number
 
 NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: which unmodelled effect, where, how much it explains"
@@ -71,12 +73,33 @@ def _load(path, args):
     )
 
 
+def _name_files(message: str, args) -> str:
+    """The diagnosis' names of its records ("(argument 'train')") → the files; options named as
+    the command line's."""
+    valid = args.validate or args.data
+    for old, new in (
+        ("(argument 'train')", f"({args.data})"),
+        ("(argument 'valid')", f"({valid}" + (", --validate)" if args.validate else ")")),
+        ("filter_hz", "--filter-hz"),
+        ("window_s", "--window"),
+        ("max_memory_gb", "--max-memory-gb"),
+    ):
+        message = message.replace(old, new)
+    return message
+
+
 def run(args) -> int:
     import lionjax as lj
 
-    check_folder(args.json, "--json")
-    train = _load(args.data, args)
-    valid = _load(args.validate, args) if args.validate else None
+    check_output(args.json, "--json")
+    check_output(args.plot, "--plot", FIGURE_SUFFIXES)
+    with about(args.data):
+        train = _load(args.data, args)
+    if args.validate:
+        with about(args.validate):
+            valid = _load(args.validate, args)
+    else:
+        valid = None
     r = args.decimate
     if r == "auto":
         r = lj.diagnosis.decimation_for(train, valid, max_memory_gb=args.max_memory_gb)
@@ -90,22 +113,25 @@ def run(args) -> int:
             f"decimated by {r}: dt {dt0:.6g} s → {float(train.dt):.6g} s, "
             f"{train.n_samples} training samples (x sampled, F averaged over each interval)"
         )
-    d = lj.diagnose(
-        train,
-        valid,
-        filter_hz=args.filter_hz,
-        window_s=args.window,
-        max_memory_gb=args.max_memory_gb,
-    )
+    try:
+        d = lj.diagnose(
+            train,
+            valid,
+            filter_hz=args.filter_hz,
+            window_s=args.window,
+            max_memory_gb=args.max_memory_gb,
+        )
+    except (InputError, IdentificationError) as e:
+        raise type(e)(_name_files(str(e), args)) from None
     out = d.to_json()
     out["files"] = {"train": str(args.data), "validate": str(args.validate or args.data)}
     out["decimate"] = {"factor": r, "dt_recorded": dt0}
     base = out["baseline"]
     print(
-        f"baseline ẍ + aẋ = bF: a = {base['params']['a']:.6g} 1/s, b = {base['params']['b']:.6g} "
-        f"1/kg; gap {base['gap']:.4g} m (windowed simulation, H = {out['settings']['window_s']:.3g}"
-        f" s), equation error {base['equation_gap']:.4g} m/s² (noise floor "
-        f"{base['noise_floor']:.3g})"
+        f"baseline ẍ + aẋ = bF: a = {number(base['params']['a'], '.6g')} 1/s, b = "
+        f"{number(base['params']['b'], '.6g')} 1/kg; gap {number(base['gap'])} m (windowed "
+        f"simulation, H = {number(out['settings']['window_s'], '.3g')} s), equation error "
+        f"{number(base['equation_gap'])} m/s² (noise floor {number(base['noise_floor'], '.3g')})"
     )
     rows = [
         [
@@ -121,12 +147,12 @@ def run(args) -> int:
     print(format_table(["effect", "score", "shrink", "eq. shrink", "size", "significant"], rows))
     print(f"stack: {', '.join(out['stack']) or '(empty)'}")
     tie = f"; near-tie: {', '.join(out['ambiguous'])}" if out["ambiguous"] else ""
-    print(f"verdict: {out['verdict']} (confidence {out['confidence']:.2f}{tie})")
+    print(f"verdict: {out['verdict']} (confidence {number(out['confidence'], '.2f')}{tie})")
     print(
-        f"detection limit: {out['noise']['detection_limit']:.2g} (the least effect this record "
-        "would name, as a share of the input's term b·F)"
+        f"detection limit: {number(out['noise']['detection_limit'], '.2g')} (the least effect "
+        "this record would name, as a share of the input's term b·F)"
     )
-    out_of = {k: v for k, v in base["valid_outside_train"].items() if v > OUTSIDE_WARN}
+    out_of = {k: v for k, v in base["valid_outside_train"].items() if (v or 0) > OUTSIDE_WARN}
     if out_of:
         print(
             "warning: the validation record leaves the training record's range ("
@@ -137,9 +163,10 @@ def run(args) -> int:
     print(
         "final: "
         + ", ".join(
-            f"{k} = {v:.6g} {fin['units'].get(k, '')}".rstrip() for k, v in fin["params"].items()
+            f"{k} = {number(v, '.6g')} {fin['units'].get(k, '')}".rstrip()
+            for k, v in fin["params"].items()
         )
-        + f"; gap {fin['gap']:.4g} m"
+        + f"; gap {number(fin['gap'])} m"
     )
     if args.json:
         write_json(args.json, out)
@@ -147,6 +174,6 @@ def run(args) -> int:
     if args.plot:
         from ..diagnosis._plot import plot_diagnosis
 
-        plot_diagnosis(d, args.plot)
-        print(f"wrote {args.plot}")
+        path = plot_diagnosis(d, args.plot)
+        print(f"wrote {path}")
     return 0

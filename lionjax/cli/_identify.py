@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from .._tables import check_folder, write_json
-from ._common import float_list, format_table
+from .._tables import check_output, write_json
+from ._common import about, float_list, format_table
 
 NAME = "identify"
 HELP = (
@@ -52,7 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--csv", metavar="OUT.csv", help="write the table as CSV (several files or a folder)"
     )
     g = p.add_argument_group("filter Λ(s)")
-    g.add_argument("--poles", help="filter poles in rad/s (default -4,-4,-4 = the paper's)")
+    g.add_argument(
+        "--poles",
+        help="filter poles in rad/s (default -4,-4,-4 = the paper's, for records sampled at "
+        "200 Hz or faster; slower: -p,-p,-p with p = 0.02/dt)",
+    )
     g.add_argument("--coeffs", help="filter coefficients λ₁,…,λₙ (instead of --poles)")
     g.add_argument(
         "--dc-gain",
@@ -82,9 +86,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--resample", action="store_true", help="resample a non-uniform record (linear)")
 
 
-def settings(args):
-    """(model, bank, gain) from the common arguments (the gain as a Module)."""
+def settings(args, dt=None):
+    """(model, bank, gain) from the common arguments (the gain as a Module); without --poles or
+    --coeffs the filter is the package's sampling-aware default (s + p)³ for records sampled at
+    ``dt`` (p = 4 rad/s at 200 Hz or faster)."""
     import lionjax as lj
+
+    from .._validity import default_poles
 
     if args.regions:
         model = lj.Piecewise(float_list(args.regions, "--regions"), args.x_hold, args.F_hold)
@@ -103,7 +111,8 @@ def settings(args):
     elif args.poles:
         bank = lj.FilterBank.from_poles(np.asarray(float_list(args.poles, "--poles")), unit)
     else:
-        bank = lj.FilterBank.from_poles(np.array([-4.0, -4.0, -4.0]), unit)
+        p = float(default_poles(dt))
+        bank = lj.FilterBank.from_poles(np.array([-p, -p, -p]), unit)
     if gain_arg == "auto":
         gain = lj.AutoGain(getattr(args, "rate", 1.0))
     else:
@@ -136,7 +145,7 @@ def identify(record, args) -> dict:
     """Run the identification; returns the JSON payload."""
     import lionjax as lj
 
-    model, bank, gain = settings(args)
+    model, bank, gain = settings(args, record.dt)
     out = {
         "file": str(args.data),
         "method": args.method,
@@ -173,35 +182,71 @@ def identify(record, args) -> dict:
         out["params_ls"] = {k: float(v) for k, v in ls.params().items()}
         t_conv = float(sol.convergence_time(ls.theta, tolerance=0.02))
         out["convergence_time"] = t_conv if np.isfinite(t_conv) else None
+        out["duration"] = float(record.dt) * (int(record.n_samples) - 1)
+        out["gain_rule"] = "fixed" if isinstance(gain, lj.FixedGain) else "auto"
+        std = lion_std(np.array(list(out["params"].values())), ls)
+        out["std"] = dict(zip(out["params"], std.tolist(), strict=True))
+        out["std_method"] = STD_AT_LION
     return out
 
 
+#: How ``identify --method lion`` states its uncertainty (printed and in the JSON).
+STD_AT_LION = (
+    "least-squares covariance σ²(ΦᵀΦ)⁻¹ (initial='discard') with σ² the residual variance at "
+    "Lion's estimate; Lion's law itself gives no covariance"
+)
+
+
+def lion_std(theta, ls) -> np.ndarray:
+    """Standard deviations for Lion's estimate ``theta``: the least-squares covariance
+    σ²(ΦᵀΦ)⁻¹ of ``ls`` (an :class:`~lionjax.LSSolution`, rows ε₁ and ε₂) with σ² the residual
+    variance at ``theta`` instead of at θ_LS. Least squares' residual is orthogonal to Φ, so
+    RSS(θ) = RSS(θ_LS) + δᵀΦᵀΦδ with δ = θ − θ_LS and ΦᵀΦ = σ²_LS·cov⁻¹: the covariance scales
+    by 1 + δᵀcov⁻¹δ/(N_rows − p)."""
+    cov = np.asarray(ls.covariance, np.float64)
+    delta = np.asarray(theta, np.float64) - np.asarray(ls.theta, np.float64)
+    p = delta.size
+    dof = max(2.0 * float(ls.n_used) - p, 1.0)
+    try:
+        q = float(delta @ np.linalg.solve(cov, delta))
+    except np.linalg.LinAlgError:
+        return np.sqrt(np.diagonal(cov))
+    return np.sqrt(np.diagonal(cov) * (1.0 + max(q, 0.0) / dof))
+
+
 def print_result(out: dict) -> None:
+    lion = out["method"] == "lion"
     rows = []
     for name, value in out["params"].items():
         unit = UNITS.get(name.split("_")[0], "")
-        std = out.get("std", {}).get(name, float("nan"))
+        std = out.get("std", {}).get(name)
         rows.append([name, value, std, unit])
     title = (
         f"{out['file']}: {out['model']} by {out['method']}, {out['n_samples']} samples at "
         f"{1 / out['dt']:.6g} Hz"
     )
-    print(format_table(["param", "estimate", "std", "unit"], rows, title))
+    print(format_table(["param", "estimate", "std*" if lion else "std", "unit"], rows, title))
     if "condition" in out:
         print(
             f"condition number {out['condition']:.4g}; rms equation error "
             f"{out['rms_equation_error']:.4g}"
         )
-    if "convergence_time" in out:
-        st = out["convergence_time"]
-        print(
-            "within 2 % of least squares (initial='discard') after "
-            + (
-                f"{st:.3g} s"
-                if st is not None
-                else "— not settled by the end of the record (raise --rate or use a longer record)"
-            )
-        )
+    if lion:
+        print(f"* std: {out['std_method']}.")
+        print(convergence_sentence(out))
+
+
+def convergence_sentence(out: dict, tolerance: float = 0.02) -> str:
+    """Plain English: when Lion's estimate settles within the band of least squares."""
+    st = out["convergence_time"]
+    band = f"within {100 * tolerance:g} % of least squares"
+    if st is not None:
+        return f"Lion's estimate settles {band} after {st:.3g} s."
+    fix = "raise --rate" if out.get("gain_rule", "auto") == "auto" else "raise --gain"
+    return (
+        f"Lion's estimate did not settle {band} by the end of the record "
+        f"({out['duration']:.3g} s); {fix} or use a longer record."
+    )
 
 
 def run(args) -> int:
@@ -212,10 +257,12 @@ def run(args) -> int:
             "--csv writes the table of several records (several files or a folder); for one "
             "file use --json, or pass the folder that holds it."
         )
-    check_folder(args.json, "--json")
+    check_output(args.json, "--json")
+    settings(args)  # bad options fail before the file is read
     args.data = args.data[0]  # one file: the single-record path below, unchanged
-    record = load(args)
-    out = identify(record, args)
+    with about(args.data):
+        record = load(args)
+        out = identify(record, args)
     print_result(out)
     if args.json:
         write_json(args.json, out)
@@ -272,11 +319,12 @@ def load_many(paths: list[Path], args) -> list:
 def run_many(args) -> int:
     import lionjax as lj
 
-    check_folder(args.json, "--json")
-    check_folder(args.csv, "--csv")
-    model, bank, gain = settings(args)  # bad options fail before any file is read
+    check_output(args.json, "--json")
+    check_output(args.csv, "--csv")
+    settings(args)  # bad options fail before any file is read
     paths = data_files(args.data)
     records = load_many(paths, args)
+    model, bank, gain = settings(args, np.array([float(r.dt) for r in records]))
     theta0 = None
     if args.method == "lion":
         if args.theta0:

@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from .._plotting import save_figure
 from .._progress import stamped
-from .._tables import jsonable, write_json
+from .._tables import check_output, jsonable, write_json, write_text
 
 NAME = "reproduce"
 HELP = "reproduce the paper's experiments on the twin: table, figures, report, effect rows"
@@ -53,15 +54,13 @@ def write_outputs(result, out: Path, *, figures: bool = True, timings: dict | No
     written.append(write_json(out / "effects.json", effects))
     summary = _summary(result, timings or {})
     written.append(write_json(out / "summary.json", summary))
-    (out / "report.md").write_text(report(result, summary))
-    written.append(out / "report.md")
+    written.append(write_text(out / "report.md", report(result, summary)))
     if figures:
         from ..paper._figures import paper_figures
 
         for stem, fig in paper_figures(result).items():
             path = out / f"{stem}.png"
-            fig.savefig(path, dpi=110)
-            written.append(path)
+            written.append(save_figure(fig, path, dpi=110))
     return written
 
 
@@ -188,8 +187,8 @@ def report(result, summary: dict) -> str:
             "validation drifts. These are the effects the diagnosis must name.\n"
         )
     tim = summary.get("timings_s") or {}
-    if tim:
-        L.append(f"Run time: {tim.get('total', float('nan')):.1f} s.\n")
+    if tim.get("total") is not None:
+        L.append(f"Run time: {tim['total']:.1f} s.\n")
     return "\n".join(L) + "\n"
 
 
@@ -201,7 +200,14 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out: {str(out)!r} exists and is not a folder; pass a folder path.")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(
+            f"--out: cannot create the folder {str(out)!r} ({e.strerror}); pass a folder you "
+            "can write to."
+        ) from None
+    check_output(out / "summary.json", "--out")  # writable, before the long run
     start = time.perf_counter()
     say = stamped(start)
     figures = not args.no_figures

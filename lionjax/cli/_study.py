@@ -20,11 +20,13 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
 import numpy as np
 
-from .._errors import InputError
-from .._tables import write_json
+from .._errors import IdentificationError, InputError, result_message
+from .._plotting import FIGURE_SUFFIXES, save_figure
+from .._tables import check_output, write_json
 from ._common import float_list, format_table
 
 NAME = "study"
@@ -93,7 +95,7 @@ def plot(res, path: str, gain, objective=None, tuned=None) -> None:
     from ..studies._plot import study_figure
 
     fig = study_figure(res, gain=gain, objective=objective, tuned=tuned)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def _records(args):
@@ -147,6 +149,9 @@ def _start(args, gains: list[float], poles: list[list[float]]) -> tuple[float, f
 def run(args) -> int:
     import lionjax as lj
 
+    check_output(args.json, "--json")
+    check_output(args.csv, "--csv")
+    check_output(args.plot, "--plot", FIGURE_SUFFIXES)
     gains = float_list(args.gains, "--gains")
     poles = _poles(args.poles)
     records, names = _records(args)
@@ -175,6 +180,7 @@ def run(args) -> int:
         **kw,
     )
     rec_dims = [d for d in res.dims if d not in ("gain", "poles")]
+    failed = _failures(res, rec_dims)
     rows = [
         [", ".join(f"{r[d]:g}" if isinstance(r[d], float) else str(r[d]) for d in rec_dims)]
         + [
@@ -184,10 +190,11 @@ def run(args) -> int:
             r["b"],
             r["a_ls"],
             r["b_ls"],
-            r["convergence_time"],
+            "not settled" if r["convergence_time"] == np.inf else r["convergence_time"],
             100 * r["bias"],
             100 * r["noise_amplification"],
         ]
+        + (["ok" if r["result"] == 0 else "failed"] if failed else [])
         for r in res.to_rows()
     ]
     n_rec = int(np.prod([len(res.coords[d]) for d in rec_dims])) if rec_dims else 1
@@ -204,13 +211,23 @@ def run(args) -> int:
                 "t_conv [s]",
                 "bias [%]",
                 "noise [%]",
-            ],
+            ]
+            + (["status"] if failed else []),
             rows,
             f"Lion's estimator over {len(gains)} gains × {len(poles)} pole sets × "
-            f"{n_rec} records (t_conv inf: not within {100 * res.tolerance:g} % by the end, "
-            "n.c. on the map; noise: std of θ over the last quarter / |θ_LS|)",
+            f"{n_rec} records (t_conv: seconds until within {100 * res.tolerance:g} % of LS to "
+            "the end, 'not settled' if never (n.c. on the map); noise: std of θ over the last "
+            "quarter / |θ_LS|)",
         )
     )
+    if failed:
+        print(
+            f"lionjax study: {len(failed)} of {res.result.size} grid points failed (shown as "
+            "'failed', — where no value exists):\n"
+            + "\n".join(f"  {where}: {why}" for where, why in failed[:20])
+            + (f"\n  ... and {len(failed) - 20} more" if len(failed) > 20 else ""),
+            file=sys.stderr,
+        )
     tuned = None
     J_map = None
     if args.tune:
@@ -251,4 +268,28 @@ def run(args) -> int:
     if args.plot:
         plot(res, args.plot, gain, objective=J_map, tuned=tuned)
         print(f"wrote {args.plot}")
-    return 0
+    return 1 if failed else 0
+
+
+def _failures(res, rec_dims: list[str]) -> list[tuple[str, str]]:
+    """(grid point, reason) of every failed grid point; an :class:`IdentificationError` when a
+    record failed at every grid point (it cannot be studied: the same refusal as identify)."""
+    codes = np.asarray(res.result)
+    out = []
+    for idx in np.ndindex(*codes.shape):
+        c = int(codes[idx])
+        if c > 0:
+            where = ", ".join(f"{d} {res.coords[d][i]}" for d, i in zip(res.dims, idx, strict=True))
+            out.append((where, result_message(c)))
+    n_rec = len(rec_dims)
+    for ridx in np.ndindex(*codes.shape[:n_rec]):
+        sub = codes[ridx].reshape(-1)
+        if sub.size and np.all(sub > 0):
+            label = (
+                ", ".join(str(res.coords[d][i]) for d, i in zip(rec_dims, ridx, strict=True))
+                or "the record"
+            )
+            raise IdentificationError(
+                f"{label}: study failed at every grid point: {result_message(int(sub[0]))}"
+            )
+    return out

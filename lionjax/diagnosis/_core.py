@@ -73,6 +73,7 @@ from .._model_effects import (
 from .._models import Augmented, MassDamper
 from .._record import Record
 from .._tables import jsonable
+from .._validity import check_record
 from ..twin._windows import WINDOW_PARAMETERS
 from ._candidates import (
     DEFAULT_CANDIDATES,
@@ -213,7 +214,8 @@ def settings(
         med = float(np.median(va[moving]))
     if not (ok and med > 0 and np.mean(moving) >= 0.02):
         raise InputError(
-            "diagnose: the train record does not move enough to locate velocity reversals "
+            "diagnose: the training record (argument 'train') does not move enough to locate "
+            "velocity reversals "
             f"(median |v̂| while moving = {med!r} m/s on {np.mean(moving):.1%} of the samples, "
             f"from a {vh:.4g} Hz zero-phase derivative filter; at least 2 % moving needed); "
             "record a motion that covers the range of interest."
@@ -1335,6 +1337,36 @@ def _in_float64(fn):
     return run
 
 
+#: How messages name the two records (the command line puts the file names in).
+ROLES = {
+    "train": "training record (argument 'train')",
+    "valid": "validation record (argument 'valid')",
+}
+
+
+def _check_excites(nm: str, rec: Record) -> None:
+    """Refuse a record the mass–damper can neither be fitted nor scored on: a position or a force
+    that never changes (x ≡ 3 mm, F ≡ 0: a dead sensor, the wrong column, the drive off). On a
+    training record nothing is identified; on a validation record every gap and effect size,
+    measured against the force's term b·F, is meaningless (a dead F gave effect sizes of
+    6e+298 and a confident 'unexplained')."""
+    for col, unit, what in (("x", "m", "position"), ("F", "N", "force")):
+        v = np.asarray(getattr(rec, col), np.float64)
+        scale = float(np.max(np.abs(v))) if v.size else 0.0
+        if v.size and float(np.ptp(v)) <= 64 * np.finfo(np.float64).eps * scale:
+            fix = (
+                "a record of the device moving (check the column mapping and the units)"
+                if col == "x"
+                else "a record with a varying force (an excitation; check the column mapping "
+                "and that the force was logged)"
+            )
+            raise InputError(
+                f"diagnose: the {ROLES[nm]} has a constant {what}: {col} ≡ {float(v[0]):g} "
+                f"{unit} over all {v.size} samples, so it does not excite the model and nothing "
+                f"can be {'identified' if nm == 'train' else 'validated'} on it. Pass {fix}."
+            )
+
+
 @_in_float64
 def diagnose(
     train: Record,
@@ -1416,6 +1448,10 @@ def diagnose(
                 f"diagnose: argument {nm!r} must be one record, x of shape (T,), got "
                 f"{rec.x.shape}; loop over a batch."
             )
+        if rec is not None:
+            # the estimators' data checks (non-finite, out of range, unit and spike warnings)
+            check_record(rec, f"diagnose: the {ROLES[nm]}")
+            _check_excites(nm, rec)
     valid = train if valid is None else valid
     if abs(float(valid.dt) - float(train.dt)) > 1e-6 * float(train.dt):
         raise InputError(
@@ -1441,7 +1477,7 @@ def diagnose(
     for nm, rec in (("train", train), ("valid", valid)):
         if rec.n_samples < max(min_len, 200):
             raise InputError(
-                f"diagnose: the {nm} record has {rec.n_samples} samples; at least "
+                f"diagnose: the {ROLES[nm]} has {rec.n_samples} samples; at least "
                 f"{max(min_len, 200)} are needed (20 filter time constants)."
             )
     _check_memory(train.n_samples, valid.n_samples, max_memory_gb)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from .._plotting import figure
+from .._plotting import figure, save_figure
 
 
 def plot_diagnosis(diagnosis, path: str | Path):
@@ -21,6 +21,11 @@ def plot_diagnosis(diagnosis, path: str | Path):
     path = Path(path)
     if path.parent and not path.parent.exists():
         raise InputError(f"--plot: folder {str(path.parent)!r} does not exist; create it first.")
+    if path.is_dir():
+        raise InputError(
+            f"--plot: {str(path)!r} is a folder; give a file name in it, e.g. "
+            f"{str(path / 'diagnosis.png')!r}."
+        )
     s = diagnosis.series
     t = s["t"]
     n = s["sim_base"].size
@@ -80,5 +85,4 @@ def plot_diagnosis(diagnosis, path: str | Path):
         title=f"which: verdict {diagnosis.verdict}\nstack: {', '.join(diagnosis.stack) or '—'}",
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return path
+    return save_figure(fig, path, dpi=110)

@@ -31,11 +31,13 @@ from .._batched import DEFAULT_EXECUTION, Execution, lion_batched, stack_records
 from .._errors import InputError, result_codes
 from .._estimators import AbstractGain, AbstractSampleStepper, AutoGain, FixedGain, default_bank
 from .._filters import FilterBank
+from .._least_squares import check_identified
 from .._models import AbstractModel
 from .._outputs import ConvergenceTime, LSStatistics, TailStatistics, Trajectory
 from .._progress import run_chunks
 from .._record import Record
 from .._tables import Table
+from .._validity import MAX_POLE_DT, check_duration, check_filter_speed, check_record, pole_dt
 
 #: Names a record axis of a study may have (``dataset`` for plain lists of records).
 RECORD_DIMS = ("dataset", "excitation", "operating_point", "noise_seed")
@@ -163,7 +165,10 @@ class StudyResult(Table, eqx.Module):
     @property
     def bias(self) -> np.ndarray:
         """max over parameters of |θ_final − θ_LS| / |θ_LS|, shape ``grid`` (final bias vs LS)."""
-        return np.max(np.abs(self.theta_final - self.theta_ls) / np.abs(self.theta_ls), axis=-1)
+        # NaN where θ_LS is 0 or NaN (a grid point that failed or was not run): no ratio exists
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.abs(self.theta_final - self.theta_ls) / np.abs(self.theta_ls)
+        return np.max(np.where(self.theta_ls != 0, r, np.nan), axis=-1)
 
     @property
     def noise_amplification(self) -> np.ndarray:
@@ -176,7 +181,9 @@ class StudyResult(Table, eqx.Module):
         """
         if self.tail_std is None:
             return np.full(self.shape, np.nan)
-        return np.max(self.tail_std / np.abs(self.theta_ls), axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = self.tail_std / np.abs(self.theta_ls)
+        return np.max(np.where(self.theta_ls != 0, r, np.nan), axis=-1)
 
     def map(
         self,
@@ -671,6 +678,31 @@ def study(
     else:
         di = np.zeros(N, int)
 
+    # every record outlasts every filter's transient (the rule of lion/least_squares for one
+    # record, checked per record: padding must not lengthen a short record)
+    rec_names = (
+        [", ".join(str(v) for v in lab.values()) for lab in records.labels()]
+        if isinstance(records, StudyRecords)
+        else coords.get("dataset", [str(i) for i in range(D)])
+    )
+    check_banks = (
+        [FilterBank.from_poles(np.asarray(P), unit_dc_gain) for P in coords["poles"]]
+        if "poles" in coords
+        else [default_bank(batch.dt)]
+    )
+    for i in range(D):
+        one = Record(batch.x[i, : lengths[i]], batch.F[i, : lengths[i]], batch.dt[i], batch.t0[i])
+        what = f"study: record {rec_names[i]!r}"
+        check_record(one, what)
+        for bk in check_banks:
+            rho = pole_dt(bk, one.dt)
+            if rho is not None and np.any(rho > MAX_POLE_DT):  # refused: name the record
+                check_filter_speed(bk, one.dt, what, "poles")
+            check_duration(one, bk, what, transient)
+        # the record identifies the model from its samples after the transient (what a_LS and
+        # Lion's law use), and the model explains more than a trace of it
+        check_identified(model, one, check_banks[0], transient, what)
+
     outputs = (
         LSStatistics(transient),
         ConvergenceTime(tolerance=tolerance, softness=softness),
@@ -706,7 +738,7 @@ def study(
         if banks is not None:
             kw["bank"] = jax.tree.map(lambda c: c[idx["poles"][sel]], banks)  # (chunk, n)
         else:
-            kw["bank"] = default_bank()
+            kw["bank"] = default_bank(batch.dt)
         if "gain" in idx:  # one gain per element: the class called with a (chunk,) value
             kw["gain"] = gain(jnp.asarray(np.asarray(coords["gain"])[idx["gain"][sel]], dtype))
         else:
