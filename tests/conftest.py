@@ -44,3 +44,46 @@ jax.config.update(
     "jax_persistent_cache_min_entry_size_bytes",
     int(os.environ["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"]),
 )
+
+
+# pytest.approx reads the numpy protocol of what it is handed (`.flat` since pytest 9.2), which
+# JAX arrays do not implement in full: a JAX array on either side of an approx comparison works
+# with one pytest and raises with the next. Every test hands approx Python or numpy numbers
+# (float(...), np.asarray(...)); this guard makes a JAX array there fail the same way on every
+# pytest version, with the fix in the message, instead of only on the newest.
+import pytest  # noqa: E402
+
+_APPROX = pytest.approx
+_GUARDED: dict[type, type] = {}
+
+
+def _refuse_jax(value, side: str) -> None:
+    leaves = jax.tree.leaves(value) if isinstance(value, list | tuple | dict) else [value]
+    if any(isinstance(v, jax.Array) for v in leaves):
+        raise TypeError(
+            f"pytest.approx: the {side} value is a JAX array; pass float(...) for a scalar or "
+            "np.asarray(...) for an array (approx reads the numpy protocol, which JAX arrays "
+            "do not implement in full)"
+        )
+
+
+def _guarded_class(cls: type) -> type:
+    if cls not in _GUARDED:
+
+        def __eq__(self, actual):
+            _refuse_jax(actual, "compared")
+            return cls.__eq__(self, actual)
+
+        _GUARDED[cls] = type(cls.__name__, (cls,), {"__eq__": __eq__, "__hash__": None})
+    return _GUARDED[cls]
+
+
+def _approx(expected, *args, **kwargs):
+    __tracebackhide__ = True
+    _refuse_jax(expected, "expected")
+    result = _APPROX(expected, *args, **kwargs)
+    result.__class__ = _guarded_class(type(result))
+    return result
+
+
+pytest.approx = _approx

@@ -98,7 +98,7 @@ def test_periodic_lookalike_against_numpy(cogging):
     held = W @ c + y
     eta = np.linalg.lstsq(N, -held, rcond=None)[0]
     ref = np.mean((held + N @ eta) ** 2)
-    assert ms == pytest.approx(ref, rel=1e-9)
+    assert float(ms) == pytest.approx(float(ref), rel=1e-9)
 
 
 def test_cogging_is_unexplained_with_its_period(cogging):
