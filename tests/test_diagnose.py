@@ -101,12 +101,13 @@ def test_cli_refuses_nonuniform(tmp_path, capsys):
 
 
 def test_bad_arguments():
-    rec = lj.Record(np.zeros(1000), np.zeros(1000), 1e-3)
+    t = np.arange(1000) * 1e-3  # a moving, forced record: the arguments are what is wrong
+    rec = lj.Record(0.01 * np.sin(5 * t), np.cos(5 * t), 1e-3)
     with pytest.raises(lj.InputError, match="valid"):
         lj.diagnose(rec, "nope")
     with pytest.raises(lj.InputError, match="filter_hz"):
         lj.diagnose(rec, filter_hz=900.0)
-    other = lj.Record(np.zeros(1000), np.zeros(1000), 2e-3)
+    other = lj.Record(rec.x, rec.F, 2e-3)
     with pytest.raises(lj.InputError, match="sample interval"):
         lj.diagnose(rec, other)
 

@@ -92,7 +92,7 @@ def test_periodic_lookalike_against_numpy(cogging):
 
     grid = k + np.linspace(-0.3, 0.3, 61)
     best = grid[int(np.argmin([train_fit(kk)[1] for kk in grid]))]
-    assert k == pytest.approx(best, abs=0.02)
+    assert float(k) == pytest.approx(float(best), abs=0.02)
     c, _ = train_fit(k)
     W, y, N = design(fitter.rva, k)
     held = W @ c + y
