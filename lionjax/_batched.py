@@ -111,6 +111,7 @@ from ._validity import (
     check_record,
     check_theta0,
     column_reference,
+    confirm_raw_unexcited,
     dead_columns,
     explain_unexcited,
     flag_bad_data,
@@ -827,8 +828,9 @@ def lion_batched(
     is refused (default filter: :func:`lionjax.default_bank` of the largest dt), ``theta0``
     must be finite; a record whose parameters are not all identified is ``unidentifiable``
     (from the streamed statistics R when they are computed — AutoGain, LSStatistics,
-    ConvergenceTime — else from the raw signals on every 64th sample) and ``unexcited``
-    names them; a failed record with non-finite or out-of-range data is ``nonfinite``.
+    ConvergenceTime — else from windows of the raw signals, and every sample of a record they
+    flag) and ``unexcited`` names them; a failed record with non-finite or out-of-range data is
+    ``nonfinite``.
 
     Returns:
         a :class:`BatchedSolution`.
@@ -883,6 +885,8 @@ def lion_batched(
     sol = _lion_batched(
         model, records, bank, gain, stepper, theta0, lengths, outputs, execution, one
     )
+    if not gain.uses_data:
+        sol = confirm_raw_unexcited(sol, model, records, lengths)
     sol = flag_bad_data(sol, records)
     return finish(sol, throw, what="lion_batched", explain=explain_unexcited)
 

@@ -151,6 +151,25 @@ def test_case3_fixed_gain_zero_force(rec):
     np.testing.assert_array_equal(sol.unexcited, [[False, False], [False, True]])
 
 
+def test_fixed_gain_burst_between_the_windows_is_excited(rec):
+    # the batch check reads windows of the raw signals (validity.RAW_WINDOWS runs of
+    # RAW_WINDOW samples); a force that acts only between two windows is missed there, and
+    # every sample of the flagged record is read again: excited, not refused
+    T = rec.n_samples
+    seg = T // validity.RAW_WINDOWS
+    F = np.zeros(T)
+    F[seg + 100 : seg + 400] = np.asarray(rec.F)[seg + 100 : seg + 400]
+    burst = lj.Record(rec.x, F, DT)
+    batch = jax.tree.map(lambda *a: jnp.stack(a), rec, burst)
+    on_windows = validity.raw_unexcited(MD, batch)
+    np.testing.assert_array_equal(on_windows, [[False, False], [False, True]])  # missed there
+    sol = lj.lion_batched(MD, batch, gain=lj.FixedGain(1e4), throw=False)
+    np.testing.assert_array_equal(lj.solutions.result_codes(sol.result), [0, 0])
+    np.testing.assert_array_equal(sol.unexcited, [[False, False], [False, False]])
+    one = lj.lion(MD, burst, gain=lj.FixedGain(1e4))  # the single-record check: every sample
+    np.testing.assert_allclose(sol.theta[1], one.theta_final, rtol=1e-9, atol=1e-12)
+
+
 # ---------------------------------------------------------------------------------------------
 # Case 4: padded batches
 
