@@ -115,8 +115,10 @@ from ._validity import (
     dead_columns,
     explain_unexcited,
     flag_bad_data,
+    not_identified,
     raw_unexcited,
     unexcited,
+    unexcited_names,
 )
 
 # ----------------------------------------------------------------------------------------------
@@ -858,11 +860,6 @@ def lion_batched(
             f"{gain.batch_shape}."
         )
     check_theta0(theta0, p, model.names, "lion_batched", batch=B)
-    if theta0 is not None and jnp.shape(theta0) not in ((p,), (B, p)):
-        raise InputError(
-            f"lion_batched: theta0 must have shape ({p},) or ({B}, {p}) for parameters "
-            f"{model.names}, got {jnp.shape(theta0)}."
-        )
     check_filter_speed(bank, records.dt, "lion_batched")
     lengths = check_padding("lion_batched", records, lengths)
     outputs = tuple(outputs)
@@ -1173,11 +1170,8 @@ def lion_parallel(
     sol, bad = _lion_parallel_jit(model, record, G, bank, theta0, midpoint)
     if not is_traced(bad) and np.any(np.asarray(bad)):
         raise IdentificationError(
-            "lion_parallel: the record does not identify "
-            f"{', '.join(n for n, b in zip(sol.names, np.asarray(bad), strict=True) if b)} "
-            "(not excited: the record does not move them, or never enters their region; or "
-            "they are not separable from the others). Use a richer excitation, fewer "
-            "parameters, or region bounds the record visits."
+            f"lion_parallel: {not_identified(unexcited_names(sol.names, bad))} Use a richer "
+            "excitation, fewer parameters, or region bounds the record visits."
         )
     return sol
 

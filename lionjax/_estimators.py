@@ -551,7 +551,7 @@ def lion(
         bank: the filter Λ (default :func:`default_bank` of the record's dt: the paper's poles
             (s + 4)³ with unit DC gain, slowed for records sampled below 200 Hz). A filter
             with max|pole|·dt above 0.1 warns (:class:`lionjax.solutions.FilterSpeedWarning`),
-            above 0.5 is refused (:mod:`lionjax._validity` states the measured bias).
+            above 0.25 is refused (:mod:`lionjax._validity` states the measured bias).
         gain: :class:`AutoGain` (default, rate 1/s) or :class:`FixedGain` (the paper:
             ``FixedGain(1e4)`` with ``FilterBank.paper()``); G is the gain's rule applied to
             R = mean WᵀW after ``transient`` (the same rule as :func:`lionjax.lion_batched`).
@@ -619,10 +619,6 @@ def _lion(model, record, bank, gain, stepper, theta0, save_every, transient):
     T, _, p = W.shape
     dtype = W.dtype
     theta0 = jnp.zeros((p,), dtype) if theta0 is None else jnp.asarray(theta0, dtype)
-    if theta0.shape != (p,):
-        raise InputError(
-            f"lion: theta0 must have shape ({p},) for parameters {regs.names}, got {theta0.shape}."
-        )
     # R for every gain: the gain's rule may use it, the validity layer always does, over the
     # samples the rule sees (after the transient for a data gain; a fixed gain's law uses all)
     R = regressor_moments(regs, transient_mask(record, bank, transient if gain.uses_data else 0.0))

@@ -308,11 +308,6 @@ class Lion(AbstractBatchMethod):
 
     def check(self, model, n_records):
         p = len(model.names)
-        if self.theta0 is not None and np.shape(self.theta0) not in ((p,), (n_records, p)):
-            raise InputError(
-                f"identify_batch: Lion.theta0 must have shape ({p},) or ({n_records}, {p}) for "
-                f"parameters {model.names}, got {np.shape(self.theta0)}."
-            )
         check_theta0(self.theta0, p, model.names, "identify_batch: Lion", batch=n_records)
 
     def run(self, model, batch, rows, *, bank, lengths, transient, max_condition, execution):

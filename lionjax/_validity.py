@@ -48,9 +48,11 @@ no gain, method or path skips one:
    all); least squares its own bound on Φ (a column not excited at all fails too). The batched
    estimators take R from their streamed statistics with a data gain (and in
    :func:`lionjax.least_squares_batched`); with a fixed gain they check the raw signals
-   (:func:`raw_unexcited`: order ≥ 1 columns must move, order-0 columns be nonzero) on every
-   :data:`RAW_STRIDE`-th sample, so the streaming kernel does no extra per-sample work (a
-   strided read before it: measured 1.4 % of the kernel's time at B = 2048, T = 8000). Batched
+   (:func:`raw_unexcited`: order ≥ 1 columns must move, order-0 columns be nonzero) on
+   :data:`RAW_WINDOWS` short runs of each record, and every sample of only the records those
+   flag (:func:`confirm_raw_unexcited`), so the streaming kernel does no extra per-sample work
+   (B = 4096, T = 8000, float32: 2 ms beside a ~130 ms kernel; every 64th sample cost about a
+   full pass, 8–12 ms, and 7–28 % of ``benchmarks/throughput.py``'s rates). Batched
    results flag such records ``RESULTS.unidentifiable`` and name the parameters in the
    solution's ``unexcited`` (B, p); single-record estimators raise
    :class:`~lionjax.IdentificationError` naming them (``throw=True``).
@@ -92,14 +94,10 @@ EXCITATION_TOL = 1e3
 #: Lion's law (any gain): R's column-normalised condition number above this is unidentifiable
 #: (AutoGain's default ``max_condition``, the square of least squares' 1e6-on-Φ scale).
 MAX_MOMENT_CONDITION = 1e12
-#: The raw-signal check of a batch with a fixed gain reads every RAW_STRIDE-th sample (fewer
-#: apart where that would leave under RAW_MIN_SAMPLES samples of a record).
-RAW_STRIDE = 64
-RAW_MIN_SAMPLES = 128
-#: The scale reference of a batch (:func:`batch_reference`) reads RAW_WINDOWS contiguous runs
-#: of RAW_WINDOW samples spread evenly over each record: a scale needs no every-64th sample,
-#: and contiguous runs read a few cache lines per record instead of one per sample (B = 4096,
-#: T = 8000, float32: 2 ms against 8 ms, where a full pass over x and F takes 10 ms).
+#: The raw-signal checks of a batch (:func:`batch_reference`, :func:`raw_unexcited`) read
+#: RAW_WINDOWS contiguous runs of RAW_WINDOW samples spread evenly over each record:
+#: contiguous runs read a few cache lines per record instead of one per sample (B = 4096,
+#: T = 8000, float32: 2 ms, against 8 ms for every 64th sample and 10 ms for a full pass).
 RAW_WINDOWS = 16
 RAW_WINDOW = 8
 #: A sample more than SPIKE_RATIO times the median absolute deviation from the median, at
@@ -175,8 +173,8 @@ def check_filter_speed(bank: FilterBank, dt, what: str, argument: str = "bank") 
     if r > MAX_POLE_DT:
         raise InputError(
             f"{what}: argument {argument!r}: {detail}, above the bound {MAX_POLE_DT:g}: the "
-            "filter is too fast for the sampling and the estimate would be biased by tens of "
-            f"per cent (b by about −ρ²/4, a more). {fix}"
+            "filter is too fast for the sampling and the estimate would be biased (b by about "
+            f"−ρ²/4 = {-r * r / 4:.2%}, a by several times more). {fix}"
         )
     warnings.warn(
         f"{what}: argument {argument!r}: {detail}, above {WARN_POLE_DT:g}: the estimate is "
@@ -228,22 +226,29 @@ def duration_fix(have: float, dt: float) -> str:
 
 
 def check_theta0(theta0, p: int, names: Sequence[str], what: str, batch: int | None = None):
-    """``theta0`` must be finite with shape (p,) (or (B, p) for a batch); concrete only."""
-    if theta0 is None or is_traced(theta0):
+    """``theta0`` must have shape (p,) (or (B, p) for a batch), checked traced or not (shapes
+    are static), and be finite, checked where its values are concrete."""
+    if theta0 is None:
         return
     shapes = [(p,)] + ([] if batch is None else [(batch, p)])
-    try:
-        a = np.asarray(theta0, dtype=np.float64)
-    except (TypeError, ValueError) as err:
-        raise InputError(
-            f"{what}: theta0 must be {p} numbers (one per parameter {tuple(names)}), got "
-            f"{theta0!r}."
-        ) from err
-    if a.shape not in shapes:
+    if is_traced(theta0):
+        a = theta0
+    else:
+        try:
+            a = np.asarray(theta0, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise InputError(
+                f"{what}: theta0 must be {p} numbers (one per parameter {tuple(names)}), got "
+                f"{theta0!r}."
+            ) from err
+    if tuple(np.shape(a)) not in shapes:
         want = " or ".join(str(s) for s in shapes)
         raise InputError(
-            f"{what}: theta0 must have shape {want} for parameters {tuple(names)}, got {a.shape}."
+            f"{what}: theta0 must have shape {want} for parameters {tuple(names)}, got "
+            f"{tuple(np.shape(a))}."
         )
+    if is_traced(theta0):
+        return
     bad = np.argwhere(~np.isfinite(a))
     if bad.size:
         i = tuple(int(v) for v in bad[0])
@@ -418,7 +423,7 @@ def column_reference(model, record: Record, bank: FilterBank) -> Float[Array, " 
     rms(u)·ω₀ᵐ (times 1/λₙ without unit DC gain), ω₀ = |λₙ|^(1/n). One record (jit-safe):
     :func:`batch_reference` of a batch of one, every sample."""
     one = jax.tree.map(lambda a: jnp.asarray(a)[None], record)
-    return batch_reference(model, one, bank, stride=1)[0]
+    return batch_reference(model, one, bank, every_sample=True)[0]
 
 
 def excited(measure: Array, reference: Array) -> Bool[Array, "..."]:
@@ -464,43 +469,41 @@ def unexcited(
     return dead | in_null
 
 
-def _subsample(records: Record, lengths, stride: int):
-    """Every ``stride``-th sample of each record of a batch (at most every T/RAW_MIN_SAMPLES-th),
-    as a batch Record, and the weights (B, n) of the valid ones (before each record's length)."""
+def _sampled(records: Record, lengths, take, k):
+    """The samples ``take`` picks from each record of a batch, as a batch Record (dt and t0
+    one per record), and the weights (B, n) of the valid ones: their indices ``k`` (n,) before
+    each record's length."""
     B, T = records.x.shape
-    stride = max(1, min(stride, T // RAW_MIN_SAMPLES))
-    sub = lambda a: a[..., ::stride]
-    dt = jnp.broadcast_to(jnp.asarray(records.dt), (B,)) * stride
-    t0 = jnp.broadcast_to(jnp.asarray(records.t0), (B,))
-    small = Record(
-        sub(records.x), sub(records.F), dt, t0, {k: sub(v) for k, v in records.extras.items()}
-    )
-    L = jnp.full((B,), T) if lengths is None else jnp.asarray(lengths)
-    k = jnp.arange(small.x.shape[-1]) * stride
-    return small, (k[None, :] < L[:, None]).astype(records.x.dtype)
-
-
-def _windows(records: Record, lengths):
-    """:data:`RAW_WINDOWS` contiguous runs of :data:`RAW_WINDOW` samples, evenly spread over
-    each record of a batch, as a batch Record, and the weights (B, n) of the valid ones (before
-    each record's length); every sample where the record is shorter than that."""
-    B, T = records.x.shape
-    seg = T // RAW_WINDOWS
-    if seg < RAW_WINDOW:
-        return _subsample(records, lengths, 1)
-
-    def take(a):
-        a = a[..., : seg * RAW_WINDOWS].reshape(a.shape[:-1] + (RAW_WINDOWS, seg))
-        return a[..., :RAW_WINDOW].reshape(a.shape[:-2] + (RAW_WINDOWS * RAW_WINDOW,))
-
     dt = jnp.broadcast_to(jnp.asarray(records.dt), (B,))
     t0 = jnp.broadcast_to(jnp.asarray(records.t0), (B,))
     small = Record(
         take(records.x), take(records.F), dt, t0, {k: take(v) for k, v in records.extras.items()}
     )
-    k = (jnp.arange(RAW_WINDOWS)[:, None] * seg + jnp.arange(RAW_WINDOW)[None, :]).reshape(-1)
     L = jnp.full((B,), T) if lengths is None else jnp.asarray(lengths)
     return small, (k[None, :] < L[:, None]).astype(records.x.dtype)
+
+
+def _every_sample(records: Record, lengths):
+    """Every sample of each record of a batch (:func:`_sampled`)."""
+    return _sampled(records, lengths, lambda a: a, jnp.arange(records.x.shape[-1]))
+
+
+def _windows(records: Record, lengths):
+    """:data:`RAW_WINDOWS` contiguous runs of :data:`RAW_WINDOW` samples, evenly spread over
+    each record of a batch (:func:`_sampled`); every sample where the record is shorter than
+    that. A signal derived through dt (a velocity) jumps where two runs join: what is read
+    here is a scale, or whether a signal moves at all, never a measurement."""
+    T = records.x.shape[-1]
+    seg = T // RAW_WINDOWS
+    if seg < RAW_WINDOW:
+        return _every_sample(records, lengths)
+
+    def take(a):
+        a = a[..., : seg * RAW_WINDOWS].reshape(a.shape[:-1] + (RAW_WINDOWS, seg))
+        return a[..., :RAW_WINDOW].reshape(a.shape[:-2] + (RAW_WINDOWS * RAW_WINDOW,))
+
+    k = (jnp.arange(RAW_WINDOWS)[:, None] * seg + jnp.arange(RAW_WINDOW)[None, :]).reshape(-1)
+    return _sampled(records, lengths, take, k)
 
 
 def _column_moments(model, small: Record, w):
@@ -520,15 +523,14 @@ def _column_moments(model, small: Record, w):
     return jax.vmap(one)(small, w)
 
 
-def raw_unexcited(model, records: Record, lengths=None, stride: int | None = None):
+def raw_unexcited(model, records: Record, lengths=None, every_sample: bool = False):
     """(B, p): columns whose raw signal does not move (order ≥ 1: its spread) or is zero
     (order 0) — the check of a batch that has no streamed statistics (a fixed gain). On
     :func:`_windows` of each record's valid samples (a few cache lines per record: the check
-    costs next to nothing beside the kernel), or on every ``stride``-th valid sample where
-    ``stride`` is given (``stride=1``: every sample). The windows can miss motion confined
-    between them: :func:`confirm_raw_unexcited` re-reads every sample of the records they
-    flag. Jit-safe."""
-    sample = _windows(records, lengths) if stride is None else _subsample(records, lengths, stride)
+    costs next to nothing beside the kernel), or on every valid sample (``every_sample``). The
+    windows can miss motion confined between them: :func:`confirm_raw_unexcited` re-reads
+    every sample of the records they flag. Jit-safe."""
+    sample = (_every_sample if every_sample else _windows)(records, lengths)
     rms, spread = _column_moments(model, *sample)
     order = jnp.asarray([c.order for c in model.columns()])
     return ~excited(jnp.where(order >= 1, spread, rms), rms)
@@ -556,7 +558,7 @@ def confirm_raw_unexcited(sol, model, records: Record, lengths):
         {k: pick(v) for k, v in records.extras.items()},
     )
     L = None if lengths is None else pick(jnp.asarray(lengths))
-    full = np.asarray(raw_unexcited(model, sub, L, stride=1))
+    full = np.asarray(raw_unexcited(model, sub, L, every_sample=True))
     new = mask.copy()
     new[rows] = full
     codes = result_codes(sol.result).reshape(-1)
@@ -569,12 +571,14 @@ def confirm_raw_unexcited(sol, model, records: Record, lengths):
     return eqx.tree_at(lambda s: (s.unexcited, s.result), sol, (jnp.asarray(new, bool), result))
 
 
-def batch_reference(model, records: Record, bank: FilterBank, lengths=None, stride=None):
+def batch_reference(
+    model, records: Record, bank: FilterBank, lengths=None, every_sample: bool = False
+):
     """(B, p): :func:`column_reference` of every record of a batch, on :func:`_windows` of its
-    valid samples (a scale, so a sample of the record serves), or on every ``stride``-th valid
-    sample where ``stride`` is given; ``bank`` one filter or one per record."""
+    valid samples (a scale, so a sample of the record serves), or on every valid sample
+    (``every_sample``); ``bank`` one filter or one per record."""
     B = records.x.shape[0]
-    sample = _windows(records, lengths) if stride is None else _subsample(records, lengths, stride)
+    sample = (_every_sample if every_sample else _windows)(records, lengths)
     rms, _ = _column_moments(model, *sample)
     lam = jnp.broadcast_to(jnp.abs(bank.coeffs[..., -1]), (B,)).astype(rms.dtype)
     w0 = lam ** (1.0 / bank.order)
@@ -592,6 +596,15 @@ def unexcited_names(names: Sequence[str], mask) -> list[str]:
     return [n for n, m in zip(names, np.asarray(mask).reshape(-1), strict=True) if m]
 
 
+def not_identified(names: Sequence[str]) -> str:
+    """The sentence naming the parameters a record does not identify, and why."""
+    return (
+        f"Not identified from this record: {', '.join(names)} (not excited: the record does "
+        "not move them, or never enters their region; or they are not separable from the "
+        "others)."
+    )
+
+
 def explain_unexcited(sol) -> str:
     """The detail of an ``unidentifiable`` failure: every parameter the data do not identify
     (per failed batch element), from the solution's ``unexcited`` mask."""
@@ -605,11 +618,7 @@ def explain_unexcited(sol) -> str:
         names = unexcited_names(sol.names, m)
         if codes != bad or not names:
             return ""
-        return (
-            f"Not identified from this record: {', '.join(names)} (not excited: the record "
-            "does not move them, or never enters their region; or they are not separable "
-            "from the others)."
-        )
+        return not_identified(names)
     lines = []
     for idx in np.argwhere(codes == bad)[:20]:
         names = unexcited_names(sol.names, m[tuple(idx)])
