@@ -35,7 +35,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._record import JITTER_TOLERANCE, MIN_SAMPLES, Record, resample as _resample
-from ._tables import atomic_path, check_folder
+from ._tables import atomic_path, check_output
 
 logger = logging.getLogger(__name__)
 
@@ -633,7 +633,7 @@ def save_record(path: PathLike, record: Record) -> Path:
             f"{p}: unknown file type {p.suffix!r} for save_record; use one of "
             f"{', '.join(SUFFIXES)}."
         )
-    check_folder(p, str(p))
+    check_output(p, str(p))
     if not isinstance(record, Record):
         raise InputError(f"record: expected a lionjax Record, got {type(record).__name__}.")
     if record.x.ndim != 1:

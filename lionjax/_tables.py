@@ -75,11 +75,6 @@ def check_output(
         )
 
 
-def check_folder(path: str | Path | None, what: str) -> None:
-    """:func:`check_output` without an extension check (the name kept for callers)."""
-    check_output(path, what)
-
-
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Write a file atomically: yields a temporary path in ``path``'s folder (same extension) to
