@@ -197,3 +197,41 @@ def test_asymmetric_friction_follows_twin_and_equals_coulomb_with_offset():
     assert np.max(np.abs(asym)) < 1e-3 * span
     assert np.max(np.abs(mean)) > 10 * np.max(np.abs(asym))  # the direction dependence matters
     np.testing.assert_allclose(asym, c_o, atol=1e-12 * span)
+
+
+@pytest.mark.parametrize("f_n", [60.0, 200.0])
+def test_stiff_spring_stays_stable_and_accurate_against_scipy_zoh(f_n):
+    # a spring whose natural frequency stands high against the sample rate (ω_k·dt = 0.38 and
+    # 1.26 at 1 kHz): held over whole samples it diverged; in the step's exact solution it
+    # matches the exact ZOH discretisation of the linear spring–mass–damper
+    k = (2 * np.pi * f_n) ** 2 / B
+    F = _force()
+    H = 400
+    A_ = np.array([[0.0, 1.0], [-B * k, -A]])
+    B_ = np.array([[0.0], [B]])
+    Ad, Bd, *_ = cont2discrete((A_, B_, np.eye(2), np.zeros((2, 1))), DT, method="zoh")
+    ref = np.empty(T)
+    for w in range(T // H):
+        sl = slice(w * H, (w + 1) * H)
+        _, _, st = dlsim((Ad, Bd, np.eye(2), np.zeros((2, 1)), DT), F[sl][:, None], x0=[0, 0])
+        ref[sl] = st[:, 0]
+    zeros = jnp.zeros(T)
+    e = np.asarray(
+        windowed_errors(
+            _params(k=k, F0=0.0), jnp.asarray(F), zeros, zeros, zeros, DT, jnp.asarray(H), T
+        )
+    )
+    assert np.all(np.isfinite(e))
+    np.testing.assert_allclose(e, ref, atol=1e-9 * np.max(np.abs(ref)))
+
+
+def test_extra_force_term_is_simulated():
+    # an extra force −c·x passed as a callable equals the spring k = c (one weak enough that
+    # the spring, too, is held over each step: b·c·dt² < SPRING_EXACT)
+    c = 0.3
+    F = _force()
+    zeros = jnp.zeros(T)
+    args = (jnp.asarray(F), zeros, zeros, zeros, DT, jnp.asarray(T), T)
+    e_extra = windowed_errors(_params(), *args, lambda x, v, u, t: -c * x, jnp.zeros(T))
+    e_spring = windowed_errors(_params(k=c), *args)
+    np.testing.assert_allclose(np.asarray(e_extra), np.asarray(e_spring), rtol=1e-12, atol=1e-15)
