@@ -65,3 +65,26 @@ def simulate(F, dt, *, a=PAPER_A, b=PAPER_B, bounds=PAPER_BOUNDS, x0=0.0, v0=0.0
 def multisine(t, freqs, amps, phases=None, bias=0.0):
     phases = np.zeros(len(freqs)) if phases is None else phases
     return bias + sum(A * np.sin(2 * np.pi * f * t + p) for f, A, p in zip(freqs, amps, phases))
+
+
+def forced_axis(F, dt, *, a, b, force=None, substeps=8, x0=0.0, v0=0.0):
+    """Positions of ẍ = −aẋ + b·(F + force(x, v)) for the held force samples ``F`` (T,):
+    classical RK4 with ``substeps`` steps per sample interval (``force`` numpy, scalar)."""
+    force = (lambda x, v: 0.0) if force is None else force
+    h = dt / substeps
+    x = np.empty(len(F))
+    xk, vk = float(x0), float(v0)
+
+    def acc(xx, vv, Fk):
+        return -a * vv + b * (Fk + force(xx, vv))
+
+    for i, Fk in enumerate(np.asarray(F, float)):
+        x[i] = xk
+        for _ in range(substeps):
+            k1x, k1v = vk, acc(xk, vk, Fk)
+            k2x, k2v = vk + h / 2 * k1v, acc(xk + h / 2 * k1x, vk + h / 2 * k1v, Fk)
+            k3x, k3v = vk + h / 2 * k2v, acc(xk + h / 2 * k2x, vk + h / 2 * k2v, Fk)
+            k4x, k4v = vk + h * k3v, acc(xk + h * k3x, vk + h * k3v, Fk)
+            xk += h / 6 * (k1x + 2 * k2x + 2 * k3x + k4x)
+            vk += h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+    return x

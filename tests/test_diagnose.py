@@ -44,7 +44,13 @@ def test_json_contract(emps):
     j = json.loads(json.dumps(emps.to_json()))
     assert set(j["baseline"]) >= {"model", "params", "gap"}
     assert isinstance(j["where"], list) and all("kind" in w for w in j["where"])
-    assert {e["name"] for e in j["effects"]} == {*FIXED, "asymmetric_friction", "flexible_mode"}
+    assert {e["name"] for e in j["effects"]} == {
+        *FIXED,
+        "asymmetric_friction",
+        "flexible_mode",
+        "force_sensor_line",
+        "force_sensor_drift",
+    }
     scores = [e["score"] for e in j["effects"]]
     assert scores == sorted(scores, reverse=True)
     for e in j["effects"]:

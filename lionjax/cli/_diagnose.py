@@ -1,8 +1,10 @@
 """Diagnose the sim-to-real gap of ẍ + aẋ = bF: where it is, which effect explains it, how far.
 
 Fits the mass–damper on TRAIN, scores it and every candidate effect (coulomb_friction, offset,
-spring, delay, saturation, position_dependent, asymmetric_friction, flexible_mode) on VALID,
-stacks the significant ones, and prints the verdict. --json writes the payload (baseline, where,
+spring, delay, saturation, position_dependent, asymmetric_friction, flexible_mode, and the
+force sensor's artefacts force_sensor_line and force_sensor_drift) on VALID, stacks the
+significant ones, and prints the verdict. --candidates FILE.py:Name[,Name…] adds effects of
+one's own (docs/effects.md). --json writes the payload (baseline, where,
 effects, stack, verdict, confidence, ambiguous, final, and the decimation applied);
 --plot writes a one-page summary (PNG/PDF/SVG by extension). --decimate R (or auto) diagnoses
 records too long for the memory at R× the sample interval.
@@ -33,6 +35,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--filter-hz", type=float, help="filter corner λ/2π in Hz (default min(fs/25, 40 Hz))"
     )
     g.add_argument("--window", type=float, help="restart interval H [s] of the simulation gap")
+    g.add_argument(
+        "--candidates",
+        metavar="FILE.py:Name[,Name…]",
+        help="add candidate effects defined in a Python file (lionjax.diagnosis.ForceEffect "
+        "subclasses, docs/effects.md), e.g. examples/custom_effects.py:QuadraticDrag,Cogging",
+    )
     g.add_argument(
         "--max-memory-gb",
         type=float,
@@ -83,6 +91,7 @@ def _name_files(message: str, args) -> str:
         ("filter_hz", "--filter-hz"),
         ("window_s", "--window"),
         ("max_memory_gb", "--max-memory-gb"),
+        ("argument 'candidates'", "--candidates"),
     ):
         message = message.replace(old, new)
     return message
@@ -93,6 +102,9 @@ def run(args) -> int:
 
     check_output(args.json, "--json")
     check_output(args.plot, "--plot", FIGURE_SUFFIXES)
+    library = lj.diagnosis.DEFAULT_CANDIDATES
+    if args.candidates:
+        library = library + lj.diagnosis.load_candidates(args.candidates)
     with about(args.data):
         train = _load(args.data, args)
     if args.validate:
@@ -117,6 +129,7 @@ def run(args) -> int:
         d = lj.diagnose(
             train,
             valid,
+            candidates=library,
             filter_hz=args.filter_hz,
             window_s=args.window,
             max_memory_gb=args.max_memory_gb,
@@ -126,6 +139,7 @@ def run(args) -> int:
     out = d.to_json()
     out["files"] = {"train": str(args.data), "validate": str(args.validate or args.data)}
     out["decimate"] = {"factor": r, "dt_recorded": dt0}
+    out["candidates"] = [c.name for c in library]
     base = out["baseline"]
     print(
         f"baseline ẍ + aẋ = bF: a = {number(base['params']['a'], '.6g')} 1/s, b = "
@@ -148,6 +162,11 @@ def run(args) -> int:
     print(f"stack: {', '.join(out['stack']) or '(empty)'}")
     tie = f"; near-tie: {', '.join(out['ambiguous'])}" if out["ambiguous"] else ""
     print(f"verdict: {out['verdict']} (confidence {number(out['confidence'], '.2f')}{tie})")
+    if out["verdict"] in out["final"]["measurement"]:
+        print(
+            f"  {out['verdict']} is an error of the force sensor, not of the device's dynamics: "
+            "the measured F carries a term the device did not feel"
+        )
     print(
         f"detection limit: {number(out['noise']['detection_limit'], '.2g')} (the least effect "
         "this record would name, as a share of the input's term b·F)"

@@ -3,16 +3,23 @@
 :func:`diagnose` works on recorded data alone: it names the unmodelled effect that explains the
 model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figure;
 :func:`decimation_for` gives the least decimation that lets long records fit the memory.
+The library is open: a :class:`ForceEffect` subclass is a candidate of the user's own
+(docs/effects.md), passed as ``candidates=DEFAULT_CANDIDATES + (MyEffect(),)`` or loaded from a
+file by :func:`load_candidates`.
 ``lionjax.diagnose`` is the same function as :func:`lionjax.diagnosis.diagnose`.
 """
 
+from ._artefacts import (
+    ForceSensorDrift as ForceSensorDrift,
+    ForceSensorLine as ForceSensorLine,
+)
 from ._candidates import (
-    DEFAULT_CANDIDATES as DEFAULT_CANDIDATES,
     AbstractCandidate as AbstractCandidate,
     AsymmetricFrictionCandidate as AsymmetricFrictionCandidate,
     CoulombCandidate as CoulombCandidate,
     DelayCandidate as DelayCandidate,
     FlexibleModeCandidate as FlexibleModeCandidate,
+    Limits as Limits,
     OffsetCandidate as OffsetCandidate,
     PositionCandidate as PositionCandidate,
     SaturationCandidate as SaturationCandidate,
@@ -24,4 +31,7 @@ from ._core import (
     decimation_for as decimation_for,
     diagnose as diagnose,
 )
+from ._force_effects import ForceEffect as ForceEffect
+from ._library import DEFAULT_CANDIDATES as DEFAULT_CANDIDATES
+from ._load import load_candidates as load_candidates
 from ._plot import plot_diagnosis as plot_diagnosis

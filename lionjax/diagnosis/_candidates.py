@@ -81,8 +81,8 @@ class Limits(eqx.Module):
     the sample interval [s], the validation record's position noise [m] (the robust spread of its
     third differences, encoder quantisation included), ``closed_loop``: F answers the position
     (and so its noise), ``loop_noise``: closed loop with the baseline's error at or below the
-    estimated noise floor, and ``mode_band``: the first and last frequency [Hz] the flexible
-    mode's profile searches."""
+    estimated noise floor, ``mode_band``: the first and last frequency [Hz] the flexible
+    mode's profile searches, and ``x_range``: the positions [m] both records cover."""
 
     F_abs_max: float
     dt: float
@@ -90,6 +90,9 @@ class Limits(eqx.Module):
     closed_loop: bool = False
     loop_noise: bool = False
     mode_band: tuple[float, float] = (0.0, math.inf)  # the mode search's frequencies [Hz]
+    #: the positions [m] both records cover (the overlap of their ranges; train's where they
+    #: do not overlap): where a force depending on position can be fitted and validated
+    x_range: tuple[float, float] = (-math.inf, math.inf)
 
 
 class DirectionalFriction(AbstractEffect):
@@ -236,6 +239,11 @@ class AbstractCandidate(eqx.Module):
     #: cancel the position noise the controller feeds into F wins on ε₁ without describing the
     #: device, and only the windowed simulation (driven by the measured F) tells them apart
     loop_noise_shrink: ClassVar[float | None] = None
+
+    #: ``"device"``: an effect of the device's dynamics; ``"measurement"``: an error of a sensor
+    #: (where the stack holds one, a device effect left out of the stack explained alone what
+    #: the artefact explains: it holds no weight in the confidence)
+    acts_on: ClassVar[str] = "device"
 
     @abc.abstractmethod
     def effects(self, ctx: Context) -> tuple[AbstractEffect, ...]:
@@ -591,16 +599,3 @@ class FlexibleModeCandidate(AbstractCandidate):
                 f"within {over:g}× the position noise ({lim.position_noise:.3g} m)"
             )
         return _b_positive(phys)
-
-
-#: The default library, in a fixed order (ties are broken by it: simplest first).
-DEFAULT_CANDIDATES: tuple[AbstractCandidate, ...] = (
-    OffsetCandidate(),
-    CoulombCandidate(),
-    SpringCandidate(),
-    DelayCandidate(),
-    SaturationCandidate(),
-    PositionCandidate(),
-    AsymmetricFrictionCandidate(),
-    FlexibleModeCandidate(),
-)

@@ -76,7 +76,6 @@ from .._tables import jsonable
 from .._validity import check_record
 from ..twin._windows import WINDOW_PARAMETERS
 from ._candidates import (
-    DEFAULT_CANDIDATES,
     MODE_ZETA_RANGE,
     AbstractCandidate,
     Context,
@@ -107,6 +106,8 @@ from ._fit import (
     solve_grams,
     zero_phase,
 )
+from ._force_effects import ForceEffect, check_library, signal_names, simulation_terms
+from ._library import DEFAULT_CANDIDATES
 from ._where import structure
 
 # ----------------------------------------------------------------------------- settings
@@ -272,11 +273,23 @@ class Fitted:
     sim_error: np.ndarray  # windowed simulation error on validation [m]
     condition: float
     gap_from: int = 0  # the first sample the gap counts (the second window's)
+    #: a simulated gap above this [m] is a diverging simulation (:data:`DIVERGED`)
+    diverge_at: float = math.inf
 
     @property
     def gap(self) -> float:
-        with np.errstate(over="ignore"):  # a diverging windowed simulation: gap = inf
-            return float(np.sqrt(np.mean(self.sim_error[self.gap_from :] ** 2)))
+        """rms windowed simulation error [m]; ``inf`` where the simulation diverges
+        (:attr:`simulation`)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            g = float(np.sqrt(np.mean(self.sim_error[self.gap_from :] ** 2)))
+        return g if g <= self.diverge_at else math.inf
+
+    @property
+    def simulation(self) -> str:
+        """``"ok"``, or ``"diverged"``: the fitted model's windowed simulation left the record's
+        range by :data:`DIVERGED`× or overflowed (an unstable fit, a < 0 or b < 0); its gap and
+        shrink are then reported as ``null``, never as a number."""
+        return "ok" if math.isfinite(self.gap) else "diverged"
 
     @property
     def equation_gap(self) -> float:
@@ -299,11 +312,13 @@ def _has_mode(cands: Sequence[AbstractCandidate]) -> bool:
 
 
 def _effects_of(cands: Sequence[AbstractCandidate], ctx: Context):
+    # each effect type once (spring and offset share the offset column), each ForceEffect once
     out, seen = [], set()
     for c in cands:
         for e in c.effects(ctx):
-            if type(e) not in seen:
-                seen.add(type(e))
+            key = (type(e), e.effect.name if hasattr(e, "effect") else None)
+            if key not in seen:
+                seen.add(key)
                 out.append(e)
     return tuple(out)
 
@@ -377,6 +392,35 @@ class _Fitter:
         self.stick = False
         self._stick_regs: tuple[Regressors, Regressors] | None = None
         self._lookalike: dict = {}  # dead_zone_lookalike(), periodic_lookalike() per structure
+        # what plausibility and the ForceEffects' grids are judged against: set by diagnose()
+        # once the baseline is fitted
+        self.limits: Limits | None = None
+        self._profiled: dict[str, ForceEffect] = {}  # each ForceEffect once profiled
+
+    def resolve(self, cand: AbstractCandidate) -> AbstractCandidate:
+        """``cand`` with its nonlinear parameters profiled (a :class:`ForceEffect`'s, on the
+        training RSS of the effect alone on the baseline, once); other candidates as they are."""
+        if not isinstance(cand, ForceEffect):
+            return cand
+        if cand.name not in self._profiled:
+            if self.limits is None:
+                raise RuntimeError("_Fitter.limits must be set before a ForceEffect is fitted")
+            tried: list[ForceEffect] = []
+
+            def rss(e: ForceEffect) -> float:
+                tried.append(e)
+                return float(fit_batch(self.rtr, self._model([e]), [(0.0, math.inf)])[1][0])
+
+            best = cand.profile(rss, self.limits)
+            if not isinstance(best, ForceEffect) or best.name != cand.name:
+                raise InputError(
+                    f"{type(cand).__name__}.profile must return a {type(cand).__name__} "
+                    f"(name {cand.name!r}), got {best!r}."
+                )
+            # the grid's other columns are not needed again
+            self.rtr.drop([n for e in tried if e.key() != best.key() for n in signal_names(e)])
+            self._profiled[cand.name] = best
+        return self._profiled[cand.name]
 
     @property
     def mode(self) -> tuple[float, float] | None:
@@ -865,6 +909,7 @@ class _Fitter:
 
     def fit(self, cands: Sequence[AbstractCandidate]) -> Fitted:
         dt = self.st.dt
+        cands = [self.resolve(c) for c in cands]
         if _has_mode(cands):
             # profiled once per variant, on the first structure that holds it (the candidate
             # alone on the baseline), then fixed in stacks
@@ -903,6 +948,9 @@ class _Fitter:
                 ((hx, _),) = mode_signals(self.valid.x, self.valid.F, dt, [self.mode], self.rva.Tp)
                 self._h_valid[self.mode] = float(np.std(hx[: self.valid.n_samples]))
             phys["deflection"] = abs(phys.get("mass_ratio", 0.0)) * self._h_valid[self.mode]
+        for c in cands:
+            if isinstance(c, ForceEffect):
+                phys.update(c.nonlinear_values())
         if _has_position(cands):
             if self.degree == 0:
                 phys["x_step"], phys["w_step"] = self._local
@@ -929,6 +977,7 @@ class _Fitter:
             # in the first window, and rejected it as making the gap worse), and the zero-phase
             # start states are least accurate at the record's edge
             gap_from=self.H if sim.size >= 2 * self.H else 0,
+            diverge_at=DIVERGED * max(float(np.ptp(np.asarray(self.valid.x))), 1e-300),
         )
 
     def window(self, a: float) -> int:
@@ -955,7 +1004,19 @@ class _Fitter:
         rng = self.st.x_range if self.position_clamp else (-math.inf, math.inf)
         p["x_lo"], p["x_hi"] = (jnp.asarray(r) for r in rng)
         H = self.window(float(phys["a"]))
-        e = simulate_windows(p, u, self.valid.x, self.x_start, self.v_start, self.st.dt, H)
+        own = [c for c in cands if isinstance(c, ForceEffect)]
+        extra, du = simulation_terms(own, phys, self.valid, self.v_valid)
+        e = simulate_windows(
+            p,
+            np.asarray(u, np.float64) + du,
+            self.valid.x,
+            self.x_start,
+            self.v_start,
+            self.st.dt,
+            H,
+            extra=extra,
+            t0=float(self.valid.t0),
+        )
         return e[: (self.valid.n_samples // H) * H]
 
 
@@ -1229,6 +1290,8 @@ class EffectScore:
     plausible: bool = True
     #: rms of ε₁ removed on validation over the rms of the input's term b·F/Λ
     size: float = 0.0
+    #: ``"ok"`` or ``"diverged"`` (its windowed simulation; gap and shrink are then null)
+    simulation: str = "ok"
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -1290,6 +1353,35 @@ class Diagnosis:
 
 #: Units of the baseline's and the derived parameters (each candidate owns its own: ``units``).
 _UNITS = {"a": "1/s", "b": "1/kg", "F0": "N", "tau": "s", "Fmax": "N"}
+
+#: Parameter names the diagnosis reports itself or for its built-in candidates (a ForceEffect
+#: may not reuse them).
+RESERVED = (
+    *WINDOW_PARAMETERS,
+    *_UNITS,
+    "x0",
+    "x_lo",
+    "x_hi",
+    "Fc_pos",
+    "Fc_neg",
+    "soft",
+    "mass_ratio",
+    "beta",
+    "f_mode",
+    "zeta_mode",
+    "input_share",
+    "deflection",
+)
+
+#: A windowed simulation whose rms error exceeds this many times the validation record's
+#: position range has diverged (:attr:`Fitted.simulation`).
+DIVERGED = 100.0
+
+#: Where the baseline is qualitatively wrong (a ≤ 0 or b ≤ 0), the least share of the
+#: simulated gap a simulated candidate must remove in place of ``min_share`` of the equation
+#: error (a spring at 36 Hz above a 17.5 Hz filter corner, baseline a = −0.24, b = −0.009,
+#: removed 78 % of the simulated gap and 23 % of the excess equation error).
+DOMINANT_SIM_SHARE = 0.5
 
 #: Near-tie: a candidate whose BIC weight is at least 1/TIE_RATIO of the verdict's.
 TIE_RATIO = 20.0
@@ -1389,7 +1481,12 @@ def diagnose(
         valid: validation record (default: ``train`` — then nothing is validated; pass one).
         candidates: the effect library (default: ``offset``, ``coulomb_friction``, ``spring``,
             ``delay``, ``saturation``, ``position_dependent``, ``asymmetric_friction``,
-            ``flexible_mode``; :data:`DEFAULT_CANDIDATES`).
+            ``flexible_mode``, and the force sensor's ``force_sensor_line`` and
+            ``force_sensor_drift``; :data:`DEFAULT_CANDIDATES`); add effects of one's own as
+            ``DEFAULT_CANDIDATES + (MyEffect(),)``, ``MyEffect`` a
+            :class:`~lionjax.diagnosis.ForceEffect` (docs/effects.md). Where the stack holds a
+            sensor artefact (``acts_on = "measurement"``), a device effect it did not stack
+            explained alone what the artefact explains, and holds no weight in the confidence.
         filter_hz: corner λ/2π [Hz] of the filter (s + λ)³ (default min(f_s/25, 40 Hz)).
         window_s: restart interval H [s] of the windowed simulation error (default 1/a clipped
             to [20·dt, 2 s]).
@@ -1468,9 +1565,20 @@ def diagnose(
             "diagnose: expected 0 ≤ min_share < 1, threshold ≥ 0, floor_factor ≥ 1, "
             f"0 ≤ min_size < 1, got {min_share!r}, {threshold!r}, {floor_factor!r}, {min_size!r}."
         )
+    candidates = tuple(candidates)
+    bad = [c for c in candidates if not isinstance(c, AbstractCandidate)]
+    if bad:
+        raise InputError(
+            "diagnose: argument 'candidates' must hold lionjax.diagnosis candidates (instances "
+            f"of AbstractCandidate, e.g. a ForceEffect subclass), got {bad[0]!r}."
+        )
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
         raise InputError(f"diagnose: candidate names repeat: {names}.")
+    try:
+        check_library(candidates, RESERVED)
+    except ValueError as e:
+        raise InputError(f"diagnose: argument 'candidates': {e}") from None
     st = settings(train, filter_hz=filter_hz, window_s=window_s)
     # 20 time constants 1/λ of the filter (s + λ)³, λ = 2π·filter_hz
     min_len = int(math.ceil(20 / (2 * math.pi * st.filter_hz * st.dt)))
@@ -1509,7 +1617,13 @@ def diagnose(
         closed_loop=closed_loop,
         loop_noise=closed_loop and base.ms_valid <= floor**2,
         mode_band=(st.mode_grid[0], st.mode_grid[-1]),
+        x_range=_common_range(np.asarray(train.x), np.asarray(valid.x)),
     )
+    fitter.limits = limits
+    # a baseline with a ≤ 0 or b ≤ 0 is qualitatively wrong: a dominant effect (a spring with
+    # its natural frequency above the filter corner, friction that sticks the axis) leaves the
+    # mass–damper nothing physical to fit
+    dominant = not (a > 0 and b > 0)
 
     def score_of(cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
         return score_ms(cur, new.ms_valid, p, lo_rms)
@@ -1635,7 +1749,14 @@ def diagnose(
             and not new.gap <= (1 + MAX_WORSENING) * cur.gap
         )
         size = math.sqrt(max(cur.ms_valid - new.ms_valid, 0.0)) / force_rms
-        sig = sc > threshold and share >= min_share and size >= min_size and plausible and not worse
+        # where the baseline is qualitatively wrong, the share of the equation error is no
+        # measure of an effect: the simulated gap's share stands in for it (DOMINANT_SIM_SHARE)
+        shares = share >= min_share or (
+            dominant
+            and all(k.simulated for k in ks)
+            and _sim_share(new.gap, cur.gap) >= DOMINANT_SIM_SHARE
+        )
+        sig = sc > threshold and shares and size >= min_size and plausible and not worse
         if plausible:
             why = (
                 "significant"
@@ -1643,7 +1764,7 @@ def diagnose(
                 else f"score {sc:.3g} ≤ {threshold}"
                 if sc <= threshold
                 else "removes too little"
-                if share < min_share
+                if not shares
                 else f"too small ({size:.2g} of the input's term, least {min_size})"
                 if size < min_size
                 else f"makes the simulated gap worse ({new.gap:.3g} m against {cur.gap:.3g} m)"
@@ -1652,7 +1773,7 @@ def diagnose(
             name=ks[0].name,
             params={n: v for k in ks for n, v in k.report(new.physical).items()},
             gap=new.gap,
-            shrink=1 - new.gap / base.gap if base.gap > 0 else 0.0,
+            shrink=_shrink(new.gap, base.gap),
             equation_gap=new.equation_gap,
             equation_shrink=1 - new.equation_gap / base.equation_gap,
             score=sc,
@@ -1661,6 +1782,7 @@ def diagnose(
             reason=why,
             plausible=plausible,
             size=size,
+            simulation=new.simulation,
         )
 
     alone = {
@@ -1810,6 +1932,8 @@ def diagnose(
     explained = 1.0 - (
         excess(cur.ms_valid) / excess(base.ms_valid) if excess(base.ms_valid) > 0 else 0.0
     )
+    if dominant and stack and all(c.simulated for c in stack):
+        explained = max(explained, _sim_share(cur.gap, base.gap))
     # (a stack that removes at least EXPLAINED_FULL of the excess over the floor has explained
     # the gap: a line it leaves sharpened is at the noise level — a held-out offset removing
     # 99.9 % of it left the excitation's line at 206× the median for 95×, and was called
@@ -1880,6 +2004,11 @@ def diagnose(
     # named (score = validated 2·log-likelihood gain − p·ln N_eff = −ΔBIC) and of "no effect",
     # whose prior odds are the significance threshold: at score = threshold the two tie
     plausible = {s.name: s.score for s in effects if s.plausible and s.size >= min_size}
+    if any(c.acts_on == "measurement" for c in stack):
+        # the stack corrected a sensor artefact first: a device effect it did not add afterwards
+        # explained (alone) what the artefact explains, and its evidence is the artefact's
+        kept = {c.name for c in stack} | {c.name for c in candidates if c.acts_on == "measurement"}
+        plausible = {k: v for k, v in plausible.items() if k in kept}
     top = max([threshold, *plausible.values()])
     raw = {"none": math.exp((threshold - top) / 2)} | {
         k: math.exp((v - top) / 2) for k, v in plausible.items()
@@ -1943,7 +2072,9 @@ def diagnose(
         "units": {k: units.get(k, "") for k in final_params},
         "std": _std_physical(cur),
         "gap": cur.gap,
-        "shrink": 1 - cur.gap / base.gap if base.gap > 0 else 0.0,
+        "shrink": _shrink(cur.gap, base.gap),
+        "simulation": cur.simulation,
+        "measurement": [c.name for c in stack if c.acts_on == "measurement"],
         "equation_gap": cur.equation_gap,
         "equation_shrink": 1 - cur.equation_gap / base.equation_gap,
         "remaining_excess_share": (
@@ -1994,6 +2125,7 @@ def diagnose(
         "units": {"a": "1/s", "b": "1/kg"},
         "std": {"a": float(base.std[0]), "b": float(base.std[1])},
         "gap": base.gap,
+        "simulation": base.simulation,
         "gap_units": "m",
         "gap_relative": base.gap / max(float(np.std(np.asarray(valid.x))), 1e-300),
         "equation_gap": base.equation_gap,
@@ -2044,6 +2176,30 @@ def diagnose(
         weights=weights,
         series=series,
     )
+
+
+def _sim_share(gap: float, before: float) -> float:
+    """The share of the simulated gap ``before`` that ``gap`` removes: 1 − gap/before (1 where
+    only ``before`` diverged, 0 where ``gap`` did)."""
+    if not math.isfinite(gap):
+        return 0.0
+    if not math.isfinite(before):
+        return 1.0
+    return 1.0 - gap / before if before > 0 else 0.0
+
+
+def _shrink(gap: float, base_gap: float) -> float:
+    """1 − gap/base_gap; NaN (null in JSON) where either simulation diverged."""
+    if not (math.isfinite(gap) and math.isfinite(base_gap)):
+        return math.nan
+    return 1 - gap / base_gap if base_gap > 0 else 0.0
+
+
+def _common_range(x_train: np.ndarray, x_valid: np.ndarray) -> tuple[float, float]:
+    """The positions both records cover; train's range where they do not overlap."""
+    lo = max(float(np.min(x_train)), float(np.min(x_valid)))
+    hi = min(float(np.max(x_train)), float(np.max(x_valid)))
+    return (lo, hi) if hi > lo else (float(np.min(x_train)), float(np.max(x_train)))
 
 
 def _outside(train: Record, valid: Record, v_train, v_valid) -> dict[str, float]:

@@ -1053,14 +1053,17 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
 # ----------------------------------------------------------------------------- simulation
 
 
-def simulate_windows(p, u, x_meas, x_start, v_start, dt, H: int) -> np.ndarray:
+def simulate_windows(
+    p, u, x_meas, x_start, v_start, dt, H: int, extra=None, t0: float = 0.0
+) -> np.ndarray:
     """Windowed simulation error x_sim − x_meas [m], restarting every ``H`` samples; the
     samples after the last whole window are 0.
 
     The twin's exact-hold simulator (:func:`lionjax.twin._windows.windowed_errors`: model,
     sticking, restarts) on the record padded to its length bucket: H, dt and the parameters are
     traced, so one program serves every record of a bucket. Each window starts from the
-    estimated state (x_start, v_start) at its first sample.
+    estimated state (x_start, v_start) at its first sample. ``extra``: an optional force term
+    ``extra(x, v, u, t)`` [N] (:class:`~._force_effects.SimulatedForce`), with t = t0 + k·dt.
     """
     T = int(np.asarray(u).shape[0])
     H = int(H)
@@ -1068,5 +1071,8 @@ def simulate_windows(p, u, x_meas, x_start, v_start, dt, H: int) -> np.ndarray:
     Tp = padded_length(T)
     args = [edge_pad(s, Tp) for s in (u, x_meas, x_start, v_start)]
     pj = {k: _f(v) for k, v in p.items()}
-    e = windowed_errors(pj, *args, _f(dt), _i(H), _i(Tn))
+    t = None
+    if extra is not None:
+        t = jnp.asarray(float(t0) + float(dt) * np.arange(Tp), jnp.float64)
+    e = windowed_errors(pj, *args, _f(dt), _i(H), _i(Tn), extra, t)
     return np.asarray(e)[:T]

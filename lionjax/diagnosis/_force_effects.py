@@ -1,0 +1,277 @@
+"""Effects written as forces: the open part of the diagnosis' library (docs/effects.md).
+
+A :class:`ForceEffect` is a force linear in its parameters p_j,
+
+    F_e(x, ẋ, F, t) = Σ_j p_j · φ_j(x, ẋ, F, t)   [N],
+
+acting on the device with the input: ẍ + aẋ = b·(F + F_e). One definition serves the whole
+diagnosis:
+
+- the **regressor**: with (1/Λ)[·] the filter bank's first output, ẍ + aẋ = bF + Σ_j (b·p_j)·φ_j
+  gives one column −(1/Λ)[φ_j] per parameter (the sign convention of
+  :class:`lionjax.Offset`), φ_j evaluated on the recorded x, the zero-phase velocity v̂ the
+  friction candidates use, the measured F and the sample times; its coefficient is b·p_j, and
+  p_j = coefficient / b is reported;
+- the **windowed simulation**: φ_j(x, v, u, t) evaluated on the simulated state at each step
+  (:func:`lionjax.twin._windows.windowed_errors`' ``extra`` term), so that the simulated gap
+  judges the structure with the effect in it;
+- **nonlinear parameters** (a period, a frequency): fields of the Module named in
+  :attr:`~ForceEffect.nonlinear`, searched by :meth:`~ForceEffect.profile` over
+  :meth:`~ForceEffect.grid` on the training record's residual sum of squares, once, on the
+  effect alone; the profiled Module is then fixed in every stack.
+
+A *measurement* effect (``acts_on = "measurement"``) is an error of the force sensor, not a
+force on the device: the measured F carries a term the device never felt, F_meas = F + s(t), and
+the model is ẍ + aẋ = b·(F_meas − s). Its φ_j are computed from the whole record
+(:meth:`~ForceEffect.record_basis`: a line's amplitude and phase are estimated from F) and
+subtracted from the input of the windowed simulation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from collections.abc import Callable, Sequence
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._model_effects import zero_phase_velocity
+from .._models import AbstractEffect, Column
+from .._record import Record
+from ._candidates import AbstractCandidate, Context, Limits
+
+#: Golden-section steps of :meth:`ForceEffect.profile`'s refinement (the bracket shrinks by
+#: 0.618 per step: 16 steps leave 5·10⁻⁴ of the grid's spacing).
+REFINE_STEPS = 16
+
+
+class ForceEffect(AbstractCandidate):
+    """A candidate effect written as a force linear in its parameters (module docstring).
+
+    Subclass it with:
+
+    - ``name`` (ClassVar): the name the diagnosis reports;
+    - ``parameters`` (ClassVar): names of the linear parameters p_j, one per basis function;
+    - ``units`` (ClassVar): unit of each reported parameter (the p_j and the nonlinear ones);
+    - :meth:`basis`: the φ_j [N per unit of p_j] as functions of (x [m], v [m/s], F [N],
+      t [s]), written in ``jax.numpy`` (elementwise: they are called on whole records and on
+      single simulated steps);
+    - optionally ``nonlinear`` (ClassVar) and :meth:`grid`: fields of the Module that are
+      nonlinear parameters, and the Modules (one per grid point) the profile searches;
+    - optionally :meth:`implausible` (return why the fitted parameters are not physical, or
+      ``""``; call ``super().implausible`` to keep the check b > 0).
+
+    The parsimony penalty counts ``len(parameters) + len(nonlinear)`` parameters.
+    """
+
+    parameters: ClassVar[tuple[str, ...]]
+    #: fields of the Module that are nonlinear parameters (profiled on :meth:`grid`)
+    nonlinear: ClassVar[tuple[str, ...]] = ()
+
+    @property
+    def n_params(self) -> int:  # type: ignore[override]
+        return len(self.parameters) + len(self.nonlinear)
+
+    def basis(self, x: Array, v: Array, F: Array, t: Array) -> tuple[Array, ...]:
+        """The basis functions φ_j(x, v, F, t) [N], one per parameter (same shape as x)."""
+        raise NotImplementedError(
+            f"{type(self).__name__}: a ForceEffect defines basis(x, v, F, t) (or, for a "
+            "measurement effect, record_basis(record, v))."
+        )
+
+    def record_basis(self, record: Record, v: Array) -> tuple[Array, ...]:
+        """φ_j on a whole record (T,) each; by default :meth:`basis` on the record's samples.
+        A measurement effect may estimate from the whole record here (a line's phase)."""
+        t = record.t0 + record.dt * jnp.arange(record.n_samples, dtype=record.x.dtype)
+        return tuple(self.basis(record.x, v, record.F, t))
+
+    def grid(self, limits: Limits) -> Sequence[ForceEffect]:
+        """The Modules the profile of the nonlinear parameters searches (default: itself)."""
+        return (self,)
+
+    def profile(self, rss: Callable[[ForceEffect], float], limits: Limits) -> ForceEffect:
+        """The profiled Module: the grid point of least training residual sum of squares
+        ``rss(effect)``; with one nonlinear parameter, then refined by a golden-section search
+        between that point's neighbours on the grid (:data:`REFINE_STEPS` more fits). Override
+        for another search (it returns a new, immutable Module)."""
+        grid = list(self.grid(limits))
+        if not grid:
+            raise ValueError(f"{type(self).__name__}.grid() returned no Module to search.")
+        if len(grid) == 1:
+            return grid[0]
+        values = np.asarray([rss(g) for g in grid], np.float64)
+        if not np.any(np.isfinite(values)):
+            raise ValueError(f"{type(self).__name__}: no grid point could be fitted.")
+        i = int(np.nanargmin(values))
+        if len(self.nonlinear) != 1:
+            return grid[i]
+        (field,) = self.nonlinear
+        pts = sorted(zip((float(getattr(g, field)) for g in grid), values, strict=True))
+        j = pts.index((float(getattr(grid[i], field)), values[i]))
+        if not 0 < j < len(pts) - 1:
+            return grid[i]  # on the grid's edge: nothing to bracket
+        lo, hi = pts[j - 1][0], pts[j + 1][0]
+        best, best_rss = grid[i], float(values[i])
+        g = (math.sqrt(5.0) - 1.0) / 2.0
+        c, d = hi - g * (hi - lo), lo + g * (hi - lo)
+        at = {}
+
+        def f(val: float) -> float:
+            nonlocal best, best_rss
+            if val not in at:
+                e = dataclasses.replace(grid[i], **{field: val})
+                at[val] = float(rss(e))
+                if at[val] < best_rss:
+                    best, best_rss = e, at[val]
+            return at[val]
+
+        for _ in range(REFINE_STEPS):
+            if f(c) < f(d):
+                hi, d = d, c
+                c = hi - g * (hi - lo)
+            else:
+                lo, c = c, d
+                d = lo + g * (hi - lo)
+        return best
+
+    def effects(self, ctx: Context) -> tuple[AbstractEffect, ...]:
+        return (ForceColumns(self, ctx.omega_v),)
+
+    def report(self, phys: dict[str, float]) -> dict[str, float]:
+        keys = (*self.parameters, *self.nonlinear, *self.units)
+        return {k: phys[k] for k in dict.fromkeys(keys) if k in phys}
+
+    def implausible(self, phys: dict[str, float], lim: Limits) -> str:
+        return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
+
+    def nonlinear_values(self) -> dict[str, float]:
+        """The nonlinear parameters' values {field: value}."""
+        return {f: float(getattr(self, f)) for f in self.nonlinear}
+
+    def key(self) -> str:
+        """The signal names' suffix: the name and the nonlinear parameters' values (the
+        regressors cache filtered signals by name)."""
+        vals = ",".join(f"{v:.12g}" for v in self.nonlinear_values().values())
+        return f"{self.name}@{vals}"
+
+
+def signal_names(effect: ForceEffect) -> tuple[str, ...]:
+    """The raw signals' names of ``effect``'s columns (distinct per profiled value)."""
+    return tuple(f"effect:{effect.key()}[{j}]" for j in range(len(effect.parameters)))
+
+
+class ForceColumns(AbstractEffect):
+    """The regressor columns of a :class:`ForceEffect`: −(1/Λ)[φ_j] with coefficient b·p_j
+    (module docstring); ``omega`` [rad/s] is the zero-phase velocity filter's bandwidth."""
+
+    effect: ForceEffect
+    omega: float
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(f"b_{p}" for p in self.effect.parameters)
+
+    def columns(self) -> tuple[Column, ...]:
+        return tuple(Column(n, 0, -1.0) for n in signal_names(self.effect))
+
+    def signals(self, record: Record) -> dict:
+        x = jnp.asarray(record.x)
+        v = zero_phase_velocity(x, record.dt, self.omega)
+        phis = self.effect.record_basis(record, v)
+        names = signal_names(self.effect)
+        if len(phis) != len(names):
+            raise ValueError(
+                f"{type(self.effect).__name__}: basis returned {len(phis)} functions for the "
+                f"{len(names)} parameters {self.effect.parameters}; return one per parameter."
+            )
+        out = {}
+        for n, phi in zip(names, phis, strict=True):
+            phi = np.asarray(jnp.broadcast_to(jnp.asarray(phi, jnp.float64), x.shape))
+            if not np.all(np.isfinite(phi)):
+                raise ValueError(
+                    f"{type(self.effect).__name__}.basis gave non-finite values on the record; "
+                    "it must be finite wherever the record goes."
+                )
+            # a correction of the measured F is held as F is (zero order); a force of the
+            # state, as x is (first order)
+            out[n] = (phi, "zoh" if self.effect.acts_on == "measurement" else "foh")
+        return out
+
+    def physical(self, theta: Array, b: Array) -> dict:
+        return {p: theta[..., j] / b for j, p in enumerate(self.effect.parameters)}
+
+
+class SimulatedForce(eqx.Module):
+    """Σ over device effects of Σ_j p_j·φ_j(x, v, u, t): the windowed simulation's ``extra``
+    force term (its arrays traced: one program per set of effect types)."""
+
+    effects: tuple
+    coefficients: tuple
+
+    def __call__(self, x, v, u, t):
+        total = jnp.zeros_like(x)
+        for e, p in zip(self.effects, self.coefficients, strict=True):
+            for pj, phi in zip(p, e.basis(x, v, u, t), strict=True):
+                total = total + pj * phi
+        return total
+
+
+def _traced(effect: ForceEffect) -> ForceEffect:
+    """``effect`` with its float fields as arrays, so that the compiled simulation is reused
+    across their values."""
+    return jax.tree_util.tree_map(
+        lambda a: jnp.asarray(a, jnp.float64) if isinstance(a, float) else a, effect
+    )
+
+
+def simulation_terms(
+    effects: Sequence[ForceEffect], phys: dict[str, float], record: Record, v: Array
+) -> tuple[SimulatedForce | None, np.ndarray]:
+    """(the device effects' simulated force or None, the measurement effects' correction to
+    the input (T,) [N]) for fitted parameters ``phys``."""
+    device = [e for e in effects if e.acts_on == "device"]
+    du = np.zeros(record.n_samples)
+    for e in effects:
+        if e.acts_on == "measurement":
+            for p, phi in zip(e.parameters, e.record_basis(record, v), strict=True):
+                du = du + float(phys.get(p, 0.0)) * np.asarray(phi, np.float64)
+    extra = None
+    if device:
+        coefs = tuple(
+            tuple(jnp.asarray(float(phys.get(p, 0.0)), jnp.float64) for p in e.parameters)
+            for e in device
+        )
+        extra = SimulatedForce(tuple(_traced(e) for e in device), coefs)
+    return extra, du
+
+
+def check_library(candidates: Sequence[AbstractCandidate], reserved: Sequence[str]) -> None:
+    """Raise ``ValueError`` naming the problem when a ForceEffect of ``candidates`` is not
+    usable: no parameters, a parameter name the diagnosis already reports, a repeated one."""
+    seen: dict[str, str] = {}
+    for c in candidates:
+        if not isinstance(c, ForceEffect):
+            continue
+        nm = type(c).__name__
+        if not isinstance(getattr(c, "parameters", None), tuple) or not c.parameters:
+            raise ValueError(f"{nm}: 'parameters' must be a non-empty tuple of names.")
+        if c.acts_on not in ("device", "measurement"):
+            raise ValueError(f"{nm}: acts_on must be 'device' or 'measurement', got {c.acts_on!r}.")
+        for p in (*c.parameters, *c.nonlinear):
+            if p in reserved:
+                raise ValueError(
+                    f"{nm}: parameter name {p!r} is one the diagnosis already reports "
+                    f"({', '.join(sorted(set(reserved)))}); rename it."
+                )
+            if p in seen:
+                raise ValueError(f"{nm}: parameter name {p!r} is also {seen[p]}'s; rename it.")
+            seen[p] = nm
+        for f in c.nonlinear:
+            if not isinstance(getattr(c, f, None), numbers.Real):
+                raise ValueError(f"{nm}: nonlinear parameter {f!r} must be a real field.")

@@ -1,0 +1,150 @@
+"""The open effect library, through the public API only: effects of one's own
+(examples/custom_effects.py) and the force sensor's artefacts, on records of an independent
+simulator (tests/_reference_sim.py, numpy RK4), against the simulated truth."""
+
+import ast
+import json
+import math
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+from _reference_sim import forced_axis
+
+import lionjax as lj
+from lionjax.cli import main
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "examples"))
+from custom_effects import Cogging, QuadraticDrag  # noqa: E402
+
+A, B, FS, SECONDS, Q = 20.0, 2.0, 1000.0, 4.0, 2e-6
+CUSTOM = lj.diagnosis.DEFAULT_CANDIDATES + (QuadraticDrag(), Cogging())
+
+
+def records(force=None, *, line=None, drift=None, seed=0):
+    """(train, valid): multisine F (12 lines, 0.3–15 Hz), encoder step Q, 1 mN force noise;
+    ``line`` (f₀ [Hz], amplitude [N]) and ``drift`` [N over the record] are added to the
+    recorded F only (the device does not feel them)."""
+    rng = np.random.default_rng(seed)
+    dt = 1 / FS
+    t = np.arange(int(SECONDS * FS)) * dt
+    out = []
+    for _ in range(2):
+        F = sum(
+            rng.uniform(0.2, 0.5) * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
+            for f in np.geomspace(0.3, 15, 12)
+        )
+        x = np.round(forced_axis(F, dt, a=A, b=B, force=force) / Q) * Q
+        Fm = F + rng.normal(0, 1e-3, t.size)
+        if line is not None:
+            f0, amp = line
+            Fm = Fm + amp * np.sin(2 * np.pi * f0 * t + rng.uniform(0, 2 * np.pi))
+            Fm = Fm + 0.3 * amp * np.sin(2 * np.pi * 3 * f0 * t + rng.uniform(0, 2 * np.pi))
+        if drift is not None:
+            Fm = Fm + drift * t / SECONDS
+        out.append(lj.Record(x, Fm, dt))
+    return out
+
+
+@pytest.fixture(scope="module")
+def drag():
+    return records(lambda x, v: -3.0 * v * abs(v))
+
+
+def test_drag_unexplained_without_and_named_with_its_candidate(drag):
+    assert lj.diagnose(*drag).verdict == "unexplained"
+    d = lj.diagnose(*drag, candidates=CUSTOM)
+    assert d.verdict == "quadratic_drag" and d.confidence > 0.9
+    assert d.final["params"]["c2"] == pytest.approx(3.0, rel=0.03)
+    assert d.final["params"]["b"] == pytest.approx(B, rel=0.01)
+
+
+def test_cogging_period_profiled():
+    period, amp, phase = 0.004, 0.3, 0.5
+    recs = records(lambda x, v: amp * math.sin(2 * math.pi * x / period + phase), seed=1)
+    assert lj.diagnose(*recs).verdict == "unexplained"
+    d = lj.diagnose(*recs, candidates=CUSTOM)
+    p = d.final["params"]
+    assert d.verdict == "cogging" and d.confidence > 0.9
+    assert p["period"] == pytest.approx(period, rel=0.01)
+    assert math.hypot(p["A_sin"], p["A_cos"]) == pytest.approx(amp, rel=0.05)
+    assert d.final["shrink"] > 0.5  # the simulation with the cogging force closes the gap
+
+
+@pytest.mark.parametrize("f0", [50.0, 60.0])
+def test_force_sensor_line_named_as_an_artefact(f0):
+    d = lj.diagnose(*records(line=(f0, 0.4), seed=2))
+    p = d.final["params"]
+    assert d.verdict == "force_sensor_line" and d.confidence > 0.9
+    assert d.final["measurement"] == ["force_sensor_line"]
+    assert p["line_unfelt"] == pytest.approx(1.0, abs=0.05)  # the device felt none of it
+    assert p["f_line"] == pytest.approx(f0, abs=0.02)
+    assert "flexible_mode" not in d.stack
+
+
+def test_force_sensor_drift():
+    d = lj.diagnose(*records(drift=0.5, seed=3))
+    assert d.verdict == "force_sensor_drift"
+    assert d.final["params"]["drift_rate"] == pytest.approx(0.5 / SECONDS, rel=0.05)
+
+
+def test_clean_records_name_nothing():
+    d = lj.diagnose(*records(seed=4))
+    assert d.verdict == "none", (d.verdict, d.stack)
+
+
+def test_cli_candidates(tmp_path, drag, capsys):
+    for name, r in zip(("train", "valid"), drag, strict=True):
+        np.savetxt(
+            tmp_path / f"{name}.csv",
+            np.c_[np.asarray(r.t), r.x, r.F],
+            delimiter=",",
+            header="t,x,F",
+            comments="",
+        )
+    out = tmp_path / "d.json"
+    spec = f"{ROOT / 'examples' / 'custom_effects.py'}:QuadraticDrag,Cogging"
+    args = ["diagnose", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "valid.csv")]
+    assert main([*args, "--candidates", spec, "--json", str(out)]) == 0
+    j = json.loads(out.read_text())
+    assert j["verdict"] == "quadratic_drag"
+    assert j["candidates"][-2:] == ["quadratic_drag", "cogging"]
+    capsys.readouterr()
+    for bad, says in (
+        ("nofile.py:QuadraticDrag", "not found"),
+        (f"{ROOT / 'examples' / 'custom_effects.py'}:Drag", "defines no 'Drag'"),
+        (f"{ROOT / 'examples' / 'custom_effects.py'}:np", "not a lionjax.diagnosis candidate"),
+        ("custom_effects.py", "expected FILE.py:Name"),
+    ):
+        assert main([*args, "--candidates", bad]) == 2
+        err = capsys.readouterr().err
+        assert "--candidates" in err and says in err, err
+
+
+def test_parameter_names_may_not_collide(drag):
+    class Stiff(lj.diagnosis.ForceEffect):
+        name = "stiff"
+        parameters = ("k",)
+
+        def basis(self, x, v, F, t):
+            return (-x,)
+
+    with pytest.raises(lj.InputError, match="'k'"):
+        lj.diagnose(*drag, candidates=(Stiff(),))
+    with pytest.raises(lj.InputError, match="candidates"):
+        lj.diagnose(*drag, candidates=("spring",))
+
+
+def test_example_uses_the_public_api_only():
+    src = (ROOT / "examples" / "custom_effects.py").read_text()
+    tree = ast.parse(src)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef):
+            assert node.end_lineno - node.lineno + 1 <= 40, node.name
+        if isinstance(node, ast.ImportFrom):
+            assert not (node.module or "").startswith("lionjax"), node.module
+        if isinstance(node, ast.Attribute):
+            assert not node.attr.startswith("_") or node.attr.startswith("__"), node.attr
+    assert "lionjax._" not in src and "diagnosis._" not in src
