@@ -14,7 +14,9 @@ b may depend on x (:class:`PositionDependence`). At each sample k (t_k = k·dt) 
    :class:`FlexibleMode`;
 2. computes the command F[k] [N] — the excitation sample in open loop, or a PD on the *measured*
    position plus the excitation as a feed-forward force in closed loop (:class:`PDLoop`) — and
-   logs it;
+   logs it as the force sensor reads it: F_log[k] = F[k] + s(t_k), s a sensor artefact
+   (:class:`ForceSensorLine`, :class:`ForceSensorDrift`; 0 without one) that only the log sees
+   (the loop, the hold and the axis use F[k]);
 3. holds F[k] over [t_k, t_{k+1}) (zero-order hold). The force reaching the axis is
    u(t) = g(F_held(t − τ)), g a memoryless input map (dead zone, then saturation); with
    τ = (n + φ)·dt (0 ≤ φ < 1) each hold interval has two pieces of constant u, split at
@@ -62,14 +64,19 @@ P_DZ = 16  # dead-zone half width [N]
 P_M2, P_K2, P_C2, P_CG2, P_W = 17, 18, 19, 20, 21  # second body: m₂, k₂, c₂, c to ground, gap
 P_CA, P_CP, P_CPHI = 22, 23, 24  # cogging amplitude [N], period [m], phase [rad]
 P_STIFF_V = 25  # velocity-dependent stiffness of friction states [1/m] (rate = P_STIFF_V·|v|)
-N_P = 26
+P_CQ = 26  # quadratic drag c₂ [N·s²/m²]
+P_LA, P_LF, P_LP = 27, 28, 29  # force-sensor line: amplitude [N], f₀ [Hz], phase [rad]
+P_LA2, P_LP2, P_LA3, P_LP3 = 30, 31, 32, 33  # its 2nd and 3rd harmonic: amplitude [N], phase
+P_DRIFT = 34  # force-sensor drift rate [N/s]
+N_P = 35
 # integer flags f[...]
 F_FRIC = 0  # 0 none, 1 Stribeck–Coulomb, 2 LuGre, 3 Dahl, 4 asymmetric
 F_PSHAPE = 1  # 0 none, 1 tanh, 2 bowl, 3 algebraic sigmoid
 F_SAT = 2  # 0 none, 1 hard, 2 soft (tanh)
 F_BODY2 = 3  # 0 none, 1 flexible mode, 2 backlash (load through a gap)
 F_MEAS2 = 4  # 1: the sensor reads the second body (non-collocated)
-N_F = 5
+F_FSENS = 5  # 1: the force sensor adds a line and/or a drift to the logged force
+N_F = 6
 # state y = (x, ẋ, z, x₂, ẋ₂): z the friction state (LuGre bristle [m] / Dahl force [N])
 N_Y = 5
 
@@ -120,6 +127,8 @@ def _rhs(flags, p, y, u, s, out):
     a = p[P_A] * (1.0 + p[P_AA] * w)
     b = p[P_B] * (1.0 + p[P_AB] * w)
     f = _smooth_force(flags, p, y, u)
+    if p[P_CQ] != 0.0:  # quadratic drag (0 at rest, so it never enters the break-away test)
+        f -= p[P_CQ] * v * abs(v)
     kind = flags[F_FRIC]
     out[2] = 0.0
     if kind == 1:  # Stribeck–Coulomb, switched
@@ -244,10 +253,23 @@ def _input(flags, p, F):
 
 
 @njit(cache=True)
+def _sensor_force(flags, p, Fk, t):
+    """The force sensor's reading [N] of the command Fk [N] at time t [s] from the record's
+    start: Fk plus the mains line (fundamental and 2nd/3rd harmonic) and the drift."""
+    if flags[F_FSENS] == 0:
+        return Fk
+    w = 2.0 * math.pi * p[P_LF] * t
+    line = p[P_LA] * math.sin(w + p[P_LP])
+    line += p[P_LA2] * math.sin(2.0 * w + p[P_LP2]) + p[P_LA3] * math.sin(3.0 * w + p[P_LP3])
+    return Fk + line + p[P_DRIFT] * t
+
+
+@njit(cache=True)
 def _kernel(flags, p, exc, noise, dt, x0, v0, q, closed, kp, kd, alpha_v, x_ref, lam, lam_v):
     T = exc.shape[0]
     xm = np.empty(T)
     Fc = np.empty(T)
+    Flog = np.empty(T)
     traj = np.empty((T, N_Y))
     u_log = np.empty(T)
     y = np.zeros(N_Y)
@@ -278,6 +300,7 @@ def _kernel(flags, p, exc, noise, dt, x0, v0, q, closed, kp, kd, alpha_v, x_ref,
             Fc[k] = kp * (x_ref - xm[k]) - kd * vf + exc[k]
         else:
             Fc[k] = exc[k]
+        Flog[k] = _sensor_force(flags, p, Fc[k], k * dt)  # logged only: never fed back
         prev = xm[k]
         for i in range(N_Y):
             traj[k, i] = y[i]
@@ -302,11 +325,12 @@ def _kernel(flags, p, exc, noise, dt, x0, v0, q, closed, kp, kd, alpha_v, x_ref,
             for j in range(k + 1, T):
                 xm[j] = np.nan
                 Fc[j] = np.nan
+                Flog[j] = np.nan
                 u_log[j] = np.nan
                 for i in range(N_Y):
                     traj[j, i] = np.nan
             break
-    return xm, Fc, traj, u_log
+    return xm, Fc, Flog, traj, u_log
 
 
 # ---------------------------------------------------------------------------- the plant
@@ -439,6 +463,62 @@ class AsymmetricFriction(Effect):
 
     def rate(self, axis):
         return axis.b * max(self.c_pos, self.c_neg), 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class QuadraticDrag(Effect):
+    """Quadratic (aerodynamic, fluid) drag: adds −c₂·ẋ·|ẋ| [N]; c₂ [N·s²/m²] ≥ 0.
+
+    Its linearised rate 2·b·c₂·|ẋ| sets the sub-steps (h·rate ≤ 0.05, through λ_v).
+    """
+
+    c2: float
+    name = "quadratic_drag"
+
+    def fill(self, p, flags, axis):
+        p[P_CQ] = self.c2
+
+    def rate(self, axis):
+        # the kernel takes n_sub ≥ dt·λ_v·2|ẋ|: λ_v = 20·b·c₂ gives h·2b·c₂|ẋ| ≤ 0.05
+        return 0.0, 20.0 * axis.b * self.c2
+
+
+@dataclasses.dataclass(frozen=True)
+class ForceSensorLine(Effect):
+    """Mains pick-up on the force sensor, seen by the log only (the axis never feels it):
+
+        F_log[k] = F[k] + A·sin(2π f₀ t_k + φ) + A₂·sin(4π f₀ t_k + φ₂) + A₃·sin(6π f₀ t_k + φ₃),
+
+    t_k = k·dt from the record's start. Attributes: amplitude A [N], frequency f₀ [Hz], phase φ
+    [rad]; a2, phi2, a3, phi3 the 2nd and 3rd harmonic (default 0).
+    """
+
+    amplitude: float
+    frequency: float
+    phase: float
+    a2: float = 0.0
+    phi2: float = 0.0
+    a3: float = 0.0
+    phi3: float = 0.0
+    name = "force_sensor_line"
+
+    def fill(self, p, flags, axis):
+        flags[F_FSENS] = 1
+        p[P_LA], p[P_LF], p[P_LP] = self.amplitude, self.frequency, self.phase
+        p[P_LA2], p[P_LP2], p[P_LA3], p[P_LP3] = self.a2, self.phi2, self.a3, self.phi3
+
+
+@dataclasses.dataclass(frozen=True)
+class ForceSensorDrift(Effect):
+    """A load cell zeroed at the record's start that drifts, seen by the log only:
+    F_log[k] = F[k] + r·t_k with t_k = k·dt; rate_n_per_s = r [N/s] (either sign)."""
+
+    rate_n_per_s: float
+    name = "force_sensor_drift"
+
+    def fill(self, p, flags, axis):
+        flags[F_FSENS] = 1
+        p[P_DRIFT] = self.rate_n_per_s
 
 
 @dataclasses.dataclass(frozen=True)
@@ -652,9 +732,10 @@ class PDLoop:
 
 @dataclasses.dataclass
 class SimResult:
-    """A simulated record: logged x [m] (measured) and F [N] (command), dt [s]; true signals of
-    the measured body x_true [m], v_true [m/s]; the driven mass x1, v1; u the applied force at
-    the start of each interval [N] (after delay and input maps)."""
+    """A simulated record: logged x [m] (measured) and F [N] (the command as the force sensor
+    reads it), dt [s]; true signals of the measured body x_true [m], v_true [m/s]; the driven
+    mass x1, v1; u the applied force at the start of each interval [N] (after delay and input
+    maps); F_cmd the command itself [N] (= F without a force-sensor artefact)."""
 
     x: np.ndarray
     F: np.ndarray
@@ -664,6 +745,7 @@ class SimResult:
     x1: np.ndarray
     v1: np.ndarray
     u: np.ndarray
+    F_cmd: np.ndarray | None = None
 
     @property
     def finite(self) -> bool:
@@ -686,6 +768,9 @@ def compile_axis(axis: Axis):
         raise ValueError(f"at most one friction and one second body, got {names}")
     if sum(isinstance(e, HardSaturation | SoftSaturation) for e in axis.effects) > 1:
         raise ValueError(f"at most one saturation, got {names}")
+    for kind in (QuadraticDrag, ForceSensorLine, ForceSensorDrift):
+        if sum(isinstance(e, kind) for e in axis.effects) > 1:
+            raise ValueError(f"at most one {kind.name}, got {names}")
     # the mass split first: it rewrites a, b that the position dependence then modulates
     for e in sorted(axis.effects, key=lambda e: not isinstance(e, FlexibleMode | Backlash)):
         e.fill(p, flags, axis)
@@ -724,7 +809,7 @@ def simulate(
     noise = np.random.default_rng(seed).standard_normal(exc.size) * noise_std
     closed = loop is not None
     kp, kd, fv, xr = (loop.kp, loop.kd, loop.velocity_hz, loop.x_ref) if closed else (0, 0, 1, 0)
-    xm, Fc, traj, u = _kernel(
+    xm, Fc, Flog, traj, u = _kernel(
         flags,
         p,
         exc,
@@ -744,13 +829,14 @@ def simulate(
     meas2 = bool(flags[F_MEAS2])
     return SimResult(
         x=xm,
-        F=Fc,
+        F=Flog,
         dt=dt,
         x_true=traj[:, 3] if meas2 else traj[:, 0],
         v_true=traj[:, 4] if meas2 else traj[:, 1],
         x1=traj[:, 0],
         v1=traj[:, 1],
         u=u,
+        F_cmd=Fc,
     )
 
 

@@ -5,13 +5,16 @@ Each case draws a random setup and one effect class, simulates a *train* and a *
 ``lj.diagnose``; nothing else of the simulation reaches the diagnosis.
 
 Sources:
-    ``twin``  — lionjax's own twin (``lionjax.twin.simulate``), with the twin's effects plus three
+    ``twin``  — lionjax's own twin (``lionjax.twin.simulate``), with the twin's effects plus four
                 out-of-library effects written here as twin effect classes (cogging, dead zone,
-                backlash);
+                backlash, quadratic drag) and two force-sensor artefacts (mains line, drift)
+                added to the logged force after the simulation (the twin's sensor interface
+                sees no time; the loop never reads the logged force);
     ``scipy`` — ``benchmarks/_blind_sim.py``, a simulator written independently of lionjax (numpy,
                 scipy, numba; RK4 per hold interval, switched stick–slip), with effect shapes of
                 its own (Stribeck/LuGre/Dahl friction, three position-dependence shapes,
-                non-collocated flexible mode …).
+                non-collocated flexible mode …); its kernel adds the sensor artefacts to the
+                logged force only.
 
 Setup (per case, drawn from ``numpy.random.default_rng(seed)``): sample rate f_s log-uniform in
 [--rate-min, --rate-max] (default 250 Hz – 5 kHz, dt = 1/f_s, non-round); duration uniform in
@@ -31,7 +34,11 @@ same run — excitation, loop, noise — without the effect) must lie in [2 %, 8
 from its prior up to 4 times, then bisected/extended in log s within wider hard limits (8 more
 tries; a simulation that blows up counts as too strong); a draw no strength can size (a mode far
 above the excited band) is redrawn whole, up to 6 draws. Cases whose size stays outside the band
-are kept, counted and flagged (``size_in_band``). Two-effect classes size each effect alone.
+are kept, counted and flagged (``size_in_band``). Two- and three-effect classes size each effect
+alone. The *dominant* classes use the band [80 %, 99.9 %] instead (the baseline mass–damper is
+qualitatively wrong). The force-sensor artefacts leave the device's motion unchanged (c = 0 by
+construction): they are sized by their amplitude A/F_rms instead (F_rms the clean valid record's
+logged force).
 
 Classes → accepted answer:
     none                     → verdict ``none``
@@ -49,14 +56,41 @@ Classes → accepted answer:
                                                        noncollocated
     coulomb_friction+offset, spring+delay → both names among the first three of the ranking
                                 (``d.stack``, then the other names of ``d.effects`` in order)
-    cogging, dead_zone, backlash → ``unexplained``
+    cogging, dead_zone, backlash → ``unexplained`` (the class name instead when ``--candidates``
+                                passes a candidate of that name; the same for quadratic_drag)
+    spring_dominant          → ``spring``   f_n = √(k/M)/2π in [1.2, 3]× the diagnosis' default
+                               filter corner min(f_s/25, 40 Hz), below f_s/8; c in [80, 99.9] %
+    stiction_dominant        → ``coulomb_friction`` or ``asymmetric_friction``   Stribeck (scipy
+                               also LuGre), F_s = 1.5–2.5 F_c, v_s = 1–5 % of the clean v_rms,
+                               open loop, slow input (f_hi 1.5–4 Hz); c in [80, 99.9] %, the
+                               stuck share (|v_true| ≤ v_s/10) aimed at 30–70 % and recorded
+    triple                   → all three names in ``d.stack`` (``offset`` counts as present when
+                               ``spring`` is: its equilibrium holds a constant force); one of
+                               coulomb_friction+spring+offset (open loop),
+                               coulomb_friction+delay+offset, spring+delay+coulomb_friction,
+                               saturation+coulomb_friction+offset
+    quadratic_drag           → ``unexplained`` (``quadratic_drag`` with ``--candidates``, above)
+                               drag −c₂·v|v|, c₂·v_rms/C log-uniform prior [0.05, 2]
+    force_sensor_line        → ``force_sensor_line`` or ``unexplained``   logged F = applied F +
+                               A·sin(2π f₀ t + φ) (+ 2nd, 3rd harmonic at 5–40 % of A, half the
+                               cases), f₀ = 50 or 60 Hz (50 Hz without harmonics unless
+                               3f₀ < f_s/2); A/F_rms log-uniform [0.05, 1]; the device never
+                               feels it
+    force_sensor_drift       → ``force_sensor_drift`` or ``unexplained``   logged F = applied F +
+                               r·t (load cell zeroed at each record's start), |r|·T = A,
+                               A/F_rms log-uniform [0.1, 1], either sign
 
 Crashes (any exception in ``diagnose``) count as wrong answers and are listed; a failing
 simulation is a benchmark bug, listed separately and not scored.
 
 Seeds: case i (< 1000) of class c and source s uses seed0 + 10000·c + 1000·s + i, with c, s the
-indices in ``CLASSES``, ``SOURCES``; a run covers [seed0, seed0 + 140000). Tune on ``--seed 0``,
-report on ``--seed 1000000``.
+indices in ``CLASSES``, ``SOURCES`` (new classes are appended, so no seed moves); a run covers
+[seed0, seed0 + 200000). Tune on ``--seed 0``, report on ``--seed 1000000``.
+
+Extra candidates: ``--candidates FILE.py:Name[,Name…]`` passes
+``candidates=lj.diagnosis.DEFAULT_CANDIDATES + lj.diagnosis.load_candidates(spec)`` to
+``lj.diagnose`` (each worker loads the spec once); the spec and the candidates' names are kept
+in the summary.
 
     python benchmarks/diagnosis_blind.py --per-class 20 --jobs 2 --seed 1000000 --json out.json
 """
@@ -92,7 +126,23 @@ LIBRARY = (
 )
 TWO = ("coulomb_friction+offset", "spring+delay")
 OUT_OF_LIBRARY = ("cogging", "dead_zone", "backlash")
-CLASSES = ("none", *LIBRARY, *TWO, *OUT_OF_LIBRARY)
+DOMINANT = ("spring_dominant", "stiction_dominant")
+#: effects of the force sensor, seen by the log only (the device never feels them)
+ARTEFACTS = ("force_sensor_line", "force_sensor_drift")
+#: out-of-library effects on the device, accepted under their own name when ``--candidates``
+#: passes a candidate of that name, else as ``unexplained``
+OWN_NAME_WITH_CANDIDATES = (*OUT_OF_LIBRARY, "quadratic_drag")
+#: appended after the classes above so that no existing class' seeds move
+NEW = (*DOMINANT, "triple", "quadratic_drag", *ARTEFACTS)
+CLASSES = ("none", *LIBRARY, *TWO, *OUT_OF_LIBRARY, *NEW)
+#: the triples of class ``triple`` (drawn uniformly); the first runs open loop (the issue's case)
+TRIPLES = (
+    "coulomb_friction+spring+offset",
+    "coulomb_friction+delay+offset",
+    "spring+delay+coulomb_friction",
+    "saturation+coulomb_friction+offset",
+)
+OPEN_LOOP_TRIPLES = ("coulomb_friction+spring+offset",)
 #: sub-shapes per (class, source)
 SHAPES = {
     "coulomb_friction": {"twin": ("coulomb", "stribeck"), "scipy": ("stribeck", "lugre", "dahl")},
@@ -106,13 +156,29 @@ SHAPES = {
     "cogging": {"twin": ("sine",), "scipy": ("sine",)},
     "dead_zone": {"twin": ("symmetric",), "scipy": ("symmetric",)},
     "backlash": {"twin": ("two_mass",), "scipy": ("two_mass",)},
+    "spring_dominant": {"twin": ("linear",), "scipy": ("linear",)},
+    "stiction_dominant": {"twin": ("stribeck",), "scipy": ("stribeck", "lugre")},
+    "quadratic_drag": {"twin": ("quadratic",), "scipy": ("quadratic",)},
+    "force_sensor_line": {"twin": ("line",), "scipy": ("line",)},
+    "force_sensor_drift": {"twin": ("ramp",), "scipy": ("ramp",)},
 }
 BAND = (0.02, 0.80)
+#: response-change band of the dominant classes
+DOMINANT_BAND = (0.80, 0.999)
+#: share of samples the stiction class aims to stick (|v_true| ≤ v_s/10)
+STICK_AIM = (0.30, 0.70)
+
 RATE_BINS = ((250, 500), (500, 1000), (1000, 2000), (2000, 5000))
 CONF_BINS = ((0.0, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.0))
 #: Bins of a record's noise ratio (the baseline's equation error over its estimated noise floor,
 #: ``evidence["noise_ratio"]``): at or below 1 the baseline already fits down to the noise.
 NOISE_BINS = ((0.0, 1.0), (1.0, 3.0), (3.0, math.inf))
+
+
+def filter_corner(fs: float) -> float:
+    """The diagnosis' default filter corner [Hz]: min(f_s/25, 40 Hz) (``lj.diagnose``'s
+    ``filter_hz``; fixed here so that the benchmark's draws do not follow the library)."""
+    return min(fs / 25.0, 40.0)
 
 
 def _logu(rng, lo, hi):
@@ -159,12 +225,26 @@ class Setup:
         return kp, kd
 
 
-def draw_setup(rng, source, rate=(250.0, 5000.0), duration=(4.0, 12.0)) -> Setup:
+def draw_setup(
+    rng,
+    source,
+    rate=(250.0, 5000.0),
+    duration=(4.0, 12.0),
+    *,
+    closed: bool | None = None,
+    f_lo=(0.2, 1.0),
+    f_hi=(4.0, 20.0),
+    kinds=bs.EXCITATIONS,
+) -> Setup:
+    """One case's setup. ``closed`` forces the loop (the draw is still made, so the stream
+    does not shift); ``f_lo``, ``f_hi`` [Hz] are the ranges of the excitation band's edges
+    (f_hi also ≤ f_s/10); ``kinds`` the excitation kinds drawn from."""
     fs = _logu(rng, *rate)
     dur = float(rng.uniform(*duration)) if duration[1] > duration[0] else float(duration[0])
     n = int(round(dur * fs)) + 1
     a, b = _logu(rng, 5, 50), _logu(rng, 0.3, 5)
-    closed = bool(rng.random() < 0.5)
+    closed_draw = bool(rng.random() < 0.5)
+    closed = closed_draw if closed is None else bool(closed)
     fc, zeta, fv = (
         float(rng.uniform(2, 6)),
         float(rng.uniform(0.5, 1.0)),
@@ -175,11 +255,11 @@ def draw_setup(rng, source, rate=(250.0, 5000.0), duration=(4.0, 12.0)) -> Setup
     noise = 0.0 if rng.random() < 0.5 else _logu(rng, 0.2e-6, 5e-6)
     excs, infos = [], []
     for _ in range(2):
-        kind = str(rng.choice(bs.EXCITATIONS))
-        f_lo = _logu(rng, 0.2, 1.0)
-        f_hi = min(_logu(rng, 4.0, 20.0), fs / 10)
-        excs.append(bs.excitation(kind, rng, n, fs, rms, f_lo, f_hi))
-        infos.append({"kind": kind, "f_lo": f_lo, "f_hi": f_hi})
+        kind = str(rng.choice(kinds))
+        lo = _logu(rng, *f_lo)
+        hi = min(_logu(rng, *f_hi), fs / 10)
+        excs.append(bs.excitation(kind, rng, n, fs, rms, lo, hi))
+        infos.append({"kind": kind, "f_lo": lo, "f_hi": hi})
     seeds = tuple(int(s) for s in rng.integers(0, 2**31 - 1, 2))
     return Setup(
         source,
@@ -216,6 +296,17 @@ class Draw:
     change: float = math.nan
     tries: int = 0
     redraws: int = 0
+    band: tuple[float, float] = BAND  # the response-change band of the sizing
+    #: (lo, hi, metric): a second target of the sizing, metric(v_true) within [lo, hi]
+    #: (sought among the strengths whose change lies in ``band``)
+    aim: tuple | None = None
+    aim_value: float | None = None
+    #: a force-sensor artefact: the device never feels it; sized by its prior alone
+    artefact: bool = False
+    #: the fastest rate [1/s] the effect reaches within its limits (the twin's sub-steps)
+    rate_max: float = 0.0
+    #: draws whole before the sizing gives up (1: a redraw changes nothing that sizes it)
+    max_draws: int = 6
 
 
 def draw_effect(name: str, rng, st: Setup, stats: dict) -> Draw:
@@ -344,6 +435,94 @@ def draw_effect(name: str, rng, st: Setup, stats: dict) -> Draw:
             (0.001, 3.0),
             lambda s: {"half_gap": s * xs, "mass_ratio": mu, "frequency": f, "damping_ratio": zeta},
         )
+    if name == "spring_dominant":  # above the diagnosis' default filter corner
+        fh = filter_corner(st.fs)
+        lo, hi = 1.2 * fh, min(3.0 * fh, st.fs / 8)
+        # the preload k·(0 − x_eq) = u·F_rms: a stiff spring whose equilibrium lay where the
+        # clean run goes (cm) would start the record with a ring-down at f_n far larger than
+        # the response to the excitation
+        u = rng.uniform(-0.5, 0.5)
+
+        def params(s):
+            k = st.M * (2 * math.pi * s) ** 2
+            return {"k": k, "x_eq": -u * Frms / k, "f_n": s, "filter_hz": fh}
+
+        return Draw(
+            "spring",
+            shape,
+            (lo, hi),
+            (lo, hi),
+            params,
+            band=DOMINANT_BAND,
+            rate_max=2 * math.pi * hi,
+            max_draws=1,
+        )
+    if name == "stiction_dominant":
+        ratio, vs = rng.uniform(1.5, 2.5), _logu(rng, 0.01, 0.05) * vrms
+        zp, zeta = _logu(rng, 2e-6, 30e-6), rng.uniform(0.1, 1.0)
+
+        def params(s):
+            fc = s * Frms
+            p = {"fc": fc, "fs": fc * ratio, "vs": vs}
+            if shape == "lugre":
+                s0 = fc * ratio / zp
+                p.update(sigma0=s0, sigma1=2 * zeta * math.sqrt(s0 * st.M))
+            return p
+
+        prior = (0.1, 0.6)
+        stuck = (*STICK_AIM, lambda v: float(np.mean(np.abs(v) <= 0.1 * vs)))
+        return Draw(
+            "coulomb_friction",
+            shape,
+            prior,
+            (0.01, 3.0),
+            params,
+            band=DOMINANT_BAND,
+            aim=stuck,
+            rate_max=0.9 * st.b * (ratio - 1) * prior[1] * Frms / vs,  # the Stribeck slope
+        )
+    if name == "quadratic_drag":  # s: drag over viscous force at the clean v_rms
+        vref = max(vrms, 1e-9)
+
+        def params(s):
+            return {"c2": s * C / vref}
+
+        c2 = params(10.0)["c2"]  # rate 2·b·c₂·|v| with |v| ≤ 4 v_rms and c₂v² ≤ F_max
+        rate = 2 * st.b * min(c2 * 4 * vref, math.sqrt(c2 * stats["F_max"]))
+        return Draw(name, shape, (0.05, 2.0), (0.005, 10.0), params, rate_max=rate)
+    if name == "force_sensor_line":
+        f0 = float(rng.choice([50.0, 60.0]))
+        harmonics = 3 * f0 < st.fs / 2
+        if not harmonics:
+            f0 = 50.0
+        if f0 >= 0.45 * st.fs:
+            raise ValueError(f"f_s = {st.fs:.1f} Hz is too low for a {f0:g} Hz mains line")
+        ph = rng.uniform(0, 2 * math.pi, 3)
+        with_h = harmonics and rng.random() < 0.5
+        r2, r3 = (_logu(rng, 0.05, 0.4), _logu(rng, 0.05, 0.4)) if with_h else (0.0, 0.0)
+
+        def params(s):
+            A = s * Frms
+            return {
+                "amplitude": A,
+                "frequency": f0,
+                "phase": float(ph[0]),
+                "a2": r2 * A,
+                "phi2": float(ph[1]),
+                "a3": r3 * A,
+                "phi3": float(ph[2]),
+            }
+
+        shape = f"{f0:g}Hz" + ("+harmonics" if with_h else "")
+        return Draw(name, shape, (0.05, 1.0), (0.05, 1.0), params, artefact=True)
+    if name == "force_sensor_drift":
+        sign = float(rng.choice([-1.0, 1.0]))
+        T = (st.n - 1) / st.fs
+
+        def params(s):
+            return {"rate": sign * s * Frms / T, "amplitude": sign * s * Frms}
+
+        return Draw(name, shape, (0.1, 1.0), (0.1, 1.0), params, artefact=True)
     raise ValueError(f"unknown effect class {name!r}; expected one of {CLASSES}")
 
 
@@ -372,6 +551,9 @@ def _scipy_effects(d: Draw, p: dict):
         "cogging": lambda: bs.Cogging(**p),
         "dead_zone": lambda: bs.DeadZone(p["d"]),
         "backlash": lambda: bs.Backlash(**p),
+        "quadratic_drag": lambda: bs.QuadraticDrag(p["c2"]),
+        "force_sensor_line": lambda: bs.ForceSensorLine(**p),
+        "force_sensor_drift": lambda: bs.ForceSensorDrift(p["rate"]),
     }[d.name]()
 
 
@@ -459,7 +641,51 @@ def _twin_classes():
         def states_rhs(self, x, v, z):
             return jnp.stack([z[1], (self._gap(x, v, z) - self.cg * z[1]) / self.m])
 
-    _TWIN = {"cogging": Cogging, "dead_zone": DeadZone, "backlash": Backlash}
+    class QuadraticDrag(tw.AbstractForceEffect):
+        """Quadratic drag −c₂·ẋ·|ẋ| [N], c₂ [N·s²/m²]."""
+
+        c2: object
+
+        def __init__(self, c2):
+            self.c2 = jnp.asarray(c2)
+
+        def force(self, x, v, z):
+            return -self.c2 * v * jnp.abs(v)
+
+    class ForceSensorLine:
+        """Mains pick-up of the force sensor: adds A·sin(2πf₀t + φ) + A₂·sin(4πf₀t + φ₂) +
+        A₃·sin(6πf₀t + φ₃) [N] to the logged force, t = k·dt from the record's start.
+
+        Not a ``tw.AbstractMeasurement``: that interface sees (x, F, key) at one sample, not the
+        time. The loop and the axis use the command, never the logged force, so adding the line
+        to the logged force after ``tw.simulate`` is the same record."""
+
+        def __init__(self, amplitude, frequency, phase, a2=0.0, phi2=0.0, a3=0.0, phi3=0.0):
+            self.terms = ((amplitude, 1, phase), (a2, 2, phi2), (a3, 3, phi3))
+            self.frequency = frequency
+
+        def read(self, F, dt):
+            w = 2 * np.pi * self.frequency * np.arange(F.size) * dt
+            return F + sum(A * np.sin(h * w + ph) for A, h, ph in self.terms)
+
+    class ForceSensorDrift:
+        """A load cell zeroed at the record's start that drifts: adds r·t [N] to the logged
+        force (see :class:`ForceSensorLine` for why after the simulation)."""
+
+        def __init__(self, rate):
+            self.rate = rate
+
+        def read(self, F, dt):
+            return F + self.rate * np.arange(F.size) * dt
+
+    _TWIN = {
+        "cogging": Cogging,
+        "dead_zone": DeadZone,
+        "backlash": Backlash,
+        "quadratic_drag": QuadraticDrag,
+        "force_sensor_line": ForceSensorLine,
+        "force_sensor_drift": ForceSensorDrift,
+    }
     return _TWIN
 
 
@@ -473,6 +699,8 @@ def _twin_static(st: Setup, effects) -> tuple[int, float]:
             n_sub = max(n_sub, int(math.ceil(st.dt * w / 0.5)))
         if d.name == "delay":
             max_delay = d.limits[1]
+        if d.rate_max > 0:  # the newer classes' fast rates (h·rate ≤ 0.5, at most 32 steps)
+            n_sub = max(n_sub, min(int(math.ceil(st.dt * d.rate_max / 0.5)), 32))
     return n_sub, max_delay
 
 
@@ -483,7 +711,7 @@ def _simulate_twin(st: Setup, effects, j: int):
 
     extra = _twin_classes()
     a, b = st.a, st.b
-    eff = []
+    eff, readers = [], []
     n_sub, max_delay = _twin_static(st, effects)
     for d in effects:
         p = d.params(d.strength)
@@ -509,6 +737,12 @@ def _simulate_twin(st: Setup, effects, j: int):
             eff.append(extra["cogging"](p["amplitude"], p["period"], p["phase"]))
         elif d.name == "dead_zone":
             eff.append(extra["dead_zone"](p["d"]))
+        elif d.name == "quadratic_drag":
+            eff.append(extra["quadratic_drag"](p["c2"]))
+        elif d.name == "force_sensor_line":
+            readers.append(extra["force_sensor_line"](**p))
+        elif d.name == "force_sensor_drift":
+            readers.append(extra["force_sensor_drift"](p["rate"]))
         elif d.name == "backlash":
             mu, M = p["mass_ratio"], 1 / st.b
             m1, ml = (1 - mu) * M, mu * M
@@ -533,9 +767,12 @@ def _simulate_twin(st: Setup, effects, j: int):
         closed_loop=loop,
         n_substeps=n_sub,
     )
+    F = np.asarray(rec.F)
+    for r in readers:  # the force sensor's artefacts: the logged force only
+        F = r.read(F, st.dt)
     return (
         np.asarray(rec.x),
-        np.asarray(rec.F),
+        F,
         np.asarray(rec.extras["x_true"]),
         np.asarray(rec.extras["v_true"]),
     )
@@ -553,41 +790,66 @@ def _change(v, v0) -> float:
 
 
 def size_effect(st: Setup, d: Draw, rng, v0: np.ndarray) -> bool:
-    """Set ``d.strength`` so that the valid record's response change lies in ``BAND``."""
-    lo, hi = BAND
-    tried = []
+    """Set ``d.strength`` so that the valid record's response change lies in ``d.band`` (and,
+    with ``d.aim``, its metric in the aim's range); True when the change lies in the band."""
+    lo, hi = d.band
+    tried = []  # (s, c, metric or None)
+
+    def side(c, m):  # -1 too weak, +1 too strong, 0 on target
+        if c < lo:
+            return -1
+        if not c <= hi:
+            return 1
+        if m is not None and not m >= d.aim[0]:
+            return -1
+        if m is not None and m > d.aim[1]:
+            return 1
+        return 0
 
     def attempt(s):
         d.strength = s
-        c = _change(simulate(st, [d], 1)[3], v0)
-        tried.append((s, c))
+        v = simulate(st, [d], 1)[3]
+        c = _change(v, v0)
+        m = d.aim[2](v) if d.aim is not None and math.isfinite(c) else None
+        tried.append((s, c, m))
         d.tries += 1
-        return lo <= c <= hi
+        return side(c, m) == 0
+
+    def done():
+        d.strength, d.change, d.aim_value = tried[-1]
+        return True
 
     for _ in range(4):
         if attempt(_logu(rng, *d.prior)):
-            d.change = tried[-1][1]
-            return True
+            return done()
     for _ in range(8):
-        below = [s for s, c in tried if c < lo]
-        above = [s for s, c in tried if c > hi]
+        below = [s for s, c, m in tried if side(c, m) < 0]
+        above = [s for s, c, m in tried if side(c, m) > 0]
         if below and above:
             s = math.sqrt(max(below) * min(above))
         elif below:
             s = min(max(below) * 3.0, d.limits[1])
         else:
             s = max(min(above) / 3.0, d.limits[0])
-        if any(abs(s - t) <= 1e-12 * s for t, _ in tried):
+        if any(abs(s - t) <= 1e-12 * s for t, _, _ in tried):
             break  # at a limit
         if attempt(s):
-            d.change = tried[-1][1]
-            return True
+            return done()
 
     def dist(c):
         return abs(math.log(max(min(c, 1e6), 1e-12) / math.sqrt(lo * hi)))
 
-    s, c = min(tried, key=lambda t: dist(t[1]))
-    d.strength, d.change = s, c
+    def aim_miss(m):
+        return max(d.aim[0] - m, m - d.aim[1], 0.0) if m is not None else math.inf
+
+    inside = [t for t in tried if lo <= t[1] <= hi]  # only with an aim: the change in band
+    if inside:
+        d.strength, d.change, d.aim_value = min(inside, key=lambda t: aim_miss(t[2]))
+        return True
+    # never keep a strength that stops the axis for good (metric 1: stuck throughout) when
+    # another was tried
+    moving = [t for t in tried if t[2] is None or t[2] < 0.99] or tried
+    d.strength, d.change, d.aim_value = min(moving, key=lambda t: dist(t[1]))
     return False
 
 
@@ -622,8 +884,21 @@ def make_case(
     """
     import lionjax as lj
 
+    if cls not in CLASSES:
+        raise ValueError(f"unknown class {cls!r}; expected one of {CLASSES}")
     rng = np.random.default_rng(seed)
-    st = draw_setup(rng, source, rate, (duration, duration) if duration else durations)
+    names = [] if cls == "none" else cls.split("+")
+    setup_kw = {}
+    if cls == "triple":  # the triple first: it may fix the loop
+        names = str(rng.choice(TRIPLES)).split("+")
+        if "+".join(names) in OPEN_LOOP_TRIPLES:
+            setup_kw["closed"] = False
+    elif cls == "stiction_dominant":  # open loop, slow input: the axis sticks
+        # no random steps: at a low band a record holds only a few levels, so the share stuck
+        # jumps between them and the change from ~0.7 to 1 (all levels below break-away)
+        kinds = tuple(k for k in bs.EXCITATIONS if k != "steps")
+        setup_kw = {"closed": False, "f_lo": (0.2, 0.6), "f_hi": (1.5, 4.0), "kinds": kinds}
+    st = draw_setup(rng, source, rate, (duration, duration) if duration else durations, **setup_kw)
     x0, F0, _, v0 = simulate(st, [], 1)
     stats = _stats(x0, F0, v0)
     # a hard clip must lie within both records' force range: the diagnosis fits on the train
@@ -633,22 +908,33 @@ def make_case(
     stats["F_max_both"] = min(stats["F_max"], float(np.max(np.abs(train0[1]))))
     (lt, ht), (lv, hv) = (np.quantile(r, [0.05, 0.95]) for r in (train0[0], x0))
     stats["x_both"] = (max(lt, lv), min(ht, hv)) if min(ht, hv) > max(lt, lv) else (lt, ht)
-    names = [] if cls == "none" else cls.split("+")
-    draws, in_band = [], []
+    draws = []
     for nm in names:
-        for redraw in range(6):  # a draw no strength can size (e.g. a mode far above the
-            d = draw_effect(nm, rng, st, stats)  # excited band) is redrawn whole
+        redraw = 0
+        while True:  # a draw no strength can size (e.g. a mode far above the excited band) is
+            d = draw_effect(nm, rng, st, stats)  # redrawn whole, up to d.max_draws draws
             d.redraws = redraw
-            if size_effect(st, d, rng, v0):
+            if d.artefact:  # sized by its amplitude: the device never feels it
+                d.strength = _logu(rng, *d.prior)
                 break
+            if size_effect(st, d, rng, v0) or redraw + 1 >= d.max_draws:
+                break
+            redraw += 1
         draws.append(d)
-        in_band.append(BAND[0] <= d.change <= BAND[1])
-    recs, changes = [], []
+    recs, changes, v_eff = [], [], []
     for j in range(2):
         x, F, _, v = simulate(st, draws, j)
         ref = v0 if j == 1 else train0[3]
         changes.append(_change(v, ref))
+        v_eff.append(v)
         recs.append(lj.Record(x, F, st.dt))
+    for d in draws:
+        if d.artefact:
+            d.change = changes[1]  # 0: the device's motion is the clean run's
+    in_band = [
+        d.prior[0] <= d.strength <= d.prior[1] if d.artefact else d.band[0] <= d.change <= d.band[1]
+        for d in draws
+    ]
     info = {
         "class": cls,
         "source": source,
@@ -687,9 +973,22 @@ def make_case(
             for d in draws
         ],
         "size_in_band": bool(all(in_band)),
+        "size_band": list(DOMINANT_BAND if cls in DOMINANT else BAND),
         "response_change": changes[1],
         "response_change_train": changes[0],
+        "truth": [d.name for d in draws],
     }
+    if cls == "triple":
+        info["shape"] = "+".join(names) + " / " + info["shape"]
+    aims = [d for d in draws if d.aim is not None]
+    if aims:  # the stuck share of both records (|v_true| ≤ v_s/10)
+        info["stick_share"] = aims[0].aim[2](v_eff[1])
+        info["stick_share_train"] = aims[0].aim[2](v_eff[0])
+        info["stick_share_in_aim"] = bool(STICK_AIM[0] <= info["stick_share"] <= STICK_AIM[1])
+    arts = [d for d in draws if d.artefact]
+    if arts:  # the artefact's size: its amplitude over the clean valid record's RMS force
+        info["artefact_size"] = arts[0].strength
+        info["device_unchanged"] = bool(changes[0] == 0.0 and changes[1] == 0.0)
     if not all(np.all(np.isfinite(r.x)) and np.all(np.isfinite(r.F)) for r in recs):
         raise FloatingPointError("simulation blew up (non-finite record)")
     return recs[0], recs[1], info
@@ -705,17 +1004,37 @@ def ranking(d) -> list[str]:
     return stack + [e.name for e in d.effects if e.name not in stack]
 
 
-def is_correct(cls: str, verdict: str | None, rank: Sequence[str]) -> bool:
+def is_correct(
+    cls: str,
+    verdict: str | None,
+    rank: Sequence[str],
+    stack: Sequence[str] = (),
+    truth: Sequence[str] = (),
+    extra: Sequence[str] = (),
+) -> bool:
+    """Whether ``verdict`` (``None``: a crash) is an accepted answer for class ``cls`` (the
+    module docstring's list). ``rank``: :func:`ranking`; ``stack``: ``d.stack``; ``truth``: the
+    case's effect names (class ``triple``); ``extra``: the names of the candidates passed
+    beyond the default library (``--candidates``)."""
     if verdict is None:  # crash
         return False
     if cls == "none":
         return verdict == "none"
-    if cls == "asymmetric_friction":
+    if cls in ("asymmetric_friction", "stiction_dominant"):
         return verdict in ("coulomb_friction", "asymmetric_friction")
     if cls in TWO:
         return set(cls.split("+")) <= set(rank[:3])
-    if cls in OUT_OF_LIBRARY:
-        return verdict == "unexplained"
+    if cls == "triple":
+        if len(set(truth)) != 3:
+            raise ValueError(f"class triple needs its three effect names, got truth={truth!r}")
+        have = set(stack) | ({"offset"} if "spring" in stack else set())
+        return set(truth) <= have
+    if cls in OWN_NAME_WITH_CANDIDATES:
+        return verdict == (cls if cls in extra else "unexplained")
+    if cls in ARTEFACTS:
+        return verdict in (cls, "unexplained")
+    if cls == "spring_dominant":
+        return verdict == "spring"
     return verdict == cls
 
 
@@ -730,9 +1049,26 @@ def _oracle(cls, d) -> float | None:
     return None
 
 
+_EXTRA: dict[str, tuple] = {}
+
+
+def extra_candidates(spec: str) -> tuple:
+    """``lj.diagnosis.load_candidates(spec)`` (``FILE.py:Name[,Name…]``), loaded once per
+    process; imported only here, so a run without ``--candidates`` never needs it."""
+    if spec not in _EXTRA:
+        from lionjax.diagnosis import load_candidates
+
+        _EXTRA[spec] = tuple(load_candidates(spec))
+    return _EXTRA[spec]
+
+
 def run_case(spec: tuple) -> dict:
-    """One case: simulate, diagnose, score. Never raises (errors are recorded)."""
-    cls, source, seed, kw, diagnose = spec
+    """One case: simulate, diagnose, score. Never raises (errors are recorded).
+
+    ``spec`` = (class, source, seed, make_case keywords, diagnose or None[, candidates spec or
+    None]), as :func:`case_specs` builds it."""
+    cls, source, seed, kw, diagnose, *rest = spec
+    cand = rest[0] if rest else None
     row = {"class": cls, "source": source, "seed": seed}
     t0 = time.perf_counter()
     try:
@@ -746,9 +1082,22 @@ def run_case(spec: tuple) -> dict:
         import lionjax as lj
 
         diagnose = lj.diagnose
+    extra, call_kw = (), {}
+    if cand:
+        import lionjax as lj
+
+        try:
+            extra = extra_candidates(cand)
+        except Exception as e:  # a setup error, not the diagnosis': listed, not scored
+            row.update(sim_error=f"candidates {cand!r}: {type(e).__name__}: {e}")
+            row["traceback"] = traceback.format_exc(limit=4)
+            return row
+        call_kw["candidates"] = tuple(lj.diagnosis.DEFAULT_CANDIDATES) + extra
+    names = [c.name for c in extra]
+    row["extra_candidates"] = names
     t1 = time.perf_counter()
     try:
-        d = diagnose(train, valid)
+        d = diagnose(train, valid, **call_kw)
     except Exception as e:
         row["seconds"] = time.perf_counter() - t1
         row.update(
@@ -771,7 +1120,7 @@ def run_case(spec: tuple) -> dict:
         ambiguous=amb,
         stack=list(d.stack),
         ranking=rank,
-        correct=is_correct(cls, str(d.verdict), rank),
+        correct=is_correct(cls, str(d.verdict), rank, list(d.stack), info["truth"], names),
         shrink=float(d.final["shrink"]),
         oracle_shrink=_oracle(cls, d),
         crash=None,
@@ -803,7 +1152,9 @@ def _evidence(d) -> dict:
     }
 
 
-def case_specs(per_class, seed0, classes, sources, diagnose=None, **kw) -> list[tuple]:
+def case_specs(
+    per_class, seed0, classes, sources, diagnose=None, candidates=None, **kw
+) -> list[tuple]:
     if per_class > 1000:
         raise ValueError("per_class must be ≤ 1000 (seed layout)")
     specs = []
@@ -812,7 +1163,8 @@ def case_specs(per_class, seed0, classes, sources, diagnose=None, **kw) -> list[
         for src in sources:
             si = SOURCES.index(src)
             for i in range(per_class):
-                specs.append((cls, src, seed0 + 10000 * ci + 1000 * si + i, kw, diagnose))
+                seed = seed0 + 10000 * ci + 1000 * si + i
+                specs.append((cls, src, seed, kw, diagnose, candidates))
     return specs
 
 
@@ -851,11 +1203,14 @@ def run(
     durations=(4.0, 12.0),
     progress: bool = True,
     diagnose: Callable | None = None,
+    candidates: str | None = None,
 ) -> dict:
     """Run the blind benchmark; returns :func:`summarise` of the per-case rows.
 
     ``diagnose`` replaces ``lj.diagnose`` (a module-level callable with its signature; the
     smoke test passes a stub to check the plumbing without compiling the diagnosis).
+    ``candidates``: a ``FILE.py:Name[,Name…]`` spec of extra candidates (see the module
+    docstring); loaded here once first, so a bad spec fails before any case runs.
     """
     for c in classes:
         if c not in CLASSES:
@@ -863,8 +1218,11 @@ def run(
     for s in sources:
         if s not in SOURCES:
             raise ValueError(f"unknown source {s!r}; expected some of {SOURCES}")
+    extra_names = None
+    if candidates:
+        extra_names = [c.name for c in extra_candidates(candidates)]
     kw = {"duration": duration, "rate": tuple(rate), "durations": tuple(durations)}
-    specs = case_specs(per_class, seed0, classes, sources, diagnose, **kw)
+    specs = case_specs(per_class, seed0, classes, sources, diagnose, candidates, **kw)
     rows = []
     t0 = time.perf_counter()
     if jobs <= 1:
@@ -893,6 +1251,8 @@ def run(
         "rate_hz": list(rate),
         "duration_s": [duration, duration] if duration else list(durations),
         "jobs": jobs,
+        "candidates": candidates,
+        "extra_candidates": extra_names,
         "wall_s": time.perf_counter() - t0,
     }
     return out
@@ -907,6 +1267,14 @@ def _acc(rows):
         "correct": int(sum(r["correct"] for r in rows)),
         "accuracy": float(np.mean([r["correct"] for r in rows])) if rows else None,
     }
+
+
+def _in_rate_bin(r, lo, hi) -> bool:
+    return lo <= r["fs"] < hi or (hi == RATE_BINS[-1][1] and r["fs"] == hi)
+
+
+def _share(k, n):
+    return {"n": n, "count": k, "rate": k / n if n else None}
 
 
 def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
@@ -927,8 +1295,26 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
         conf[r["class"]][r["verdict"] if r["verdict"] is not None else "CRASH"] += 1
     single = [r for r in scored if r["class"] in LIBRARY]
     two = [r for r in scored if r["class"] in TWO]
+    triples = [r for r in scored if r["class"] == "triple"]
     ool = [r for r in scored if r["class"] in OUT_OF_LIBRARY]
+    ool_art = [r for r in scored if r["class"] in (*OWN_NAME_WITH_CANDIDATES, *ARTEFACTS)]
+    dominant = [r for r in scored if r["class"] in DOMINANT]
     clean = [r for r in scored if r["class"] == "none"]
+    named = [r for r in clean if r["verdict"] not in (None, "none", "unexplained")]
+    confident = [r for r in scored if np.isfinite(r["confidence"]) and r["confidence"] >= 0.9]
+    confident_wrong = [
+        {
+            k: r.get(k)
+            for k in ("class", "source", "seed", "fs", "shape", "verdict", "confidence", "stack")
+        }
+        for r in confident
+        if not r["correct"]
+    ]
+    crashes = [
+        {k: r[k] for k in ("class", "source", "seed", "fs", "crash")}
+        for r in scored
+        if r["verdict"] is None
+    ]
     asym = [r for r in scored if r["class"] == "asymmetric_friction"]
     err = [
         r["shrink"] - r["oracle_shrink"]
@@ -937,10 +1323,16 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
     ]
     by_rate = {}
     for lo, hi in RATE_BINS:
-        sel = [
-            r for r in scored if lo <= r["fs"] < hi or (hi == RATE_BINS[-1][1] and r["fs"] == hi)
-        ]
-        by_rate[f"{lo}-{hi} Hz"] = _acc(sel)
+        by_rate[f"{lo}-{hi} Hz"] = _acc([r for r in scored if _in_rate_bin(r, lo, hi)])
+    by_class_rate = {
+        c: {
+            f"{lo}-{hi} Hz": _acc(
+                [r for r in scored if r["class"] == c and _in_rate_bin(r, lo, hi)]
+            )
+            for lo, hi in RATE_BINS
+        }
+        for c in classes
+    }
     calib = {}
     for lo, hi in CONF_BINS:
         sel = [
@@ -975,6 +1367,7 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
         },
         "per_source": {s: _acc([r for r in scored if r["source"] == s]) for s in SOURCES},
         "per_rate": by_rate,
+        "per_class_rate": by_class_rate,
         "per_loop": {
             k: _acc([r for r in scored if r["closed_loop"] == (k == "closed")])
             for k in ("open", "closed")
@@ -983,23 +1376,50 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
         "single_per_noise_ratio": by_noise,
         "top1_single": _acc(single)["accuracy"],
         "two_effect_both_in_top3": _acc(two)["accuracy"],
+        "triple_all_in_stack": _acc(triples)["accuracy"],
         "out_of_library_unexplained": _acc(ool)["accuracy"],
+        "out_of_library_or_artefact": _acc(ool_art)["accuracy"],
+        "dominant_top1": _acc(dominant)["accuracy"],
         "false_alarm_clean": float(np.mean([not r["correct"] for r in clean])) if clean else None,
         "asymmetric_in_stack": (
             float(np.mean(["asymmetric_friction" in r["stack"] for r in asym])) if asym else None
         ),
         "overall": _acc(scored),
-        "crashes": [
-            {k: r[k] for k in ("class", "source", "seed", "fs", "crash")}
-            for r in scored
-            if r["verdict"] is None
+        # the aggregate figures, each with its counts
+        "aggregate": {
+            "single_top1": _acc(single),
+            "pairs_both_in_top3": _acc(two),
+            "triples_all_in_stack": _acc(triples),
+            "out_of_library_or_artefact_unexplained_or_own_name": _acc(ool_art),
+            "dominant_top1": _acc(dominant),
+            "false_alarms_clean_named": _share(len(named), len(clean)),
+            "wrong_at_confidence_ge_0.9": _share(len(confident_wrong), len(confident)),
+            "crashes": _share(len(crashes), len(scored)),
+        },
+        "confident_wrong": confident_wrong,
+        "false_alarms_named": [
+            {k: r[k] for k in ("source", "seed", "fs", "verdict", "confidence")} for r in named
         ],
+        "crashes": crashes,
         "simulation_failures": sim_fail,
         "size_out_of_band": [
             {k: r[k] for k in ("class", "source", "seed", "fs", "response_change")}
             for r in scored
             if not r["size_in_band"]
         ],
+        "artefact_size": {
+            c: [float(np.min(v)), float(np.median(v)), float(np.max(v))]
+            for c in classes
+            if c in ARTEFACTS
+            for v in [[r["artefact_size"] for r in scored if r["class"] == c]]
+            if v
+        },
+        "stick_share": {
+            c: [float(np.min(v)), float(np.median(v)), float(np.max(v))]
+            for c in classes
+            for v in [[r["stick_share"] for r in scored if r["class"] == c and "stick_share" in r]]
+            if v
+        },
         "shrink_error_vs_oracle": {
             "n": len(err),
             "median_abs": float(np.median(np.abs(err))) if err else None,
@@ -1009,7 +1429,7 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
         "response_change": {
             c: [float(np.min(v)), float(np.median(v)), float(np.max(v))]
             for c in classes
-            if c != "none"
+            if c != "none" and c not in ARTEFACTS
             for v in [[r["response_change"] for r in scored if r["class"] == c]]
             if v
         },
@@ -1069,6 +1489,10 @@ def print_summary(out: dict, fh=sys.stdout) -> None:
     p("\nper source: " + ", ".join(f"{s} {_fmt(a)}" for s, a in out["per_source"].items()))
     p("per loop:   " + ", ".join(f"{s} {_fmt(a)}" for s, a in out["per_loop"].items()))
     p("per sample rate: " + ", ".join(f"{k} {_fmt(a)}" for k, a in out["per_rate"].items()))
+    bins = list(out["per_rate"])
+    p("\nper class × sample rate".ljust(26) + "".join(b.ljust(16) for b in bins))
+    for c, row in out["per_class_rate"].items():
+        p(c.ljust(25) + "".join(_fmt(row[b]).ljust(16) for b in bins))
     p(
         "single-effect records by noise ratio (baseline error / noise floor; ≤ 1: at the floor): "
         + ", ".join(f"{k} {_fmt(a)}" for k, a in out["single_per_noise_ratio"].items())
@@ -1080,7 +1504,10 @@ def print_summary(out: dict, fh=sys.stdout) -> None:
     for k in (
         "top1_single",
         "two_effect_both_in_top3",
+        "triple_all_in_stack",
         "out_of_library_unexplained",
+        "out_of_library_or_artefact",
+        "dominant_top1",
         "false_alarm_clean",
         "asymmetric_in_stack",
     ):
@@ -1097,14 +1524,33 @@ def print_summary(out: dict, fh=sys.stdout) -> None:
         f"  seconds per case (diagnose): mean {s['mean']:.1f}, median {s['median']:.1f}, max "
         f"{s['max']:.1f}; simulation {s['simulate_mean']:.1f} s per case"
     )
+    p("\naggregate")
+    for k, a in out["aggregate"].items():
+        if "accuracy" in a:
+            p(f"  {k:52s} {_fmt(a)}")
+        else:
+            rate = "—" if a["rate"] is None else f"{100 * a['rate']:.1f} %"
+            p(f"  {k:52s} {a['count']}/{a['n']} ({rate})")
+    if out["confident_wrong"]:
+        p("  wrong verdicts at confidence ≥ 0.9:")
+        for r in out["confident_wrong"]:
+            p(
+                f"    {r['source']} {r['class']} seed={r['seed']} fs={r['fs']:.1f} "
+                f"{r['shape']}: {r['verdict']} conf={r['confidence']:.2f}"
+            )
     p("\ncalibration of d.confidence (target: ≥ 0.9 right ≥ 95 %)")
     for k, a in out["calibration"].items():
         p(f"  {k:9s} {_fmt(a)}")
     p("\nresponse change ‖v − v₀‖/‖v₀‖ on valid (min / median / max)")
     for c, v in out["response_change"].items():
         p(f"  {c:25s} {100 * v[0]:5.1f} / {100 * v[1]:5.1f} / {100 * v[2]:5.1f} %")
+    for c, v in out["artefact_size"].items():
+        p(f"  {c:25s} A/F_rms {v[0]:.3f} / {v[1]:.3f} / {v[2]:.3f} (device unchanged)")
+    for c, v in out["stick_share"].items():
+        p(f"  {c:25s} stuck share {100 * v[0]:.0f} / {100 * v[1]:.0f} / {100 * v[2]:.0f} %")
     if out["size_out_of_band"]:
-        p(f"\nsize outside [2, 80] % after the search: {len(out['size_out_of_band'])}")
+        n_out = len(out["size_out_of_band"])
+        p(f"\nsize outside its band (2–80 %; dominant 80–99.9 %) after the search: {n_out}")
         for r in out["size_out_of_band"]:
             p(f"  {r}")
     p(f"\ncrashes: {len(out['crashes'])}")
@@ -1137,6 +1583,11 @@ def main(argv=None) -> None:
     p.add_argument("--duration-min", type=float, default=4.0, help="s")
     p.add_argument("--duration-max", type=float, default=12.0, help="s")
     p.add_argument("--jobs", type=int, default=1, help="worker processes")
+    p.add_argument(
+        "--candidates",
+        help="FILE.py:Name[,Name…]: extra candidates (lj.diagnosis.load_candidates) passed "
+        "with the default library",
+    )
     p.add_argument("--json", help="write the summary and every case here")
     a = p.parse_args(argv)
     out = run(
@@ -1147,6 +1598,7 @@ def main(argv=None) -> None:
         jobs=a.jobs,
         rate=(a.rate_min, a.rate_max),
         durations=(a.duration_min, a.duration_max),
+        candidates=a.candidates,
     )
     print_summary(out)
     if a.json:
