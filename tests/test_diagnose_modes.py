@@ -112,27 +112,25 @@ def _noise_free_noncollocated_mode(monkeypatch, seed):
 
 def test_noncollocated_mode_is_exact(monkeypatch):
     """A non-collocated flexible mode (independent simulator, noise-free, open loop, 905 Hz,
-    17 Hz, ζ = 0.023) obeys ẍ + aẋ − μs²(s²/D)x = b(1 − s²/D)F exactly: at the drawn (ω, ζ)
-    the ε₁ fit returns μ and the input share κ = 1 within 1e-3. The two-stage columns (h's
+    17 Hz, ζ = 0.023) obeys ẍ + aẋ − μs²(s²/D)x = b(1 − s²/D)F exactly: the diagnosis' profile
+    finds (ω, ζ) and the ε₁ fit returns μ and the input share κ = 1. The two-stage columns (h's
     samples filtered again) returned μ 0.147, κ 0.78, and without the mode's free-response
     columns its initial transient (1/ζω = 0.4 s) left a quarter of the excess error."""
-    import math
-
-    from lionjax.diagnosis import _core
-    from lionjax.diagnosis._candidates import FlexibleModeCandidate
-
     train, valid, info = _noise_free_noncollocated_mode(monkeypatch, 81000)
     p = info["effects"][0]["params"]
-    fitter = _core._Fitter(train, valid, _core.settings(train))
-    fitter.mode_input = True
-    mode = (2 * math.pi * p["frequency"], p["damping_ratio"])
-    fitter._modes[True] = mode
-    for regs, rec in ((fitter.rtr, train), (fitter.rva, valid)):
-        fitter._add_mode(regs, rec, [mode])
-    cand = FlexibleModeCandidate()
-    r = cand.report(fitter.fit([cand]).physical)
-    assert r["mass_ratio"] == pytest.approx(p["mass_ratio"], rel=1e-3)
-    assert r["input_share"] == pytest.approx(1.0, abs=1e-3)
+    d = lj.diagnose(train, valid)
+    assert d.verdict == "flexible_mode"
+    r = next(e for e in d.effects if e.name == "flexible_mode").params
+    assert r["f_mode"] == pytest.approx(p["frequency"], rel=MODE_TOL["f"])
+    assert r["zeta_mode"] == pytest.approx(p["damping_ratio"], rel=MODE_TOL["zeta"])
+    assert r["mass_ratio"] == pytest.approx(p["mass_ratio"], rel=MODE_TOL["mu"])
+    assert r["input_share"] == pytest.approx(1.0, abs=MODE_TOL["kappa"])
+
+
+#: What the profile reaches on the noise-free mode above, the pattern search's resolution
+#: (measured: f 0.5 %, ζ 12 %, μ 5 %, κ 0.004; with (ω, ζ) held at the truth μ and κ are exact
+#: within 1e-3).
+MODE_TOL = {"f": 0.01, "zeta": 0.15, "mu": 0.06, "kappa": 0.01}
 
 
 def test_collocated_mode_in_closed_loop():

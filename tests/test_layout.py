@@ -48,3 +48,51 @@ def test_no_private_equinox_attributes_and_no_outside_documents():
     readme = (ROOT / "README.md").read_text()
     hits += [f"README.md: {m}" for m in re.findall(r".*GUIDE.*", readme)]
     assert not hits, "\n".join(hits)
+
+
+def _import_graph():
+    """{module: modules of lionjax it imports} from the sources (function-level imports
+    included; ``from .. import twin`` is an edge to the subpackage, not to ``lionjax``)."""
+    import ast
+
+    root = pathlib.Path(lj.__file__).parent
+    mods = {}
+    for p in root.rglob("*.py"):
+        parts = p.relative_to(root.parent).with_suffix("").parts
+        mods[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+    graph = {m: set() for m in mods}
+    for m, p in mods.items():
+        pkg = m if p.name == "__init__.py" else m.rsplit(".", 1)[0]
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                base = pkg.split(".")[: len(pkg.split(".")) - node.level + 1] if node.level else []
+                tgt = ".".join([*base, *([node.module] if node.module else [])])
+                subs = [f"{tgt}.{a.name}" for a in node.names if f"{tgt}.{a.name}" in mods]
+                targets = subs + ([tgt] if len(subs) < len(node.names) else [])
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                continue
+            graph[m] |= {t for t in targets if t in mods and t != m}
+    return graph
+
+
+def test_no_import_cycle():
+    graph = _import_graph()
+    assert graph["lionjax.diagnosis._core"]  # the graph is read
+    state: dict[str, int] = {}
+    path: list[str] = []
+
+    def visit(u):
+        state[u] = 1
+        path.append(u)
+        for v in sorted(graph[u]):
+            assert state.get(v) != 1, "import cycle: " + " -> ".join([*path[path.index(v) :], v])
+            if v not in state:
+                visit(v)
+        path.pop()
+        state[u] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)

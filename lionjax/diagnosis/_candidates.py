@@ -37,7 +37,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._filters import FilterBank
 from .._model_effects import (
     Coulomb,
     LocalizedPosition,
@@ -48,6 +47,7 @@ from .._model_effects import (
 )
 from .._models import AbstractEffect, Column
 from .._record import Record
+from ._fit import mode_free_response, mode_signals, padded_length
 
 
 class Context(eqx.Module):
@@ -142,18 +142,6 @@ class ForceClip(AbstractEffect):
         return {}
 
 
-def mode_bank(omega: float, zeta: float) -> FilterBank:
-    """Λ'(s) = (s + ω)(s² + 2ζωs + ω²): h = (s²/D)[u] = V₄ + ωV₃ of this bank, exactly."""
-    w, z = float(omega), float(zeta)
-    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
-    return FilterBank.from_poles(jnp.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
-
-
-def mode_output(V, omega):
-    """h = (s²/D)[u] = V₄ + ωV₃ from the outputs ``V`` (…, 4) of :func:`mode_bank`'s filter."""
-    return V[..., 3] + omega * V[..., 2]
-
-
 def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
     """Names of h_x and h_F for one (ω, ζ) (distinct per mode: the regressors cache by name)."""
     key = f"{float(omega):.9g},{float(zeta):.6g}"
@@ -184,8 +172,6 @@ class ModeColumns(AbstractEffect):
 
     def signals(self, record: Record) -> dict:
         # the diagnosis' one implementation (hold-corrected x, bucketed batched filter)
-        from ._fit import mode_signals, padded_length
-
         nx, nF = mode_signal_names(self.omega, self.zeta)
         ((hx, hF),) = mode_signals(
             record.x,
@@ -198,8 +184,6 @@ class ModeColumns(AbstractEffect):
 
     def free_response(self, dt: float, Tp: int):
         """The mode's initial-state columns (Tp, 2) (:func:`~._fit.mode_free_response`)."""
-        from ._fit import mode_free_response
-
         return mode_free_response(self.omega, self.zeta, dt, Tp)
 
     def physical(self, theta: Array, b: Array) -> dict:

@@ -2151,6 +2151,11 @@ def diagnose(
             "n_effective": n_eff,
             "detection_limit": detection,
             "feedback_share": feedback,
+            # the share of each record's samples where the axis sticks (_Fitter.stuck)
+            "stuck_share": {
+                "train": float(np.mean(fitter.stuck_masks[0])),
+                "valid": float(np.mean(fitter.stuck_masks[1])),
+            },
             "closed_loop": bool(closed_loop),
         },
         settings={
@@ -2169,6 +2174,9 @@ def diagnose(
             "min_share": min_share,
             "min_size": min_size,
             "floor_factor": floor_factor,
+            # whether friction's force columns are masked where the axis sticks (chosen by the
+            # validated score of the first friction candidate)
+            "friction_stick_masked": bool(fitter.stick),
         },
         steps=steps,
         confidence=float(confidence),

@@ -348,17 +348,27 @@ def _filter_systems(dsc: Discrete, U, foh):
     return jax.vmap(_filt)(dsc, U, foh)
 
 
+def mode_bank(omega: float, zeta: float) -> FilterBank:
+    """Λ'(s) = (s + ω)(s² + 2ζωs + ω²): h = (s²/D)[u] = V₄ + ωV₃ of this bank, exactly."""
+    w, z = float(omega), float(zeta)
+    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
+    return FilterBank.from_poles(jnp.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
+
+
+def mode_output(V, omega):
+    """h = (s²/D)[u] = V₄ + ωV₃ from the outputs ``V`` (…, 4) of :func:`mode_bank`'s filter."""
+    return V[..., 3] + omega * V[..., 2]
+
+
 def mode_signals(
     record_x, record_F, dt: float, modes, Tp: int
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(h_x, h_F) of a record for each mode (ω [rad/s], ζ) in ``modes``: h = (s²/D)[·],
     D = s² + 2ζωs + ω², x under the first-order hold of its :func:`hold_corrected` samples, F
-    under a zero-order hold, through :func:`~lionjax.diagnosis._candidates.mode_bank` and
-    :func:`~lionjax.diagnosis._candidates.mode_output`, on bucketed shapes: each mode's x and F
+    under a zero-order hold, through :func:`mode_bank` and
+    :func:`mode_output`, on bucketed shapes: each mode's x and F
     through its own filter, modes in batches of :data:`MODE_BUCKETS`
     (:meth:`~lionjax.diagnosis._candidates.ModeColumns.signals` calls it)."""
-    from ._candidates import mode_bank, mode_output
-
     T = np.asarray(record_x).size
     xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
     out = []
