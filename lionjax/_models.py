@@ -253,6 +253,12 @@ class AbstractEffect(eqx.Module):
     @abc.abstractmethod
     def physical(self, theta: Array, b: Array) -> dict[str, Array]: ...
 
+    def free_response(self, dt: float, Tp: int):
+        """Initial-state columns of its own, shape (Tp, n), that the filtered equation error
+        carries from an unknown initial state of the effect (a flexible mode's decaying
+        oscillation), refitted on every record as the filter's are; None for most effects."""
+        return None
+
 
 class Offset(AbstractEffect):
     """Constant force F₀ [N]: column −(1/Λ)[1] for the parameter b·F₀ [m/s²]."""

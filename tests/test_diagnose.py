@@ -151,7 +151,7 @@ def test_blind_small():
 def test_lattice_step_of_a_quantised_record(q, dtype):
     """An encoder's count q is recovered from a quantised, slowly drifting position (to 10⁻⁴ in
     float32, where the smallest step alone is off by more); noise on top leaves no lattice."""
-    from lionjax.diagnosis._core import _lattice_step
+    from lionjax.diagnosis._statistics import _lattice_step
 
     rng = np.random.default_rng(0)
     t = np.arange(20000) / 3000.0
@@ -164,7 +164,7 @@ def test_lattice_step_of_a_quantised_record(q, dtype):
 def test_feedback_share_tells_closed_from_open_loop():
     """A PD on the measured position puts the position noise into F's third difference (share
     near 1); an open-loop force, smooth at the sample scale, shares nothing with it."""
-    from lionjax.diagnosis._core import _feedback
+    from lionjax.diagnosis._statistics import _feedback
 
     rng = np.random.default_rng(1)
     dt = 1 / 2000.0
@@ -194,7 +194,7 @@ def test_feedback_share_reads_a_low_rate_open_loop_as_open():
     5 Hz as the closed loop's feed-forward."""
     import scipy.signal as sg
 
-    from lionjax.diagnosis._core import FEEDBACK_SHARE, _feedback
+    from lionjax.diagnosis._statistics import _feedback
 
     fs, n, a, b, q = 117.0, 1200, 3.0, 50.0, 2e-5
     dt = 1 / fs
@@ -219,7 +219,7 @@ def test_feedback_share_reads_a_low_rate_open_loop_as_open():
             return xm, F
 
         assert _feedback(*run(rough, 0.0, 0.0))[0] < 0.05
-        assert _feedback(*run(smooth, 100.0, 1.0))[0] > max(0.9, FEEDBACK_SHARE)
+        assert _feedback(*run(smooth, 100.0, 1.0))[0] > max(0.9, lj.diagnosis.Criteria().feedback_share)
 
 
 def test_gram_solve_is_float64_without_x64():
@@ -253,7 +253,7 @@ def test_hold_correction_is_fourth_order(fs):
     transient (ζ = 0.3: decays as e^{−ζω_n t}, < 1e-12 of the signal after 0.5 s)."""
     from scipy import signal
 
-    from lionjax.diagnosis._fit import mode_signals, padded_length
+    from lionjax.diagnosis._filtering import mode_signals, padded_length
 
     w, z = 2 * np.pi * 30.0, 0.3
     freqs, amps = (3.1, 17.0, 37.0), (0.01, 0.004, 0.002)
@@ -291,7 +291,7 @@ def test_noise_floor_counts_sparse_noise():
     """σ of the noise floor (third differences) against the drawn noise: Gaussian noise within
     5 %; sparse noise (a coarse encoder's steps: nonzero at 10 % of samples) within 20 % of its
     RMS, where the median absolute deviation alone gives less than half."""
-    from lionjax.diagnosis._core import _robust_diff_std
+    from lionjax.diagnosis._statistics import _robust_diff_std
 
     rng = np.random.default_rng(11)
     t = np.arange(200_000) * 1e-3

@@ -34,7 +34,8 @@ def test_mode_signals_and_soft_saturation_against_scipy():
     hold discretisation, 1e-8; the soft input map against tanh."""
     from scipy import signal
 
-    from lionjax.diagnosis._fit import apply_input, mode_signals, padded_length
+    from lionjax.diagnosis._filtering import mode_signals, padded_length
+    from lionjax.diagnosis._fit import apply_input
 
     dt, T = 1 / 997.3, 3000
     t = np.arange(T) * dt
@@ -75,7 +76,8 @@ def test_mode_columns_against_scipy(fs, f_filter, f_mode, zeta):
     a lightly damped one further below, and one above a low sample rate's filter."""
     from scipy import signal
 
-    from lionjax.diagnosis._fit import Regressors, hold_corrected, mode_columns
+    from lionjax.diagnosis._filtering import hold_corrected, mode_columns
+    from lionjax.diagnosis._fit import Regressors
 
     dt, T = 1 / fs, 12000
     t = np.arange(T) * dt
@@ -157,7 +159,7 @@ def test_mode_search_finds_a_narrow_valley(monkeypatch):
     from it recovers the drawn mode (reference: the simulator's parameters)."""
     import math
 
-    from lionjax.diagnosis._fit import mode_seed, padded_length
+    from lionjax.diagnosis._filtering import mode_seed, padded_length
 
     train, valid, info = _noise_free_noncollocated_mode(monkeypatch, 12081004)
     p = info["effects"][0]["params"]

@@ -98,7 +98,7 @@ def test_settings_finite_over_rates_and_lengths(fs, duration):
     median|v| = A·2πf₀·cos(π/4), to 1 % (the zero-phase derivative filter's corner is at least
     29 Hz, 0.3·f_s, at 97 Hz: it takes < 0.5 % off f₀ = 0.7 Hz at every rate; at f_s/10 it took
     4.4 % at 97 Hz)."""
-    from lionjax.diagnosis._core import settings
+    from lionjax.diagnosis._settings import settings
 
     A, f0 = 0.01, 0.7  # m, Hz
     t = np.arange(int(duration * fs)) / fs
@@ -172,8 +172,9 @@ def test_start_states_against_the_closed_form(fs, f0, q, tol_v):
     smoothed states of v̂'s filter were 163 µm and 27 % off (measured when written), the raw
     samples 2.9 µm and 0.7 %; at 10 kHz with a 20 µm encoder on a slow axis the raw samples'
     derivative would be 2.6× the rms velocity in noise, and a filter must be chosen."""
-    from lionjax.diagnosis._core import _start_states, settings
-    from lionjax.diagnosis._fit import zero_phase
+    from lionjax.diagnosis._filtering import zero_phase
+    from lionjax.diagnosis._settings import settings
+    from lionjax.diagnosis._statistics import _start_states
 
     A = 1e-3
     t = np.arange(int(8 * fs)) / fs
@@ -197,8 +198,11 @@ def test_true_model_simulates_at_the_noise_at_low_rates():
     of the twin's record and at most half the gap of the same model without the clip; from the
     states of the former f_s/10 velocity filter both were 150 µm (measured when written), and the
     diagnosis rejected true models for making the simulated gap worse."""
-    from lionjax.diagnosis._core import WINDOW_PARAMETERS, _start_states, settings
-    from lionjax.diagnosis._fit import simulate_windows, zero_phase
+    from lionjax.diagnosis._filtering import zero_phase
+    from lionjax.diagnosis._fit import simulate_windows
+    from lionjax.diagnosis._settings import settings
+    from lionjax.diagnosis._statistics import _start_states
+    from lionjax.twin._windows import WINDOW_PARAMETERS
 
     fs, q, a, b, clip = 277.3, 5e-6, 40.0, 0.9, 6.0
     plant = tw.Plant(a, b, (), [tw.EncoderQuantisation(q)]).with_effects(tw.HardSaturation(clip))

@@ -25,13 +25,11 @@ from ._candidates import (
     SaturationCandidate as SaturationCandidate,
     SpringCandidate as SpringCandidate,
 )
-from ._core import (
-    Diagnosis as Diagnosis,
-    EffectScore as EffectScore,
-    decimation_for as decimation_for,
-    diagnose as diagnose,
-)
+from ._core import diagnose as diagnose
+from ._criteria import Criteria as Criteria
 from ._force_effects import ForceEffect as ForceEffect
 from ._library import DEFAULT_CANDIDATES as DEFAULT_CANDIDATES
 from ._load import load_candidates as load_candidates
 from ._plot import plot_diagnosis as plot_diagnosis
+from ._result import Diagnosis as Diagnosis, EffectScore as EffectScore
+from ._statistics import decimation_for as decimation_for

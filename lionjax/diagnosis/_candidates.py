@@ -47,7 +47,7 @@ from .._model_effects import (
 )
 from .._models import AbstractEffect, Column
 from .._record import Record
-from ._fit import mode_free_response, mode_signals, padded_length
+from ._filtering import mode_free_response, mode_signals, padded_length
 
 
 class Context(eqx.Module):
@@ -213,7 +213,7 @@ class AbstractCandidate(eqx.Module):
     #: moves, as an offset — or a spring's equilibrium term — is)
     excludes: ClassVar[tuple[str, ...]] = ()
     #: an out-of-library look-alike that must not validate better than the candidate alone
-    #: (``"dead_zone"`` for friction: :meth:`~._core._Fitter.dead_zone_lookalike`), or None
+    #: (``"dead_zone"`` for friction: :meth:`~._fitter._Fitter.dead_zone_lookalike`), or None
     lookalike: ClassVar[str | None] = None
     #: whether the windowed simulation (:func:`lionjax.twin._windows.windowed_errors`) models
     #: the effect in full, so that its simulated gap can judge it

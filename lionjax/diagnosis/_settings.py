@@ -1,0 +1,158 @@
+"""Settings of a diagnosis adapted to the training record: the filter, the velocity filter, the
+restart interval and the profile grids (:func:`settings`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .._errors import InputError
+from .._filters import FilterBank
+from .._record import Record
+from ._candidates import (
+    Context,
+)
+from ._filtering import zero_phase
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """Record-derived settings of a diagnosis (all SI). See the module docstring."""
+
+    dt: float
+    filter_hz: float
+    velocity_hz: float
+    v_eps: float
+    window_s: float | None
+    tau_grid: tuple[float, ...]
+    fmax_grid: tuple[float, ...]
+    mode_grid: tuple[float, ...]
+    x_center: float
+    x_scale: float
+    x_range: tuple[float, float] = (-math.inf, math.inf)  # the training positions' [min, max]
+
+    def bank(self) -> FilterBank:
+        w = 2 * math.pi * self.filter_hz
+        return FilterBank.from_poles(np.full(3, -w), unit_dc_gain=True)
+
+    def context(self) -> Context:
+        return Context(2 * math.pi * self.velocity_hz, self.v_eps, self.x_center, self.x_scale)
+
+
+#: Upper bound of the default filter corner [Hz]: f_s/25 up to 1 kHz records, then fixed, so
+#: a record of the same device sampled faster is weighted the same way (and the filter's poles
+#: stay far from the noise band of a 10 kHz encoder).
+MAX_FILTER_HZ = 40.0
+#: Least corner of v̂'s zero-phase filter [Hz] (below 0.3·f_s): 2.5× the filter corner, f_s/10
+#: below 1 kHz, cut into the excited band of slowly sampled records (their excitation reaches
+#: f_s/10 too) and moved sgn v̂'s reversals, so that a dead zone's look-alike, acting with the sign
+#: of the force, fitted closed-loop friction at 310–630 Hz better than friction did.
+VELOCITY_MIN_HZ = 100.0
+#: Longest delay of the default profile grid [s] (at least 60 samples).
+MAX_DELAY_S = 0.03
+#: Flexible-mode grid: frequencies from MODE_BAND[0]·f_filter to MODE_BAND[1]·f_filter
+#: (below 0.2·f_s), and damping ratios.
+MODE_BAND = (0.1, 4.0)
+MODE_ZETAS = (0.01, 0.03, 0.1, 0.3)
+MODE_N = 16
+#: The halvings of the mode's pattern search's steps and its most rings of 8 evaluations (the
+#: damping ratios it may reach: MODE_ZETA_RANGE).
+MODE_ROUNDS = 4
+MODE_STEPS = 16
+#: The localized position's (x₀, w) grid: the training positions' LOCAL_RANGE quantiles span R;
+#: widths w = R·LOCAL_WIDTHS, centres across R spaced by max(w, R/LOCAL_SPACING); then a pattern
+#: search in (x₀, ln w) (LOCAL_ROUNDS step halvings, at most LOCAL_STEPS rings) with w kept in
+#: R·LOCAL_W_RANGE.
+LOCAL_RANGE = (0.02, 0.98)
+LOCAL_WIDTHS = (1 / 40, 1 / 12, 1 / 4)
+LOCAL_SPACING = 32
+LOCAL_ROUNDS = 2
+LOCAL_STEPS = 8
+LOCAL_W_RANGE = (1 / 100, 1.0)
+#: Soft-saturation levels in the F_max grid.
+SOFT_N = 15
+#: Shortest stick [s] the friction candidates' stick variant masks (_Fitter.stuck).
+STICK_MIN_S = 0.01
+#: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
+DEAD_ZONE_QUANTILES = tuple(float(q) for q in np.geomspace(0.01, 0.8, 16))
+#: The position-periodic look-alike (:meth:`_Fitter.periodic_lookalike`): the cycles κ across
+#: the positions both records cover that its screen searches (the period stays above
+#: PERIOD_OVER_NOISE times the position noise), the screen's position bins and κ steps per
+#: cycle (1/8: a sinusoid whose cycle count is off by δ loses its coherence over the range at
+#: δ ≈ 1/2), and the screen's peaks that are fitted.
+PERIOD_CYCLES = (1.5, 128.0)
+PERIOD_OVER_NOISE = 10.0
+PERIOD_BINS = 4096
+PERIOD_OVERSAMPLE = 8
+PERIOD_PEAKS = 6
+
+
+def settings(
+    train: Record, *, filter_hz: float | None = None, window_s: float | None = None
+) -> Settings:
+    """Settings adapted to the training record: sample rate, velocity and force ranges.
+
+    Every setting is checked finite and valid; a record that cannot support one (no motion,
+    no force) gets an :class:`~lionjax.InputError` naming it.
+    """
+    dt = float(train.dt)
+    fs = 1.0 / dt
+    fh = min(fs / 25.0, MAX_FILTER_HZ) if filter_hz is None else float(filter_hz)
+    if not (0 < fh < fs / 2):
+        raise InputError(
+            f"filter_hz: expected 0 < filter_hz < f_s/2 = {fs / 2:.6g} Hz, got {filter_hz!r}."
+        )
+    vh = max(min(2.5 * fh, 0.15 * fs), min(VELOCITY_MIN_HZ, 0.3 * fs))
+    x = np.asarray(train.x, np.float64)
+    v = zero_phase(train.x, dt, 2 * math.pi * vh)[1]
+    # speed scale: a record that sticks most of the time (friction, quantised encoder) has v̂
+    # ≈ 0 on more than half of its samples
+    # (the median is then the smoothing's tail, ~1e-8 m/s): take it over the moving samples
+    va = np.abs(v)
+    ok = bool(np.all(np.isfinite(va)))
+    med = float(np.median(va)) if ok else math.nan
+    top = float(np.quantile(va, 0.99)) if ok else math.nan
+    moving = va > 0.01 * top if ok else va > 0
+    if ok and not med > 0.01 * top and np.any(moving):
+        med = float(np.median(va[moving]))
+    if not (ok and med > 0 and np.mean(moving) >= 0.02):
+        raise InputError(
+            "diagnose: the training record (argument 'train') does not move enough to locate "
+            "velocity reversals "
+            f"(median |v̂| while moving = {med!r} m/s on {np.mean(moving):.1%} of the samples, "
+            f"from a {vh:.4g} Hz zero-phase derivative filter; at least 2 % moving needed); "
+            "record a motion that covers the range of interest."
+        )
+    v_eps = 0.02 * med
+    Fa = np.abs(np.asarray(train.F, np.float64))
+    n = train.n_samples
+    tau_max = max(60 * dt, MAX_DELAY_S)
+    tau_max = min(tau_max, 0.1 * n * dt)
+    taus = np.geomspace(0.25 * dt, max(tau_max, dt), 32)
+    fq = np.quantile(Fa, np.linspace(0.3, 0.995, 28))
+    fq = np.unique(fq[fq > 0])
+    if fq.size == 0:
+        raise InputError(
+            "diagnose: the train record's force F is zero everywhere; the input must excite the "
+            "axis."
+        )
+    f_hi = min(MODE_BAND[1] * fh, 0.2 * fs)
+    f_lo = min(max(MODE_BAND[0] * fh, 0.5), 0.5 * f_hi)
+    return Settings(
+        dt=dt,
+        filter_hz=fh,
+        velocity_hz=vh,
+        v_eps=v_eps,
+        window_s=window_s,
+        tau_grid=tuple(float(t) for t in taus),
+        # hard clips at the force quantiles, then soft ones (negative: |F_max|·tanh(F/|F_max|))
+        # up to the plausibility limit, 4× the largest force
+        fmax_grid=tuple(float(f) for f in fq)
+        + tuple(-float(f) for f in np.geomspace(0.5 * fq[0], 4.0 * fq[-1], SOFT_N)),
+        mode_grid=tuple(float(f) for f in np.geomspace(f_lo, f_hi, MODE_N)),
+        x_center=float(np.mean(x)),
+        x_scale=float(max(np.std(x), 1e-12)),
+        x_range=(float(np.min(x)), float(np.max(x))),
+    )

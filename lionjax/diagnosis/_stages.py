@@ -1,0 +1,522 @@
+"""The diagnosis' stages up to the stack (:func:`lionjax.diagnose`, module :mod:`._core`):
+the baseline and its noise floor (:func:`prepare`), every candidate alone (:func:`fit_alone`),
+the greedy stack (:func:`stack_effects`) and the parsimony pass (:func:`parsimony`). They share
+one :class:`Run`: the records, the fitter, the baseline and how a fit is scored."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .._errors import InputError
+from .._model_effects import MAX_POSITION_DEGREE
+from .._record import Record
+from ._candidates import AbstractCandidate, Limits
+from ._criteria import Criteria
+from ._filtering import impulse_gains
+from ._fit import TooWide
+from ._fitter import _Fitter
+from ._result import EffectScore
+from ._settings import Settings, settings
+from ._statistics import _check_memory, _feedback, _position_noise, _robust_diff_std
+from ._structures import Fitted, _has_mode
+
+#: How messages name the two records (the command line puts the file names in).
+ROLES = {
+    "train": "training record (argument 'train')",
+    "valid": "validation record (argument 'valid')",
+}
+
+
+@dataclasses.dataclass
+class Run:
+    """What the stages of one diagnosis share: the records and settings, the fitter, the
+    baseline fit and its noise floor, and the scoring of one fit against another. ``fit_floor``
+    (the floor mean squares count from) is lowered as fits come in (:meth:`lowered`)."""
+
+    train: Record
+    valid: Record
+    st: Settings
+    crit: Criteria
+    candidates: tuple[AbstractCandidate, ...]
+    fitter: _Fitter
+    base: Fitted
+    sx: float  # position noise of the validation record [m]
+    sF: float  # force noise [N]
+    floor: float  # the estimated floor of ε₁
+    force_rms: float  # rms of ε₁'s input term b·F/Λ on validation
+    feedback: float
+    F_ref: np.ndarray  # F less the controller's answer to x
+    closed_loop: bool
+    limits: Limits
+    dominant: bool  # the baseline is qualitatively wrong: a ≤ 0 or b ≤ 0
+    outside: dict[str, float]
+    fit_floor: float = math.inf
+
+    @property
+    def by_name(self) -> dict[str, AbstractCandidate]:
+        return {c.name: c for c in self.candidates}
+
+    def score_ms(self, cur: Fitted, ms_new: float, p: int, lo_rms: float) -> float:
+        """−ΔBIC of a validated mean square ``ms_new`` against ``cur``'s with ``p`` more
+        parameters; mean squares below lo_rms² (a floor) count as lo_rms²: a gain there is on
+        noise. N_eff is the residual's the comparison starts from: after a first effect the
+        residual is whiter than the baseline's (a spring's misfit dominated it), and the
+        baseline's N_eff would deflate the evidence for a second effect (a closed-loop delay
+        under a spring, τ within 4 % of the truth, scored 4.6 with the baseline's N_eff ≈ 110)."""
+        lo = max(lo_rms**2, 1e-300)
+        gain = math.log(max(cur.ms_valid, lo) / max(ms_new, lo))
+        ne = cur.n_eff
+        return ne * gain - p * math.log(ne)
+
+    def score_of(self, cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
+        return self.score_ms(cur, new.ms_valid, p, lo_rms)
+
+    def lowered(self, rms: float, fits) -> float:
+        """The floor rms bounded by the validation error of each (structure, fit) without the
+        flexible mode (whose columns can cancel position noise: a gain on noise)."""
+        return math.sqrt(min([rms**2, *(f.ms_valid for cands, f in fits if not _has_mode(cands))]))
+
+    def floor_of(self, cands) -> float:
+        return self.floor if _has_mode(cands) else self.fit_floor
+
+    def excess(self, ms: float) -> float:
+        return max(ms - self.fit_floor**2, 0.0)
+
+    def params(self, cands) -> int:
+        return sum(self.fitter.params(k) for k in cands)
+
+    def assess(self, cur: Fitted, new: Fitted, cand, lo_rms: float) -> EffectScore:
+        """``new`` (``cur`` plus ``cand``: one candidate or a tuple added together) scored
+        against ``cur``: significant, or why not (:class:`~lionjax.diagnosis.Criteria`)."""
+        crit = self.crit
+        ks = cand if isinstance(cand, tuple) else (cand,)
+        sc = self.score_of(cur, new, self.params(ks), lo_rms)
+        ex0 = self.excess(cur.ms_valid)
+        share = 1 - self.excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
+        why = self._implausible(cur, new, ks, sc)
+        plausible = not why
+        # an effect the windowed simulation models must not make the simulated gap worse: an
+        # equation-error fit that does (an out-of-library dead zone taken for a polynomial
+        # b(x)) describes the residual, not the device (a diverging simulation is worse)
+        worse = (
+            all(k.simulated for k in ks)
+            and math.isfinite(cur.gap)
+            and not new.gap <= (1 + crit.max_worsening) * cur.gap
+        )
+        size = math.sqrt(max(cur.ms_valid - new.ms_valid, 0.0)) / self.force_rms
+        # where the baseline is qualitatively wrong, the share of the equation error is no
+        # measure of an effect: the simulated gap's share stands in for it
+        shares = share >= crit.min_share or (
+            self.dominant
+            and all(k.simulated for k in ks)
+            and sim_share(new.gap, cur.gap) >= crit.dominant_sim_share
+        )
+        sig = sc > crit.threshold and shares and size >= crit.min_size and plausible and not worse
+        if plausible:
+            why = (
+                "significant"
+                if sig
+                else f"score {sc:.3g} ≤ {crit.threshold}"
+                if sc <= crit.threshold
+                else "removes too little"
+                if not shares
+                else f"too small ({size:.2g} of the input's term, least {crit.min_size})"
+                if size < crit.min_size
+                else f"makes the simulated gap worse ({new.gap:.3g} m against {cur.gap:.3g} m)"
+            )
+        return EffectScore(
+            name=ks[0].name,
+            params={n: v for k in ks for n, v in k.report(new.physical).items()},
+            gap=new.gap,
+            shrink=shrink(new.gap, self.base.gap),
+            equation_gap=new.equation_gap,
+            equation_shrink=1 - new.equation_gap / self.base.equation_gap,
+            score=sc,
+            share=share,
+            significant=bool(sig),
+            reason=why,
+            plausible=plausible,
+            size=size,
+            simulation=new.simulation,
+        )
+
+    def _implausible(self, cur: Fitted, new: Fitted, ks, sc: float) -> str:
+        """Why ``ks`` fitted in ``new`` do not describe the device ("" when they may)."""
+        why = next((w for k in ks if (w := k.implausible(new.physical, self.limits))), "")
+        if (
+            not why
+            and sc > self.crit.threshold
+            and any(k.lookalike == "dead_zone" for k in ks)
+            and self.fitter.dead_zone_lookalike(
+                [self.by_name[n] for n in cur.names], (cur.tau, cur.fmax)
+            )
+            < new.ms_valid
+        ):
+            # friction acts with the sign of the velocity: where a dead zone's input, acting with
+            # the sign of the force, validates better on the same structure, the fit describes
+            # the input (six of 40 held-out dead zones were named Coulomb friction)
+            why = (
+                "the residual follows the sign of the force rather than of the velocity: a dead "
+                "zone's input F − clip(F, ±d) validates better than friction"
+            )
+        loop = [k.loop_noise_shrink for k in ks if k.loop_noise_shrink is not None]
+        if not why and self.limits.loop_noise and loop and not new.gap <= (1 - max(loop)) * cur.gap:
+            why = (
+                "closed loop at the noise floor: it cancels the position noise the controller "
+                f"feeds into F and removes less than {max(loop):.0%} of the simulated gap "
+                f"({new.gap:.3g} m against {cur.gap:.3g} m)"
+            )
+        return why
+
+
+def sim_share(gap: float, before: float) -> float:
+    """The share of the simulated gap ``before`` that ``gap`` removes: 1 − gap/before (1 where
+    only ``before`` diverged, 0 where ``gap`` did)."""
+    if not math.isfinite(gap):
+        return 0.0
+    if not math.isfinite(before):
+        return 1.0
+    return 1.0 - gap / before if before > 0 else 0.0
+
+
+def shrink(gap: float, base_gap: float) -> float:
+    """1 − gap/base_gap; NaN (null in JSON) where either simulation diverged."""
+    if not (math.isfinite(gap) and math.isfinite(base_gap)):
+        return math.nan
+    return 1 - gap / base_gap if base_gap > 0 else 0.0
+
+
+def prepare(
+    train: Record,
+    valid: Record,
+    candidates: tuple[AbstractCandidate, ...],
+    crit: Criteria,
+    filter_hz: float | None,
+    window_s: float | None,
+    max_memory_gb: float | None,
+) -> Run:
+    """Settings, the baseline fit, the noise floor of ε₁ and the record-level facts (closed
+    loop, limits, a qualitatively wrong baseline) that every later stage reads."""
+    st = settings(train, filter_hz=filter_hz, window_s=window_s)
+    # 20 time constants 1/λ of the filter (s + λ)³, λ = 2π·filter_hz
+    min_len = int(math.ceil(20 / (2 * math.pi * st.filter_hz * st.dt)))
+    for nm, rec in (("train", train), ("valid", valid)):
+        if rec.n_samples < max(min_len, 200):
+            raise InputError(
+                f"diagnose: the {ROLES[nm]} has {rec.n_samples} samples; at least "
+                f"{max(min_len, 200)} are needed (20 filter time constants)."
+            )
+    _check_memory(train.n_samples, valid.n_samples, max_memory_gb)
+    fitter = _Fitter(train, valid, st)
+    base = fitter.fit([])
+    a, b = base.physical["a"], base.physical["b"]
+    # noise floor of ε₁ on the validation record (with the encoder's count: else a clean
+    # record's gap is taken for an effect)
+    sx = _position_noise(np.asarray(valid.x))
+    sF = _robust_diff_std(np.asarray(valid.F))
+    gx, gF = impulse_gains(fitter.bank, st.dt, a)
+    floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
+    # the scale of ε₁'s input term b·F/Λ on validation, against which an effect's size counts
+    Fv = np.asarray(valid.F, np.float64)
+    hF = fitter.rva.filtered({"F scale": (Fv - np.mean(Fv), "zoh")})["F scale"]
+    force_rms = max(abs(b) * float(np.sqrt(np.mean(hF[: valid.n_samples, 0] ** 2))), 1e-300)
+    # in closed loop the controller feeds the position noise into F, so a regressor built from
+    # F can cancel the noise's path through x in ε₁: at or below the estimated floor a delay of
+    # a few samples does (a clean record named `delay` at 1.00), and is not taken as the device's
+    # unless it also removes part of the simulated gap (``loop_noise_shrink``)
+    feedback, F_ref = _feedback(np.asarray(valid.x), np.asarray(valid.F))
+    closed_loop = feedback >= crit.feedback_share
+    limits = Limits(
+        float(min(np.max(np.abs(np.asarray(train.F))), np.max(np.abs(Fv)))),
+        st.dt,
+        sx,
+        closed_loop=closed_loop,
+        loop_noise=closed_loop and base.ms_valid <= floor**2,
+        mode_band=(st.mode_grid[0], st.mode_grid[-1]),
+        x_range=_common_range(np.asarray(train.x), np.asarray(valid.x)),
+    )
+    fitter.limits = limits
+    return Run(
+        train=train,
+        valid=valid,
+        st=st,
+        crit=crit,
+        candidates=candidates,
+        fitter=fitter,
+        base=base,
+        sx=sx,
+        sF=sF,
+        floor=floor,
+        force_rms=force_rms,
+        feedback=feedback,
+        F_ref=F_ref,
+        closed_loop=closed_loop,
+        limits=limits,
+        # a dominant effect (a spring with its natural frequency above the filter corner,
+        # friction that sticks the axis) leaves the mass–damper nothing physical to fit
+        dominant=not (a > 0 and b > 0),
+        outside=_outside(train, valid, fitter.v_train, fitter.v_valid),
+    )
+
+
+def _variants(run: Run, c: AbstractCandidate, stick_chosen: bool) -> list:
+    """The fitter's variants ``c`` is tried in (chosen by the validated score)."""
+    fitter, now = run.fitter, run.fitter.variant
+    if c.profiled == "stick" and fitter.sticks and not stick_chosen:
+        # whether the samples where the axis sticks are masked (static friction balances the
+        # forces there, which the smoothed sign cannot): chosen by the first friction candidate,
+        # then shared (a Coulomb record sticking on 37 % of its training samples had F_c fitted
+        # at 0.22 N for 0.36 N and scored 3.8)
+        return [now._replace(stick=k) for k in (False, True)]
+    if c.profiled == "degree":
+        # and whether a(x), b(x) are held constant beyond the training positions: where
+        # validation leaves train's range the polynomial extrapolates, right for a slow
+        # dependence (a tanh wider than the range) and wildly wrong for a saturating one (a bowl
+        # 1 − exp(−d²) scored −65 extrapolated and +103 held)
+        out = [
+            now._replace(degree=d, position_clamp=clamp)
+            for clamp in ((False, True) if run.outside["position"] > 0 else (False,))
+            for d in range(1, MAX_POSITION_DEGREE + 1)
+        ]
+        # and the localized step and bump (its x₀, w profiled on train; bounded, so never
+        # held): a transition or a dip a few % of the travel wide, which a cubic over the whole
+        # travel cannot follow
+        if getattr(c, "localized", False):
+            out.append(now._replace(degree=0, position_clamp=False))
+        return out
+    if c.profiled == "mode":
+        return [now._replace(mode_input=m) for m in (False, True)]
+    if c.profiled == "fmax":
+        # the shape too: both fit the train record nearly alike where its forces stay low, and
+        # the wrong one extrapolates badly (a hard clip at the train record's peak, 1.1 N,
+        # under a tanh of 3.5 N made a validation record reaching 2.9 N 18× worse)
+        return [now._replace(fmax_shape=k) for k in (1, -1)]
+    return [now]
+
+
+def fit_alone(run: Run) -> dict[str, Fitted]:
+    """Every candidate alone on the baseline, its variants (the degree of the position
+    dependence, the flexible mode with or without its input-share column …) chosen by their
+    validated score, each paying its own parameters, then fixed; the mode counts from the
+    estimated floor, the others from nothing yet. Sets ``run.fit_floor``."""
+    fitter, fitted, stick_chosen = run.fitter, {}, False
+    for c in run.candidates:
+        variants = _variants(run, c, stick_chosen)
+        stick_chosen = stick_chosen or (c.profiled == "stick" and len(variants) > 1)
+        tries = []
+        for var in variants:
+            fitter.variant = var
+            f = fitter.fit([c])
+            lo = run.floor if _has_mode([c]) else 0.0
+            tries.append((run.score_of(run.base, f, fitter.params(c), lo), f, var))
+        _, fitted[c.name], var = max(tries, key=lambda t: t[0])
+        fitter.variant = var
+    # the floor scores and shares count from: the estimate above is an upper bound only for
+    # white, independent noise on x and F — in closed loop F carries the controller's answer to
+    # the position noise, which partly cancels the noise's path through x in ε₁, and a quantised
+    # position is not white at high sample rates — while the validation error of any fitted
+    # model bounds the true floor from above. A fit with the flexible mode's columns counts from
+    # the estimate: a column with high-frequency content of x can cancel part of the position
+    # noise that ε₁ carries through s²/Λ — a gain on noise, not on the gap.
+    run.fit_floor = run.lowered(
+        min(run.floor, run.base.equation_gap), [([c], fitted[c.name]) for c in run.candidates]
+    )
+    return fitted
+
+
+@dataclasses.dataclass
+class Stack:
+    """The greedy stack: its candidates in the order added, the steps' scores, its fit, and
+    which stand-in replaced which candidate (:func:`parsimony`)."""
+
+    cands: list[AbstractCandidate]
+    steps: list[EffectScore]
+    fit: Fitted
+    stands_for: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+def _try_fit(run: Run, cands) -> Fitted | None:
+    """The fit of ``cands``, or None when its design would be wider than P_MAX."""
+    try:
+        return run.fitter.fit(cands)
+    except TooWide:
+        return None
+
+
+def _stand_in(run: Run, trials, pool, stk: Stack):
+    """(score, fit, candidates) of the first implausible trial's stand-in (``simpler``: two or
+    more candidates of the pool) that is significant as one step, in score order; or None."""
+    names = {c.name: c for c in pool}
+    for t in trials:
+        c = t[2]
+        if t[0].plausible or len(c.simpler) < 2 or not all(n in names for n in c.simpler):
+            continue
+        ks = tuple(names[n] for n in c.simpler)
+        if len(stk.cands) + len(ks) > run.crit.max_effects:
+            continue
+        f = _try_fit(run, [*stk.cands, *ks])
+        if f is None:
+            continue
+        sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
+        if sc.significant:
+            return sc, f, ks
+    return None
+
+
+def stack_effects(run: Run, alone: dict[str, tuple[EffectScore, Fitted]]) -> Stack:
+    """Greedy stacking: the best significant candidate on the current stack, until none is —
+    or, when none is, the stand-in pair of an implausible candidate that is significant as one
+    step (asymmetric friction with F⁺ < 0 < F⁻ is Coulomb friction and an offset larger than
+    it: a closed-loop record with F_c = 0.12 N and F₀ = 0.17 N, Coulomb alone 3.6, the offset
+    6.2, the pair 38)."""
+    stk = Stack([], [], run.base)
+    pool = list(run.candidates)
+    while pool and len(stk.cands) < run.crit.max_effects:
+        fits = [
+            (c, alone[c.name][1] if not stk.cands else _try_fit(run, [*stk.cands, c])) for c in pool
+        ]
+        fits = [(c, f) for c, f in fits if f is not None]
+        if not fits:
+            break
+        # every validated fit bounds the floor from above, this step's too: else the first
+        # effect's fit is the floor and no second effect can gain on it (a spring under a
+        # closed-loop delay, k within 11 % of the truth, scored −5)
+        run.fit_floor = run.lowered(run.fit_floor, [([*stk.cands, c], f) for c, f in fits])
+        trials = [(run.assess(stk.fit, f, c, run.floor_of([*stk.cands, c])), f, c) for c, f in fits]
+        trials.sort(key=lambda t: -t[0].score)
+        best = next((t for t in trials if t[0].significant), None)
+        if best is not None:
+            stk.steps.append(best[0])
+            added: tuple[AbstractCandidate, ...] = (best[2],)
+        else:
+            best = _stand_in(run, trials, pool, stk)
+            if best is None:
+                break
+            added = best[2]
+            for k in added:
+                others = ", ".join(o.name for o in added if o is not k)
+                stk.steps.append(
+                    dataclasses.replace(
+                        best[0],
+                        name=k.name,
+                        params=k.report(best[1].physical),
+                        reason=f"significant together with {others} (not alone)",
+                    )
+                )
+        stk.cands.extend(added)
+        stk.fit = best[1]
+        # a candidate is not stacked after one that contains it (spring ⊃ offset) nor with one
+        # the data cannot tell apart from it (asymmetric friction and an offset)
+        pool = [
+            c
+            for c in pool
+            if all(
+                c is not k
+                and c.name not in k.subsumes
+                and c.name not in k.excludes
+                and k.name not in c.excludes
+                for k in added
+            )
+        ]
+    return stk
+
+
+def parsimony(run: Run, stk: Stack) -> Stack:
+    """A candidate with a simpler stand-in (spring → offset: in closed loop a constant force
+    shifts the equilibrium; asymmetric friction → Coulomb + offset: while the axis moves, a
+    direction-dependent level is a constant force) is replaced by it unless its own extra
+    parameters are significant on validation data. The stand-in must itself explain the gap
+    (significant where the candidate stood). Where the windowed simulation models both, the
+    candidate must not make the simulated gap worse than its stand-in, and with no more
+    parameters than it, it must make it better: asymmetric friction with F⁺, F⁻ > 0 and
+    Coulomb friction with an offset |F₀| < F_c are one law (levels F_c ∓ F₀), which only the
+    smoothed sign near reversals tells apart in ε₁ (a Coulomb + offset record kept as
+    asymmetric friction by 11 on ε₁, both simulated within 1 %)."""
+    by_name, fitter, crit = run.by_name, run.fitter, run.crit
+    for c in list(stk.cands):
+        names_now = [k.name for k in stk.cands]
+        missing = [n for n in c.simpler if n not in names_now]
+        if not missing or any(n not in by_name for n in missing):
+            continue  # nothing to stand in, or a stand-in outside the library
+        simpler = [by_name[n] for n in missing]
+        i = stk.cands.index(c)
+        alt = [*stk.cands[:i], *simpler, *stk.cands[i + 1 :]]
+        f_alt = fitter.fit(alt)
+        n_simple = run.params(simpler)
+        rest = [k for k in stk.cands if k is not c]
+        prev = fitter.fit(rest) if rest else run.base
+        cur = stk.fit
+        extra = fitter.params(c) - n_simple
+        keep = run.score_of(f_alt, cur, extra, run.floor_of(stk.cands)) > crit.threshold
+        if c.simulated and all(k.simulated for k in simpler) and math.isfinite(f_alt.gap):
+            keep = keep and cur.gap <= (1 + crit.max_worsening) * f_alt.gap
+            if extra <= 0:
+                keep = keep and cur.gap < (1 - crit.max_worsening) * f_alt.gap
+        if run.score_of(prev, f_alt, n_simple, run.floor_of(alt)) > crit.threshold and not keep:
+            stk.cands, stk.fit = alt, f_alt
+            stk.stands_for[simpler[0].name] = c.name
+            j = [s.name for s in stk.steps].index(c.name)
+            stk.steps = [
+                *stk.steps[:j],
+                *(
+                    dataclasses.replace(stk.steps[j], name=k.name, params=k.report(f_alt.physical))
+                    for k in simpler
+                ),
+                *stk.steps[j + 1 :],
+            ]
+    return stk
+
+
+def check_candidates(candidates: Sequence[Any], reserved) -> tuple[AbstractCandidate, ...]:
+    """The library as a tuple, or an :class:`~lionjax.InputError` naming what is wrong."""
+    from ._force_effects import check_library
+
+    candidates = tuple(candidates)
+    bad = [c for c in candidates if not isinstance(c, AbstractCandidate)]
+    if bad:
+        raise InputError(
+            "diagnose: argument 'candidates' must hold lionjax.diagnosis candidates (instances "
+            f"of AbstractCandidate, e.g. a ForceEffect subclass), got {bad[0]!r}."
+        )
+    names = [c.name for c in candidates]
+    if len(set(names)) != len(names):
+        raise InputError(f"diagnose: candidate names repeat: {names}.")
+    try:
+        check_library(candidates, reserved)
+    except ValueError as e:
+        raise InputError(f"diagnose: argument 'candidates': {e}") from None
+    return candidates
+
+
+def _common_range(x_train: np.ndarray, x_valid: np.ndarray) -> tuple[float, float]:
+    """The positions both records cover; train's range where they do not overlap."""
+    lo = max(float(np.min(x_train)), float(np.min(x_valid)))
+    hi = min(float(np.max(x_train)), float(np.max(x_valid)))
+    return (lo, hi) if hi > lo else (float(np.min(x_train)), float(np.max(x_train)))
+
+
+def _outside(train: Record, valid: Record, v_train, v_valid) -> dict[str, float]:
+    """Shares of the validation samples outside the training record's range: position x [m]
+    and velocity v̂ [m/s] outside [min, max] of train, force with |F| above train's largest.
+
+    A model fitted on train extrapolates there: an effect that acts only where train never went
+    (a clip above its largest force, a position dependence beyond its positions) cannot be
+    fitted on train, and its validation error is reported as ``unexplained``, with a confidence
+    of at most 1 − the largest of these shares."""
+
+    def share(tr, va, absolute=False):
+        tr, va = np.asarray(tr, np.float64), np.asarray(va, np.float64)
+        if absolute:
+            return float(np.mean(np.abs(va) > np.max(np.abs(tr))))
+        return float(np.mean((va < np.min(tr)) | (va > np.max(tr))))
+
+    return {
+        "position": share(train.x, valid.x),
+        "velocity": share(v_train, v_valid),
+        "force": share(train.F, valid.F, absolute=True),
+    }

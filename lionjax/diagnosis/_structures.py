@@ -1,0 +1,119 @@
+"""A structure (a list of candidates) fitted on training and scored on validation (:class:`Fitted`),
+the variants a fit is chosen among, and the pattern search the profiles share."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from ._candidates import (
+    AbstractCandidate,
+    Context,
+)
+from ._force_effects import ForceColumns
+from ._statistics import _n_eff
+
+
+@dataclasses.dataclass(frozen=True)
+class Fitted:
+    """One structure fitted on training and scored on validation."""
+
+    names: tuple[str, ...]
+    theta: np.ndarray
+    std: np.ndarray
+    physical: dict[str, float]
+    tau: float
+    fmax: float
+    rss_train: float
+    ms_valid: float  # mean square ε₁ on validation
+    residual: np.ndarray  # ε₁ on validation
+    sim_error: np.ndarray  # windowed simulation error on validation [m]
+    condition: float
+    gap_from: int = 0  # the first sample the gap counts (the second window's)
+    #: a simulated gap above this [m] is a diverging simulation (:data:`DIVERGED`)
+    diverge_at: float = math.inf
+
+    @property
+    def gap(self) -> float:
+        """rms windowed simulation error [m]; ``inf`` where the simulation diverges
+        (:attr:`simulation`)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            g = float(np.sqrt(np.mean(self.sim_error[self.gap_from :] ** 2)))
+        return g if g <= self.diverge_at else math.inf
+
+    @property
+    def simulation(self) -> str:
+        """``"ok"``, or ``"diverged"``: the fitted model's windowed simulation left the record's
+        range by :data:`DIVERGED`× or overflowed (an unstable fit, a < 0 or b < 0); its gap and
+        shrink are then reported as ``null``, never as a number."""
+        return "ok" if math.isfinite(self.gap) else "diverged"
+
+    @property
+    def equation_gap(self) -> float:
+        return float(np.sqrt(self.ms_valid))
+
+    @functools.cached_property
+    def n_eff(self) -> float:
+        """Effective sample count of the validation residual (:func:`_n_eff`), once per fit."""
+        return _n_eff(self.residual)
+
+
+def _has_position(cands: Sequence[AbstractCandidate]) -> bool:
+    """Whether a structure holds the position-dependent a(x), b(x)."""
+    return any(c.profiled == "degree" for c in cands)
+
+
+def _has_mode(cands: Sequence[AbstractCandidate]) -> bool:
+    """Whether a structure holds the flexible mode's columns."""
+    return any(c.profiled == "mode" for c in cands)
+
+
+def _effects_of(cands: Sequence[AbstractCandidate], ctx: Context):
+    # each effect type once (spring and offset share the offset column), each ForceEffect once
+    out, seen = [], set()
+    for c in cands:
+        for e in c.effects(ctx):
+            key = (type(e), e.effect.name if isinstance(e, ForceColumns) else None)
+            if key not in seen:
+                seen.add(key)
+                out.append(e)
+    return tuple(out)
+
+
+class Variant(NamedTuple):
+    """The variants a candidate's fit is chosen among, by validated score (:func:`diagnose`)."""
+
+    degree: int  # of the position-dependent a(x), b(x); 0: the localized step and bump
+    mode_input: bool  # the flexible mode's κ column (else collocated, κ = 0)
+    fmax_shape: int  # the saturation's shape: +1 hard, −1 soft, 0 both
+    position_clamp: bool  # a(x), b(x) held beyond the training positions
+    stick: bool  # friction's force columns masked where the axis sticks
+
+
+def _pattern_search(start, best, steps, move, rss_of, seen, rounds: int, max_steps: int):
+    """(point, RSS) of a pattern search in two parameters from ``start`` (its RSS ``best``): the
+    8 neighbours ``move(point, i, j, steps)`` (i, j ∈ {−1, 0, 1}, clamped by ``move``) of the
+    best so far, moving while one is better and halving both ``steps`` when none is (``rounds``
+    halvings, at most ``max_steps`` rings). ``rss_of(points)`` gives the RSS of new points;
+    ``seen`` {point: RSS} is shared across searches (successive rings and clamps repeat
+    points)."""
+    p, halvings = start, 0
+    for _ in range(max_steps):
+        ring = [move(p, i, j, steps) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+        todo = list(dict.fromkeys(q for q in ring if q not in seen))
+        if todo:
+            seen.update(zip(todo, np.asarray(rss_of(todo)).tolist(), strict=True))
+        r = np.array([seen[q] for q in ring])
+        if float(np.min(r)) < best:
+            p, best = ring[int(np.argmin(r))], float(np.min(r))
+            continue
+        halvings += 1
+        if halvings > rounds:
+            break
+        steps = tuple(0.5 * s for s in steps)
+    return p, best
