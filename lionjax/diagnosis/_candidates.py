@@ -142,6 +142,26 @@ class ForceClip(AbstractEffect):
         return {}
 
 
+class VelocityDrag(AbstractEffect):
+    """A force quadratic in the velocity, −c₂·v̂|v̂| [N] (fluid drag): column +(1/Λ)[v̂|v̂|],
+    parameter b·c₂; an out-of-library look-alike that a named stack must beat (a drag took the
+    name ``saturation``: both lower the response to the largest forces), never a named
+    candidate (a user's ``QuadraticDrag`` is: examples/custom_effects.py)."""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("b_c2",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("v_abs_v", 0, 1.0),)
+
+    def signals(self, record: Record) -> dict:
+        raise ValueError("VelocityDrag's signal v̂|v̂| is the diagnosis' own (_Fitter._known)")
+
+    def physical(self, theta: Array, b: Array) -> dict:
+        return {"c2": theta[..., 0] / b}
+
+
 def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
     """Names of h_x and h_F for one (ω, ζ) (distinct per mode: the regressors cache by name)."""
     key = f"{float(omega):.9g},{float(zeta):.6g}"

@@ -48,6 +48,9 @@ class Criteria(eqx.Module):
             (and above which a line it leaves sharpened is at the noise level).
         dead_zone_lookalike_share: a named stack is ``unexplained`` where the dead zone's
             look-alike on the baseline structure validates below this share of its mean square.
+        drag_lookalike_share: a named stack is ``unexplained`` where a force quadratic in the
+            velocity on the baseline structure validates below this share of its mean square
+            (drag records were named ``saturation`` at 0.58 and 0.63).
         periodic_score_factor: the position-periodic look-alike overrules the stack when its
             validated score is above this many times ``threshold`` (and it removes
             ``min_share`` of the excess the stack leaves): it is searched over a family of some
@@ -74,6 +77,7 @@ class Criteria(eqx.Module):
     peak_power_kept: float = 0.5
     explained_full: float = 0.9
     dead_zone_lookalike_share: float = 0.8
+    drag_lookalike_share: float = 0.8
     periodic_score_factor: float = 4.0
     feedback_share: float = 0.3
     tie_ratio: float = 20.0

@@ -26,6 +26,7 @@ from ._candidates import (
     Context,
     ForceClip,
     Limits,
+    VelocityDrag,
     mode_signal_names,
 )
 from ._criteria import DIVERGED
@@ -216,6 +217,18 @@ class _Fitter:
             self._lookalike[key] = best[1]
         return self._lookalike[key]
 
+    def drag_lookalike(self) -> float:
+        """Validated mean square of ε₁ of the baseline with a force quadratic in the velocity
+        (:class:`~._candidates.VelocityDrag`, its coefficient free): an out-of-library
+        look-alike of the input maps and of friction."""
+        key = ("drag",)
+        if key not in self._lookalike:
+            model = Augmented(MassDamper(), (VelocityDrag(),))
+            th, _, _, _ = fit_batch(self.rtr, model, [(0.0, math.inf)])
+            r = residual(self.rva, model, th[0], (0.0, math.inf))
+            self._lookalike[key] = float(np.mean(r**2))
+        return self._lookalike[key]
+
     def periodic_lookalike(self, cands) -> tuple[float, float]:
         """(validated mean square of ε₁, period p [m]) of the structure ``cands`` (u = F) with a
         force periodic in position, A·sin(2πx/p + φ) — columns (1/Λ)[sin 2πκξ], (1/Λ)[cos
@@ -376,6 +389,7 @@ class _Fitter:
             "x_spring": (x, "foh"),
             "sgn_v": (np.tanh(v / self.st.v_eps), "foh"),
             "abs_sgn_v": (np.abs(np.tanh(v / self.st.v_eps)), "foh"),
+            "v_abs_v": (v * np.abs(v), "foh"),
         }
         return known | self._position_known(rec, clamp=self._clamp and rec is self.valid)
 

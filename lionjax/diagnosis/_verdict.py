@@ -28,6 +28,7 @@ class Verdict:
     peak_grew: bool
     judged: bool  # the stack was judged against the dead zone's look-alike
     lookalike: float  # its validated mean square
+    drag: float  # the drag look-alike's validated mean square (inf: not tried)
     periodic_ms: float
     period: float
     periodic_score: float
@@ -114,9 +115,14 @@ def judge(run: Run, stk: Stack) -> Verdict:
     judged = bool(stk.cands) and not any(c.profiled == "fmax" for c in stk.cands)
     lookalike = run.fitter.dead_zone_lookalike([]) if judged else math.inf
     lookalike_better = lookalike < crit.dead_zone_lookalike_share * cur.ms_valid
+    # nor a force quadratic in the velocity (fluid drag, out of the default library): it lowers
+    # the response to the largest forces as a saturation does (drag records were named
+    # `saturation` at 0.58 and 0.63), but follows the velocity, not the force
+    drag = run.fitter.drag_lookalike() if stk.cands else math.inf
+    drag_better = drag < crit.drag_lookalike_share * cur.ms_valid
     p_ms, period, p_score, p_share, p_better = _periodic(run, stk)
     if stk.cands:
-        named = not (peak_grew or lookalike_better or p_better)
+        named = not (peak_grew or lookalike_better or drag_better or p_better)
         verdict = stk.cands[0].name if named else "unexplained"
     elif p_better:
         verdict = "unexplained"
@@ -134,6 +140,7 @@ def judge(run: Run, stk: Stack) -> Verdict:
         bool(peak_grew),
         judged,
         lookalike,
+        drag,
         p_ms,
         period,
         p_score,
@@ -256,6 +263,8 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
     final["structure_explained"] = not v.peak_grew
     # the dead zone's look-alike's validated mean square over the named stack's (stack only)
     final["dead_zone_lookalike_ratio"] = v.lookalike / cur.ms_valid if v.judged else None
+    # the drag look-alike's (a force quadratic in the velocity) likewise (stack only)
+    final["drag_lookalike_ratio"] = v.drag / cur.ms_valid if math.isfinite(v.drag) else None
     final["periodic_lookalike"] = {
         "ratio": v.periodic_ms / cur.ms_valid if math.isfinite(v.periodic_ms) else None,
         "score": v.periodic_score if math.isfinite(v.periodic_score) else None,
