@@ -42,7 +42,8 @@ class QuadraticDrag(lj.diagnosis.ForceEffect):
 
 class Cogging(lj.diagnosis.ForceEffect):
     """A force periodic in position, A·sin(2πx/p + φ) = A_s·sin(2πx/p) + A_c·cos(2πx/p) [N];
-    the period p [m] is profiled on 400 periods from 1/150 to 1/1.5 of the covered range."""
+    p [m] is profiled on 1.5 … 64 cycles over the covered range, every half cycle (a sinusoid
+    off by half a cycle over the range loses its fit), then refined."""
 
     name: ClassVar[str] = "cogging"
     parameters: ClassVar[tuple[str, ...]] = ("A_sin", "A_cos")
@@ -56,4 +57,4 @@ class Cogging(lj.diagnosis.ForceEffect):
 
     def grid(self, limits):
         span = limits.x_range[1] - limits.x_range[0]
-        return [Cogging(float(p)) for p in span / np.geomspace(1.5, 150.0, 400)]
+        return [Cogging(float(span / k)) for k in np.arange(1.5, 64.0, 0.5)]

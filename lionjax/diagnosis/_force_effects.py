@@ -182,7 +182,7 @@ class ForceColumns(AbstractEffect):
 
     def signals(self, record: Record) -> dict:
         x = jnp.asarray(record.x)
-        v = zero_phase_velocity(x, record.dt, self.omega)
+        v = _velocity(record, self.omega)
         phis = self.effect.record_basis(record, v)
         names = signal_names(self.effect)
         if len(phis) != len(names):
@@ -205,6 +205,23 @@ class ForceColumns(AbstractEffect):
 
     def physical(self, theta: Array, b: Array) -> dict:
         return {p: theta[..., j] / b for j, p in enumerate(self.effect.parameters)}
+
+
+#: v̂ of the records last seen ((record, ω) → v̂): a profile builds one structure per grid
+#: point on the same record, and the zero-phase filter cost as much as the fit.
+_VELOCITIES: dict = {}
+
+
+def _velocity(record: Record, omega: float):
+    """The zero-phase velocity v̂ [m/s] of ``record`` at bandwidth ``omega``, cached."""
+    key = (id(record), float(omega))
+    hit = _VELOCITIES.get(key)
+    if hit is None or hit[0] is not record:
+        if len(_VELOCITIES) >= 8:
+            _VELOCITIES.clear()
+        v = zero_phase_velocity(jnp.asarray(record.x), record.dt, omega)
+        hit = _VELOCITIES[key] = (record, v)
+    return hit[1]
 
 
 class SimulatedForce(eqx.Module):
