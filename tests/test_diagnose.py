@@ -219,7 +219,9 @@ def test_feedback_share_reads_a_low_rate_open_loop_as_open():
             return xm, F
 
         assert _feedback(*run(rough, 0.0, 0.0))[0] < 0.05
-        assert _feedback(*run(smooth, 100.0, 1.0))[0] > max(0.9, lj.diagnosis.Criteria().feedback_share)
+        assert _feedback(*run(smooth, 100.0, 1.0))[0] > max(
+            0.9, lj.diagnosis.Criteria().feedback_share
+        )
 
 
 def test_gram_solve_is_float64_without_x64():

@@ -148,3 +148,13 @@ def test_example_uses_the_public_api_only():
         if isinstance(node, ast.Attribute):
             assert not node.attr.startswith("_") or node.attr.startswith("__"), node.attr
     assert "lionjax._" not in src and "diagnosis._" not in src
+
+
+def test_criteria_are_read_unless_an_argument_overrides_them(drag):
+    # the drag the custom library names at 1.00 (above) is not significant under a threshold of
+    # 1e9 given through Criteria, and is again when the threshold argument overrides it
+    strict = lj.diagnosis.Criteria(threshold=1e9)
+    d = lj.diagnose(*drag, candidates=CUSTOM, criteria=strict)
+    assert d.settings["threshold"] == 1e9 and d.stack == []
+    d = lj.diagnose(*drag, candidates=CUSTOM, criteria=strict, threshold=10.0)
+    assert d.verdict == "quadratic_drag"

@@ -164,11 +164,11 @@ def diagnose(
     candidates: Sequence[AbstractCandidate] = DEFAULT_CANDIDATES,
     filter_hz: float | None = None,
     window_s: float | None = None,
-    threshold: float = 10.0,
-    min_share: float = 0.3,
-    min_size: float = 0.005,
-    floor_factor: float = 1.5,
-    max_effects: int = 3,
+    threshold: float | None = None,
+    min_share: float | None = None,
+    min_size: float | None = None,
+    floor_factor: float | None = None,
+    max_effects: int | None = None,
     max_memory_gb: float | None = None,
     criteria: Criteria | None = None,
 ) -> Diagnosis:
@@ -190,7 +190,8 @@ def diagnose(
         threshold, min_share, min_size, floor_factor, max_effects: the most used thresholds
             (:class:`~lionjax.diagnosis.Criteria`: significance score, least share of the excess
             gap, least size against the input's term b·F/Λ, the noise floor's factor, the
-            largest stack); they replace those fields of ``criteria``.
+            largest stack; defaults 10, 0.3, 0.005, 1.5, 3); where given, they replace those
+            fields of ``criteria``.
         max_memory_gb: host memory [GB] the diagnosis may take (default: this machine's
             physical memory). Its peak grows with the records' padded lengths (about 4.3 kB per
             padded sample of each record above 2¹⁸, 9.7 kB below, where designs are cached:
@@ -211,13 +212,15 @@ def diagnose(
             f"diagnose: argument 'criteria' must be a lionjax.diagnosis.Criteria, got "
             f"{type(criteria).__name__}."
         )
+    given = {
+        "threshold": threshold,
+        "min_share": min_share,
+        "min_size": min_size,
+        "floor_factor": floor_factor,
+        "max_effects": max_effects,
+    }
     crit = dataclasses.replace(
-        criteria or Criteria(),
-        threshold=threshold,
-        min_share=min_share,
-        min_size=min_size,
-        floor_factor=floor_factor,
-        max_effects=max_effects,
+        criteria or Criteria(), **{k: v for k, v in given.items() if v is not None}
     )
     library = check_candidates(candidates, RESERVED)
     run = prepare(train, valid, library, crit, filter_hz, window_s, max_memory_gb)

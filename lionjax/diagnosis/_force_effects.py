@@ -41,10 +41,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._model_effects import zero_phase_velocity
 from .._models import AbstractEffect, Column
 from .._record import Record
 from ._candidates import AbstractCandidate, Context, Limits
+from ._filtering import zero_phase
 
 #: Golden-section steps of :meth:`ForceEffect.profile`'s refinement (the bracket shrinks by
 #: 0.618 per step: 16 steps leave 5·10⁻⁴ of the grid's spacing).
@@ -219,7 +219,7 @@ def _velocity(record: Record, omega: float):
     if hit is None or hit[0] is not record:
         if len(_VELOCITIES) >= 8:
             _VELOCITIES.clear()
-        v = zero_phase_velocity(jnp.asarray(record.x), record.dt, omega)
+        v = jnp.asarray(zero_phase(record.x, float(record.dt), omega)[1])
         hit = _VELOCITIES[key] = (record, v)
     return hit[1]
 

@@ -20,6 +20,7 @@ from ._criteria import Criteria
 from ._filtering import impulse_gains
 from ._fit import TooWide
 from ._fitter import _Fitter
+from ._force_effects import check_library
 from ._result import EffectScore
 from ._settings import Settings, settings
 from ._statistics import _check_memory, _feedback, _position_noise, _robust_diff_std
@@ -474,8 +475,6 @@ def parsimony(run: Run, stk: Stack) -> Stack:
 
 def check_candidates(candidates: Sequence[Any], reserved) -> tuple[AbstractCandidate, ...]:
     """The library as a tuple, or an :class:`~lionjax.InputError` naming what is wrong."""
-    from ._force_effects import check_library
-
     candidates = tuple(candidates)
     bad = [c for c in candidates if not isinstance(c, AbstractCandidate)]
     if bad:
