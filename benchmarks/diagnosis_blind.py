@@ -1243,6 +1243,11 @@ def run(
     else:
         import multiprocessing as mp
 
+        # one BLAS thread per worker, inherited by the spawned workers: the workers fill the
+        # cores, and OpenBLAS's own threads spinning against the other worker's JAX slowed the
+        # diagnosis' host Gram products many times over (tests/conftest.py)
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
         with mp.get_context("spawn").Pool(jobs, initializer=_worker_init) as pool:
             for k, r in enumerate(pool.imap_unordered(run_case, specs), 1):
                 rows.append(r)

@@ -13,6 +13,14 @@ _CACHE = _ROOT / ".jax_cache"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+# One BLAS thread per process: the suite runs two pytest-xdist workers on two cores, and each
+# worker's JAX already keeps both busy; OpenBLAS's own threads then spin against them, and the
+# diagnosis' host-side float64 Gram products (numpy) slow many times over (test_diagnose_modes
+# and test_diagnose_stacking, 24 tests, on a loaded 2-core machine: 125 s with one thread; with
+# two, 13 tests done when stopped at 500 s). Set before the workers start, which inherit it
+# (this process may have imported numpy already, through a plugin; the workers run the tests).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 # XLA's CPU fusion emitters (its default) take about twice as long to compile this package's
 # programs as the elemental emitters (measured on the 2-core CI machine: a first lion_batched
 # call 9.5 → 5.3 s, a first lion call 4.4 → 2.2 s, the tune compile 25 → 15 s). At the suite's
