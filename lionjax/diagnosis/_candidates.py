@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import abc
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -38,6 +38,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._model_effects import (
+    MAX_POSITION_DEGREE,
     Coulomb,
     LocalizedPosition,
     Offset,
@@ -214,13 +215,36 @@ class ModeColumns(AbstractEffect):
 class AbstractCandidate(eqx.Module):
     """One candidate effect: ``name``, ``n_params`` (linear and profiled, for the parsimony
     penalty), what it adds to a structure, the physical parameters it reports with their
-    ``units``, their plausibility, and the candidates it ``subsumes`` (not stacked after it)."""
+    ``units``, their plausibility, and the candidates it ``subsumes`` (not stacked after it).
+
+    What the fitter does for the candidate is the candidate's to say, never asked by its name
+    or kind: the fitter's variants it is tried in (:meth:`variants`), whether it masks the force
+    columns where the axis sticks (``masks_stick``), whether it holds the position-dependent
+    a(x), b(x) (``holds_position``) or the flexible mode's columns (``holds_mode``), and which
+    parameter of the input map u = sat(F(t − τ)) it profiles (``input_parameter``; a stack
+    holding one is not judged against the periodic look-alike, and one that saturates the input
+    — ``saturates_input`` — not against the dead zone's). A new candidate inherits the defaults:
+    none of these, and fitted in the fitter's current variant alone."""
 
     name: ClassVar[str]
     n_params: ClassVar[int]
-    #: the profiled parameter it sets, ``"tau"``, ``"fmax"``, ``"mode"``, ``"degree"``,
-    #: ``"stick"`` (friction: whether the force columns are masked where the axis sticks) or None
-    profiled: ClassVar[str | None] = None
+    #: whether the force columns may be masked where the axis sticks (friction: static friction
+    #: balances the forces there, which the smoothed sign cannot; ``Variant.stick``, chosen by
+    #: the first such candidate's :meth:`variants`, then shared)
+    masks_stick: ClassVar[bool] = False
+    #: whether it is the position-dependent a(x), b(x) (``Context.position_degree``: the fitter
+    #: profiles the localized step's x₀, w for it and reports its expansion point or x₀, w)
+    holds_position: ClassVar[bool] = False
+    #: whether it adds the flexible mode's columns (ω, ζ profiled by the fitter on the first
+    #: structure that holds them; its fits count from the estimated floor)
+    holds_mode: ClassVar[bool] = False
+    #: the parameter of the input map u = sat(F(t − τ)) it adds, profiled by the fitter on its
+    #: grid: ``"tau"`` (F(t − τ)) or ``"fmax"`` (sat with F_max); None: F enters as measured.
+    #: A stack with an input map is not judged against the periodic look-alike
+    input_parameter: ClassVar[Literal["tau", "fmax"] | None] = None
+    #: whether its input map saturates F: the dead zone look-alike's free columns F and
+    #: clip(F, ±d) span a hard saturation, so a stack holding it is not judged against that
+    saturates_input: ClassVar[bool] = False
     #: reported physical parameter → unit
     units: ClassVar[dict[str, str]] = {}
     #: names of the candidates whose columns this one contains
@@ -252,6 +276,14 @@ class AbstractCandidate(eqx.Module):
     @abc.abstractmethod
     def effects(self, ctx: Context) -> tuple[AbstractEffect, ...]:
         """Linear effect columns added to the model (may be empty)."""
+
+    def variants(self, now: tuple, *, stick_open: bool, outside: bool) -> list:
+        """The fitter's variants the candidate alone is tried in, the best validated one then
+        fixed (:func:`~._stages.fit_alone`). ``now``: the fitter's current ``Variant`` (a named
+        tuple; a variant is ``now._replace(...)``); ``stick_open``: the axis sticks on either
+        record and no friction candidate has chosen ``stick`` yet; ``outside``: the validation
+        record leaves the training positions. By default the current variant alone."""
+        return [now]
 
     def params(self, ctx: Context) -> int:
         """Parameter count for the parsimony penalty under the profiled settings ``ctx``."""
@@ -310,6 +342,17 @@ def _b_positive(phys) -> str:
     return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
 
+def _stick_variants(now, stick_open: bool) -> list:
+    """A friction candidate's variants (:meth:`AbstractCandidate.variants`)."""
+    if not stick_open:
+        return [now]
+    # whether the samples where the axis sticks are masked (static friction balances the
+    # forces there, which the smoothed sign cannot): chosen by the first friction candidate,
+    # then shared (a Coulomb record sticking on 37 % of its training samples had F_c fitted
+    # at 0.22 N for 0.36 N and scored 3.8)
+    return [now._replace(stick=k) for k in (False, True)]
+
+
 class OffsetCandidate(AbstractCandidate):
     """Constant force F₀ [N]: column −(1/Λ)[1]."""
 
@@ -326,17 +369,20 @@ class OffsetCandidate(AbstractCandidate):
 
 class CoulombCandidate(AbstractCandidate):
     """Coulomb friction F_c·sgn ẋ [N]: column +(1/Λ)[tanh(v̂/v_ε)]; where the axis sticks the
-    force columns may be masked (``profiled = "stick"``: :class:`~._fit.Regressors`'
+    force columns may be masked (``masks_stick``: :class:`~._fit.Regressors`'
     ``force_mask``, chosen by the validated score)."""
 
     name: ClassVar[str] = "coulomb_friction"
     n_params: ClassVar[int] = 1
-    profiled: ClassVar[str | None] = "stick"
+    masks_stick: ClassVar[bool] = True
     lookalike: ClassVar[str | None] = "dead_zone"
     units: ClassVar[dict[str, str]] = {"Fc": "N"}
 
     def effects(self, ctx):
         return (Coulomb(ctx.omega_v, ctx.v_eps),)
+
+    def variants(self, now, *, stick_open, outside):
+        return _stick_variants(now, stick_open)
 
     def implausible(self, phys, lim):
         if not phys.get("Fc", 0) > 0:
@@ -355,7 +401,7 @@ class AsymmetricFrictionCandidate(AbstractCandidate):
 
     name: ClassVar[str] = "asymmetric_friction"
     n_params: ClassVar[int] = 2
-    profiled: ClassVar[str | None] = "stick"
+    masks_stick: ClassVar[bool] = True
     lookalike: ClassVar[str | None] = "dead_zone"
     units: ClassVar[dict[str, str]] = {"Fc_pos": "N", "Fc_neg": "N"}
     subsumes: ClassVar[tuple[str, ...]] = ("coulomb_friction",)
@@ -364,6 +410,9 @@ class AsymmetricFrictionCandidate(AbstractCandidate):
 
     def effects(self, ctx):
         return (Coulomb(ctx.omega_v, ctx.v_eps), DirectionalFriction(ctx.omega_v, ctx.v_eps))
+
+    def variants(self, now, *, stick_open, outside):
+        return _stick_variants(now, stick_open)
 
     def report(self, phys):
         Fc, dF = phys.get("Fc", math.nan), phys.get("dF", math.nan)
@@ -413,7 +462,7 @@ class PositionCandidate(AbstractCandidate):
     localized: bool = True
     name: ClassVar[str] = "position_dependent"
     n_params: ClassVar[int] = 2  # per degree
-    profiled: ClassVar[str | None] = "degree"
+    holds_position: ClassVar[bool] = True
     units: ClassVar[dict[str, str]] = {
         "da_dx": "1/(s·m)",
         "db_dx": "1/(kg·m)",
@@ -442,6 +491,23 @@ class PositionCandidate(AbstractCandidate):
     def params(self, ctx):
         return LOCAL_PARAMS if ctx.position_degree == 0 else self.n_params * ctx.position_degree
 
+    def variants(self, now, *, stick_open, outside):
+        # the degree, and whether a(x), b(x) are held constant beyond the training positions:
+        # where validation leaves train's range the polynomial extrapolates, right for a slow
+        # dependence (a tanh wider than the range) and wildly wrong for a saturating one (a bowl
+        # 1 − exp(−d²) scored −65 extrapolated and +103 held)
+        out = [
+            now._replace(degree=d, position_clamp=clamp)
+            for clamp in ((False, True) if outside else (False,))
+            for d in range(1, MAX_POSITION_DEGREE + 1)
+        ]
+        # and the localized step and bump (its x₀, w profiled on train; bounded, so never
+        # held): a transition or a dip a few % of the travel wide, which a cubic over the whole
+        # travel cannot follow
+        if self.localized:
+            out.append(now._replace(degree=0, position_clamp=False))
+        return out
+
     def implausible(self, phys, lim):
         return _b_positive(phys)
 
@@ -451,7 +517,7 @@ class DelayCandidate(AbstractCandidate):
 
     name: ClassVar[str] = "delay"
     n_params: ClassVar[int] = 1
-    profiled: ClassVar[str | None] = "tau"
+    input_parameter: ClassVar[Literal["tau", "fmax"] | None] = "tau"
     units: ClassVar[dict[str, str]] = {"tau": "s"}
 
     def effects(self, ctx):
@@ -483,11 +549,18 @@ class SaturationCandidate(AbstractCandidate):
 
     name: ClassVar[str] = "saturation"
     n_params: ClassVar[int] = 1  # F_max; the shape is one binary choice
-    profiled: ClassVar[str | None] = "fmax"
+    input_parameter: ClassVar[Literal["tau", "fmax"] | None] = "fmax"
+    saturates_input: ClassVar[bool] = True
     units: ClassVar[dict[str, str]] = {"Fmax": "N", "soft": ""}
 
     def effects(self, ctx):
         return ()
+
+    def variants(self, now, *, stick_open, outside):
+        # the shape too: both fit the train record nearly alike where its forces stay low, and
+        # the wrong one extrapolates badly (a hard clip at the train record's peak, 1.1 N,
+        # under a tanh of 3.5 N made a validation record reaching 2.9 N 18× worse)
+        return [now._replace(fmax_shape=k) for k in (1, -1)]
 
     def report(self, phys):
         f = phys.get("Fmax", math.inf)
@@ -524,7 +597,7 @@ class FlexibleModeCandidate(AbstractCandidate):
 
     name: ClassVar[str] = "flexible_mode"
     n_params: ClassVar[int] = 4
-    profiled: ClassVar[str | None] = "mode"
+    holds_mode: ClassVar[bool] = True
     simulated: ClassVar[bool] = False  # the windowed simulation is of the rigid body
     units: ClassVar[dict[str, str]] = {
         "mass_ratio": "",
@@ -541,6 +614,10 @@ class FlexibleModeCandidate(AbstractCandidate):
 
     def params(self, ctx):
         return self.n_params if ctx.mode_input else self.n_params - 1
+
+    def variants(self, now, *, stick_open, outside):
+        # with and without the input-share column (κ free, or held at 0: collocated)
+        return [now._replace(mode_input=m) for m in (False, True)]
 
     def report(self, phys):
         out = super().report(phys)

@@ -369,7 +369,7 @@ class _Fitter:
     def _regs(self, cands) -> tuple[Regressors, Regressors]:
         """(train, valid) regressors of a structure: force-masked where the axis sticks when
         the structure has friction and the stick variant is chosen."""
-        if not (self.stick and any(c.profiled == "stick" for c in cands)):
+        if not (self.stick and any(c.masks_stick for c in cands)):
             return self.rtr, self.rva
         if self._stick_regs is None:
             rtr, rva = (
@@ -656,7 +656,7 @@ class _Fitter:
             for regs, rec in ((rtr, self.train), (rva, self.valid)):
                 self._add_mode(regs, rec, [self.mode])
         model = self._model(cands)
-        prof = [c.profiled for c in cands if c.profiled in ("tau", "fmax")]
+        prof = [c.input_parameter for c in cands if c.input_parameter]
         tau, fmax = 0.0, math.inf
         for _ in range(2 if len(prof) > 1 else 1):
             for which in prof:

@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 
 from .._errors import InputError
-from .._model_effects import MAX_POSITION_DEGREE
 from .._record import Record
 from ._candidates import AbstractCandidate, Limits
 from ._criteria import Criteria
@@ -265,41 +264,6 @@ def prepare(
     )
 
 
-def _variants(run: Run, c: AbstractCandidate, stick_chosen: bool) -> list:
-    """The fitter's variants ``c`` is tried in (chosen by the validated score)."""
-    fitter, now = run.fitter, run.fitter.variant
-    if c.profiled == "stick" and fitter.sticks and not stick_chosen:
-        # whether the samples where the axis sticks are masked (static friction balances the
-        # forces there, which the smoothed sign cannot): chosen by the first friction candidate,
-        # then shared (a Coulomb record sticking on 37 % of its training samples had F_c fitted
-        # at 0.22 N for 0.36 N and scored 3.8)
-        return [now._replace(stick=k) for k in (False, True)]
-    if c.profiled == "degree":
-        # and whether a(x), b(x) are held constant beyond the training positions: where
-        # validation leaves train's range the polynomial extrapolates, right for a slow
-        # dependence (a tanh wider than the range) and wildly wrong for a saturating one (a bowl
-        # 1 − exp(−d²) scored −65 extrapolated and +103 held)
-        out = [
-            now._replace(degree=d, position_clamp=clamp)
-            for clamp in ((False, True) if run.outside["position"] > 0 else (False,))
-            for d in range(1, MAX_POSITION_DEGREE + 1)
-        ]
-        # and the localized step and bump (its x₀, w profiled on train; bounded, so never
-        # held): a transition or a dip a few % of the travel wide, which a cubic over the whole
-        # travel cannot follow
-        if getattr(c, "localized", False):
-            out.append(now._replace(degree=0, position_clamp=False))
-        return out
-    if c.profiled == "mode":
-        return [now._replace(mode_input=m) for m in (False, True)]
-    if c.profiled == "fmax":
-        # the shape too: both fit the train record nearly alike where its forces stay low, and
-        # the wrong one extrapolates badly (a hard clip at the train record's peak, 1.1 N,
-        # under a tanh of 3.5 N made a validation record reaching 2.9 N 18× worse)
-        return [now._replace(fmax_shape=k) for k in (1, -1)]
-    return [now]
-
-
 def fit_alone(run: Run) -> dict[str, Fitted]:
     """Every candidate alone on the baseline, its variants (the degree of the position
     dependence, the flexible mode with or without its input-share column …) chosen by their
@@ -307,8 +271,12 @@ def fit_alone(run: Run) -> dict[str, Fitted]:
     estimated floor, the others from nothing yet. Sets ``run.fit_floor``."""
     fitter, fitted, stick_chosen = run.fitter, {}, False
     for c in run.candidates:
-        variants = _variants(run, c, stick_chosen)
-        stick_chosen = stick_chosen or (c.profiled == "stick" and len(variants) > 1)
+        variants = c.variants(
+            fitter.variant,
+            stick_open=not stick_chosen and fitter.sticks,
+            outside=run.outside["position"] > 0,
+        )
+        stick_chosen = stick_chosen or (c.masks_stick and len(variants) > 1)
         tries = []
         for var in variants:
             fitter.variant = var

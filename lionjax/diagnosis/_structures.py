@@ -65,12 +65,12 @@ class Fitted:
 
 def _has_position(cands: Sequence[AbstractCandidate]) -> bool:
     """Whether a structure holds the position-dependent a(x), b(x)."""
-    return any(c.profiled == "degree" for c in cands)
+    return any(c.holds_position for c in cands)
 
 
 def _has_mode(cands: Sequence[AbstractCandidate]) -> bool:
     """Whether a structure holds the flexible mode's columns."""
-    return any(c.profiled == "mode" for c in cands)
+    return any(c.holds_mode for c in cands)
 
 
 def _effects_of(cands: Sequence[AbstractCandidate], ctx: Context):

@@ -52,7 +52,7 @@ def _periodic(run: Run, stk: Stack) -> tuple[float, float, float, float, bool]:
     profiled on train, scored on validation as a candidate would be (2 coefficients and the
     period). Not tried on a stack with an input map (τ, F_max)."""
     cur, crit = stk.fit, run.crit
-    if any(c.profiled in ("tau", "fmax") for c in stk.cands):
+    if any(c.input_parameter for c in stk.cands):
         ms, period = math.inf, math.nan
     else:
         ms, period = run.fitter.periodic_lookalike(stk.cands)
@@ -112,7 +112,7 @@ def judge(run: Run, stk: Stack) -> Verdict:
     # than its error describes the input (ratios 0.004–0.64 on held-out dead zones so named;
     # ≥ 1.2 on 54 held-out records named right). A stack with an input map F → sat(F) is not
     # judged so: the look-alike's free columns F and clip(F, ±d) span a hard saturation.
-    judged = bool(stk.cands) and not any(c.profiled == "fmax" for c in stk.cands)
+    judged = bool(stk.cands) and not any(c.saturates_input for c in stk.cands)
     lookalike = run.fitter.dead_zone_lookalike([]) if judged else math.inf
     lookalike_better = lookalike < crit.dead_zone_lookalike_share * cur.ms_valid
     # nor a force quadratic in the velocity (fluid drag, out of the default library): it lowers
