@@ -256,9 +256,10 @@ class AbstractCandidate(eqx.Module):
     #: tell them apart (asymmetric friction's ΔF·|sgn ẋ| is a constant force while the axis
     #: moves, as an offset — or a spring's equilibrium term — is)
     excludes: ClassVar[tuple[str, ...]] = ()
-    #: an out-of-library look-alike that must not validate better than the candidate alone
-    #: (``"dead_zone"`` for friction: :meth:`~._fitter._Fitter.dead_zone_lookalike`), or None
-    lookalike: ClassVar[str | None] = None
+    #: whether a dead zone's input F − clip(F, ±d) (out of the library, acting with the sign of
+    #: the force) must not validate better than the candidate alone (friction, which acts with
+    #: the sign of the velocity: :meth:`~._fitter._Fitter.dead_zone_lookalike`)
+    dead_zone_lookalike: ClassVar[bool] = False
     #: whether the windowed simulation (:func:`lionjax.twin._windows.windowed_errors`) models
     #: the effect in full, so that its simulated gap can judge it
     simulated: ClassVar[bool] = True
@@ -375,7 +376,7 @@ class CoulombCandidate(AbstractCandidate):
     name: ClassVar[str] = "coulomb_friction"
     n_params: ClassVar[int] = 1
     masks_stick: ClassVar[bool] = True
-    lookalike: ClassVar[str | None] = "dead_zone"
+    dead_zone_lookalike: ClassVar[bool] = True
     units: ClassVar[dict[str, str]] = {"Fc": "N"}
 
     def effects(self, ctx):
@@ -402,7 +403,7 @@ class AsymmetricFrictionCandidate(AbstractCandidate):
     name: ClassVar[str] = "asymmetric_friction"
     n_params: ClassVar[int] = 2
     masks_stick: ClassVar[bool] = True
-    lookalike: ClassVar[str | None] = "dead_zone"
+    dead_zone_lookalike: ClassVar[bool] = True
     units: ClassVar[dict[str, str]] = {"Fc_pos": "N", "Fc_neg": "N"}
     subsumes: ClassVar[tuple[str, ...]] = ("coulomb_friction",)
     simpler: ClassVar[tuple[str, ...]] = ("coulomb_friction", "offset")

@@ -151,7 +151,7 @@ class Run:
         if (
             not why
             and sc > self.crit.threshold
-            and any(k.lookalike == "dead_zone" for k in ks)
+            and any(k.dead_zone_lookalike for k in ks)
             and self.fitter.dead_zone_lookalike(
                 [self.by_name[n] for n in cur.names], (cur.tau, cur.fmax)
             )
