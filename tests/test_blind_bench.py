@@ -205,6 +205,23 @@ def test_new_class_makes_a_case(cls, source):
         assert info["response_change"] == 0.0 and info["device_unchanged"]
 
 
+def test_verdict_right_counts_the_verdict_not_the_stack():
+    """A wrong verdict at confidence ≥ 0.9 is a wrong name: with several effects at once, a
+    verdict naming one of them is right even where the stack misses another."""
+    vr = blind.verdict_right
+    cdo = ["coulomb_friction", "delay", "offset"]
+    assert vr("triple", "offset", False, cdo)  # right name, incomplete stack
+    assert not vr("triple", "force_sensor_drift", False, cdo)
+    assert not vr("triple", "spring", True, ["saturation", "coulomb_friction", "offset"])
+    assert vr("triple", "offset", False, ["spring", "delay", "coulomb_friction"])  # equilibrium
+    assert vr("triple", "asymmetric_friction", False, cdo)
+    assert not vr("triple", "unexplained", False, cdo) and not vr("triple", None, False, cdo)
+    assert vr("spring+delay", "delay", False, ["spring", "delay"])
+    # one effect: the accepted answer, as is_correct says
+    assert vr("coulomb_friction", "offset", True, ["coulomb_friction"])
+    assert not vr("force_sensor_line", "none", False, ["force_sensor_line"])
+
+
 def test_is_correct_new_rules():
     ic = blind.is_correct
     cso = ["coulomb_friction", "spring", "offset"]

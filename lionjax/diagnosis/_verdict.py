@@ -87,8 +87,19 @@ def judge(run: Run, stk: Stack) -> Verdict:
     # the gap: a line it leaves sharpened is at the noise level — a held-out offset removing
     # 99.9 % of it left the excitation's line at 206× the median for 95×; the cogging, backlash
     # and dead zones fitted so left 58–70 %)
+    # Where the baseline is qualitatively wrong its residual is the whole response, no reference
+    # for a sharpened line: there a stack the windowed simulation confirms (removing at least
+    # dominant_sim_share of the simulated gap) is not so judged (held-out dominant springs with
+    # k fitted within 0.1 % were called `unexplained` at 0.00 for a line their residual kept)
+    confirmed = (
+        run.dominant
+        and bool(stk.cands)
+        and all(c.simulated for c in stk.cands)
+        and sim_share(stk.fit.gap, run.base.gap) >= crit.dominant_sim_share
+    )
     peak_grew = (
-        explained < crit.explained_full
+        not confirmed
+        and explained < crit.explained_full
         and s_final["peak"] > max(crit.peak_growth * s_base["peak"], crit.noise_peak)
         and s_final["peak_power"] > crit.peak_power_kept * s_base["peak_power"]
     )
