@@ -23,13 +23,13 @@ A, B, FS, SECONDS, Q = 20.0, 2.0, 1000.0, 4.0, 2e-6
 CUSTOM = lj.diagnosis.DEFAULT_CANDIDATES + (QuadraticDrag(), Cogging())
 
 
-def records(force=None, *, line=None, drift=None, seed=0):
+def records(force=None, *, line=None, drift=None, seed=0, fs=FS):
     """(train, valid): multisine F (12 lines, 0.3–15 Hz), encoder step Q, 1 mN force noise;
-    ``line`` (f₀ [Hz], amplitude [N]) and ``drift`` [N over the record] are added to the
-    recorded F only (the device does not feel them)."""
+    ``line`` (f₀ [Hz], amplitude [N]; with its third harmonic below 0.45·fs) and ``drift``
+    [N over the record] are added to the recorded F only (the device does not feel them)."""
     rng = np.random.default_rng(seed)
-    dt = 1 / FS
-    t = np.arange(int(SECONDS * FS)) * dt
+    dt = 1 / fs
+    t = np.arange(int(SECONDS * fs)) * dt
     out = []
     for _ in range(2):
         F = sum(
@@ -41,7 +41,8 @@ def records(force=None, *, line=None, drift=None, seed=0):
         if line is not None:
             f0, amp = line
             Fm = Fm + amp * np.sin(2 * np.pi * f0 * t + rng.uniform(0, 2 * np.pi))
-            Fm = Fm + 0.3 * amp * np.sin(2 * np.pi * 3 * f0 * t + rng.uniform(0, 2 * np.pi))
+            if 3 * f0 < 0.45 * fs:
+                Fm = Fm + 0.3 * amp * np.sin(2 * np.pi * 3 * f0 * t + rng.uniform(0, 2 * np.pi))
         if drift is not None:
             Fm = Fm + drift * t / SECONDS
         out.append(lj.Record(x, Fm, dt))
@@ -82,6 +83,19 @@ def test_force_sensor_line_named_as_an_artefact(f0):
     assert p["line_unfelt"] == pytest.approx(1.0, abs=0.05)  # the device felt none of it
     assert p["f_line"] == pytest.approx(f0, abs=0.02)
     assert "flexible_mode" not in d.stack
+
+
+def test_force_sensor_line_above_the_filter_corner_sized_in_F():
+    """At 256 Hz the diagnosis' filter corner is 10 Hz: a 50 Hz line reaches ε₁ attenuated
+    ~100×, yet it is 0.11 of F's RMS. Sized against F, it is named, with that size."""
+    fs, amp = 256.0, 0.1
+    train, valid = records(line=(50.0, amp), seed=5, fs=fs)
+    d = lj.diagnose(train, valid)
+    assert d.verdict == "force_sensor_line" and d.confidence > 0.9, (d.verdict, d.stack)
+    # 4 s hold 200 whole cycles: the line's RMS is amp/√2
+    expected = amp / math.sqrt(2) / float(np.sqrt(np.mean(np.asarray(valid.F) ** 2)))
+    size = {e.name: e.size for e in d.effects}["force_sensor_line"]
+    assert size == pytest.approx(expected, rel=0.1)
 
 
 def test_force_sensor_drift():

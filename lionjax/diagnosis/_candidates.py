@@ -286,6 +286,13 @@ class AbstractCandidate(eqx.Module):
         record leaves the training positions. By default the current variant alone."""
         return [now]
 
+    def measured_rms(self, phys: dict[str, float], record, v) -> float | None:
+        """A measurement artefact's RMS [N] in ``record``'s measured F under the fitted
+        ``phys`` (``v``: the record's v̂ [m/s]), by which it is sized against F, where it
+        lives; None (the default) for an effect on the device, sized by the equation error it
+        removes."""
+        return None
+
     def params(self, ctx: Context) -> int:
         """Parameter count for the parsimony penalty under the profiled settings ``ctx``."""
         return self.n_params

@@ -150,6 +150,15 @@ class ForceEffect(AbstractCandidate):
     def implausible(self, phys: dict[str, float], lim: Limits) -> str:
         return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
+    def measured_rms(self, phys: dict[str, float], record: Record, v) -> float | None:
+        """RMS [N] of Σ p_j·φ_j on ``record`` for a measurement effect (None otherwise)."""
+        if self.acts_on != "measurement":
+            return None
+        phis = self.record_basis(record, v)
+        pairs = zip(self.parameters, phis, strict=True)
+        s = sum(phys[p] * np.asarray(phi, np.float64) for p, phi in pairs)
+        return float(np.sqrt(np.mean(np.square(s))))
+
     def nonlinear_values(self) -> dict[str, float]:
         """The nonlinear parameters' values {field: value}."""
         return {f: float(getattr(self, f)) for f in self.nonlinear}
