@@ -88,3 +88,29 @@ def forced_axis(F, dt, *, a, b, force=None, substeps=8, x0=0.0, v0=0.0):
             xk += h / 6 * (k1x + 2 * k2x + 2 * k3x + k4x)
             vk += h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
     return x
+
+
+def stick_slip_axis(F, dt, *, a, b, Fc, Fs, vs, substeps=32):
+    """Positions of ẍ = −aẋ + b·(F − f) with Stribeck friction and true sticking (Karnopp):
+    while stuck (v = 0) the axis stays until |F| exceeds the static level Fs; sliding, the
+    friction is f = (Fc + (Fs − Fc)·exp(−(v/vs)²))·sgn v, and a velocity that reaches zero under
+    |F| ≤ Fs sticks. Semi-implicit Euler with ``substeps`` steps per held force sample."""
+    h = dt / substeps
+    x = np.empty(len(F))
+    xk, vk = 0.0, 0.0
+    for i, Fk in enumerate(np.asarray(F, float)):
+        x[i] = xk
+        for _ in range(substeps):
+            if vk == 0.0:
+                if abs(Fk) <= Fs:
+                    continue
+                s = np.sign(Fk)
+            else:
+                s = np.sign(vk)
+            f = (Fc + (Fs - Fc) * np.exp(-((vk / vs) ** 2))) * s
+            v1 = vk + h * (-a * vk + b * (Fk - f))
+            if vk != 0.0 and np.sign(v1) != s and abs(Fk) <= Fs:
+                v1 = 0.0  # the motion stops within the step and sticks
+            xk += h * v1
+            vk = v1
+    return x

@@ -175,8 +175,10 @@ def test_new_class_makes_a_case(cls, source):
     fs = info["fs"]  # 400 Hz to rounding
     assert all(np.all(np.isfinite(r.x)) and np.all(np.isfinite(r.F)) for r in (tr, va))
     eff = info["effects"]
-    band = blind.DOMINANT_BAND if cls in blind.DOMINANT else blind.BAND
-    assert info["size_band"] == list(band)
+    band = {"spring_dominant": blind.SPRING_BAND, "stiction_dominant": blind.DOMINANT_BAND}.get(
+        cls, blind.BAND
+    )
+    assert info["size_band"] == [list(band)] * len(eff)
     if cls not in blind.ARTEFACTS:
         changes = [e["change_alone"] for e in eff]
         assert info["size_in_band"] == all(band[0] <= c <= band[1] for c in changes)
@@ -185,6 +187,11 @@ def test_new_class_makes_a_case(cls, source):
         assert eff[0]["name"] == "spring" and p["filter_hz"] == fh
         assert 1.2 * fh <= p["f_n"] <= min(3 * fh, fs / 8)
         assert p["k"] == pytest.approx((2 * math.pi * p["f_n"]) ** 2 / info["b"])
+        # driven so that the stiffest spring of its sizing still moves the axis
+        k_hi = (2 * math.pi * min(3 * fh, fs / 8)) ** 2 / info["b"]
+        sway = blind.SPRING_MOTION * max(info["q"], info["noise_std"])
+        assert info["excitation_rms"] / k_hi >= sway * (1 - 1e-9)
+        assert np.ptp(np.asarray(va.x)) >= 4 * info["q"]
     elif cls == "stiction_dominant":
         p = eff[0]["params"]
         assert eff[0]["name"] == "coulomb_friction" and not info["closed_loop"]
@@ -192,6 +199,9 @@ def test_new_class_makes_a_case(cls, source):
         assert all(e["kind"] != "steps" and e["f_hi"] <= 4.0 for e in info["excitation"])
         assert 0.0 <= info["stick_share"] <= 1.0
         assert info["stick_share_in_aim"] == (0.3 <= info["stick_share"] <= 0.7)
+        # neither record stuck throughout, or the case is flagged
+        stuck = max(info["stick_share"], info["stick_share_train"])
+        assert stuck < blind.STUCK_THROUGHOUT or not info["size_in_band"]
     elif cls == "triple":
         names = info["truth"]
         assert len(set(names)) == 3 and "+".join(names) in blind.TRIPLES

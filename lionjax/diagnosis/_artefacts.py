@@ -104,13 +104,17 @@ class ForceSensorDrift(ForceEffect):
     offset's constant: the zero's value at t_mid is a constant force F₀, which the data cannot
     tell from one on the device, and is reported as F₀. Contains the offset (two parameters):
     a constant force alone is never taken for a drift, while a sensor zeroed at each record's
-    start (F₀ = r·(t_mid − t₁)) is explained whole."""
+    start (F₀ = r·(t_mid − t₁)) is explained whole. The offset stands in for it unless the ramp
+    is significant on validation with the rest of the stack (a slow trend that an unmodelled
+    friction or saturation leaves in ε₁ is not a drift: Coulomb + offset records were named
+    ``force_sensor_drift`` at 1.00)."""
 
     name: ClassVar[str] = "force_sensor_drift"
     acts_on: ClassVar[str] = "measurement"
     parameters: ClassVar[tuple[str, ...]] = ("drift_rate",)
     units: ClassVar[dict[str, str]] = {"drift_rate": "N/s", "F0": "N"}
     subsumes: ClassVar[tuple[str, ...]] = ("offset",)
+    simpler: ClassVar[tuple[str, ...]] = ("offset",)
 
     @property
     def n_params(self) -> int:  # type: ignore[override]

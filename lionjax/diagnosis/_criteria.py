@@ -31,6 +31,14 @@ class Criteria(eqx.Module):
             baseline a = −0.24, b = −0.009, removed 78 % of the simulated gap and 23 % of the
             excess equation error).
 
+        stuck_share: on a record whose axis sticks for at least this share of the validation
+            samples (``noise["stuck_share"]``), friction is refused for its simulated gap only
+            where its simulation diverges: the simulated smoothed sign without static friction
+            slides where the axis stuck, and a mass–damper fitted to a sticking record predicts
+            little motion (held-out stiction records at 2–2.4 F_c, sticking 70 %, where Coulomb
+            friction removed 100 % of the excess equation error at a score of 128, were refused
+            so).
+
     The stack:
         max_effects: largest stack.
 
@@ -70,6 +78,7 @@ class Criteria(eqx.Module):
     min_size: float = 0.005
     max_worsening: float = 0.1
     dominant_sim_share: float = 0.5
+    stuck_share: float = 0.3
     max_effects: int = 3
     floor_factor: float = 1.5
     noise_peak: float = 100.0

@@ -730,6 +730,18 @@ class _Fitter:
             self.H = n
         return self.H
 
+    def hold_gap(self) -> float:
+        """The rms error [m] of holding each window's start position x₀ for the window (the
+        gap of a model that predicts no motion), scored from the sample the gaps are
+        (:attr:`~._structures.Fitted.gap_from`); NaN before the window is set."""
+        if self.H is None:
+            return math.nan
+        H, x = self.H, np.asarray(self.valid.x, np.float64)
+        n = (x.size // H) * H
+        held = np.repeat(np.asarray(self.x_start, np.float64)[:n:H], H)
+        e = x[:n] - held
+        return float(np.sqrt(np.mean(e[H if n >= 2 * H else 0 :] ** 2)))
+
     def _simulate(self, phys, u, cands):
         keys = tuple(k for k in WINDOW_PARAMETERS if k != "xc")
         p = {k: jnp.asarray(float(phys.get(k, 0.0))) for k in keys}

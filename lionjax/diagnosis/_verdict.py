@@ -41,7 +41,7 @@ def _explained(run: Run, stk: Stack) -> float:
     the baseline is qualitatively wrong, at least the share of the simulated gap."""
     ex0 = run.excess(run.base.ms_valid)
     out = 1.0 - (run.excess(stk.fit.ms_valid) / ex0 if ex0 > 0 else 0.0)
-    if run.dominant and stk.cands and all(c.simulated for c in stk.cands):
+    if run.by_simulation(stk.cands):
         out = max(out, sim_share(stk.fit.gap, run.base.gap))
     return out
 
@@ -92,9 +92,7 @@ def judge(run: Run, stk: Stack) -> Verdict:
     # dominant_sim_share of the simulated gap) is not so judged (held-out dominant springs with
     # k fitted within 0.1 % were called `unexplained` at 0.00 for a line their residual kept)
     confirmed = (
-        run.dominant
-        and bool(stk.cands)
-        and all(c.simulated for c in stk.cands)
+        run.by_simulation(stk.cands)
         and sim_share(stk.fit.gap, run.base.gap) >= crit.dominant_sim_share
     )
     peak_grew = (
@@ -132,8 +130,14 @@ def judge(run: Run, stk: Stack) -> Verdict:
     drag = run.fitter.drag_lookalike() if stk.cands else math.inf
     drag_better = drag < crit.drag_lookalike_share * cur.ms_valid
     p_ms, period, p_score, p_share, p_better = _periodic(run, stk)
+    # the look-alikes compete in the equation error: no measure against a stack the simulation
+    # confirmed that does not lower it (a dominant spring's true k carries the encoder's steps
+    # into ε₁ through b·k·x/Λ, above the baseline's whole error)
+    lookalikes = lookalike_better or drag_better or p_better
+    if confirmed and not cur.ms_valid < base.ms_valid:
+        lookalikes = False
     if stk.cands:
-        named = not (peak_grew or lookalike_better or drag_better or p_better)
+        named = not (peak_grew or lookalikes)
         verdict = stk.cands[0].name if named else "unexplained"
     elif p_better:
         verdict = "unexplained"
