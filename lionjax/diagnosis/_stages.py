@@ -6,6 +6,7 @@ one :class:`Run`: the records, the fitter, the baseline and how a fit is scored.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -57,7 +58,13 @@ class Run:
     outside: dict[str, float]
     fit_floor: float = math.inf
 
-    @property
+    @functools.cached_property
+    def measured_F_rms(self) -> float:
+        """The RMS [N] of the validation record's measured F (mean included), against which a
+        measurement artefact is sized."""
+        return float(np.sqrt(np.mean(np.square(np.asarray(self.valid.F, np.float64)))))
+
+    @functools.cached_property
     def stuck_share(self) -> float:
         """The share of the validation samples where the axis sticks (``_Fitter.stuck``)."""
         return float(np.mean(self.fitter.stuck_masks[1]))
@@ -159,8 +166,7 @@ class Run:
             for k in ks
         ]
         if all(r is not None for r in own):
-            F_rms = float(np.sqrt(np.mean(np.square(np.asarray(self.valid.F, np.float64)))))
-            size = max(size, sum(own) / max(F_rms, 1e-300))
+            size = max(size, sum(own) / max(self.measured_F_rms, 1e-300))
         if by_sim and math.isfinite(new.gap):  # likewise: the simulated gap it removes
             x_std = max(float(np.std(np.asarray(self.valid.x, np.float64))), 1e-300)
             size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / x_std)
