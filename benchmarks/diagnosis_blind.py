@@ -37,9 +37,9 @@ above the excited band) is redrawn whole, up to 6 draws. Cases whose size stays 
 are kept, counted and flagged (``size_in_band``). Two- and three-effect classes size each effect
 alone. The *dominant* classes use the band [80 %, 99.9 %] instead (the baseline mass–damper is
 qualitatively wrong; the spring [80 %, 200 %], below), and a stiction draw whose records stick
-throughout (≥ 95 % of samples) is redrawn. The force-sensor artefacts leave the device's motion unchanged (c = 0 by
-construction): they are sized by their amplitude A/F_rms instead (F_rms the clean valid record's
-logged force).
+throughout (≥ 95 % of samples) is redrawn. The force-sensor artefacts leave the device's motion
+unchanged (c = 0 by construction): they are sized by their amplitude A/F_rms instead (F_rms the
+clean valid record's logged force).
 
 Classes → accepted answer:
     none                     → verdict ``none``
@@ -250,7 +250,7 @@ def draw_setup(
 ) -> Setup:
     """One case's setup. ``closed`` forces the loop (the draw is still made, so the stream
     does not shift); ``f_lo``, ``f_hi`` [Hz] are the ranges of the excitation band's edges
-    (f_hi also ≤ f_s/10; a callable f_s ↦ range); ``kinds`` the excitation kinds drawn from."""
+    (f_hi also ≤ f_s/10); ``kinds`` the excitation kinds drawn from."""
     fs = _logu(rng, *rate)
     dur = float(rng.uniform(*duration)) if duration[1] > duration[0] else float(duration[0])
     n = int(round(dur * fs)) + 1
@@ -269,7 +269,7 @@ def draw_setup(
     for _ in range(2):
         kind = str(rng.choice(kinds))
         lo = _logu(rng, *f_lo)
-        hi = min(_logu(rng, *(f_hi(fs) if callable(f_hi) else f_hi)), fs / 10)
+        hi = min(_logu(rng, *f_hi), fs / 10)
         excs.append(bs.excitation(kind, rng, n, fs, rms, lo, hi))
         infos.append({"kind": kind, "f_lo": lo, "f_hi": hi})
     seeds = tuple(int(s) for s in rng.integers(0, 2**31 - 1, 2))

@@ -710,7 +710,7 @@ class _Fitter:
             # and is held before the record put a correct 4 ms delay's simulation 1e-4 m off
             # in the first window, and rejected it as making the gap worse), and the zero-phase
             # start states are least accurate at the record's edge
-            gap_from=self.H if sim.size >= 2 * self.H else 0,
+            gap_from=self.gap_from(sim.size),
             diverge_at=DIVERGED * max(float(np.ptp(np.asarray(self.valid.x))), 1e-300),
         )
 
@@ -730,17 +730,22 @@ class _Fitter:
             self.H = n
         return self.H
 
+    def gap_from(self, n: int) -> int:
+        """The first of ``n`` simulated samples the gap scores
+        (:attr:`~._structures.Fitted.gap_from`): the second window's, where one follows."""
+        return self.H if n >= 2 * self.H else 0
+
     def hold_gap(self) -> float:
         """The rms error [m] of holding each window's start position x₀ for the window (the
-        gap of a model that predicts no motion), scored from the sample the gaps are
-        (:attr:`~._structures.Fitted.gap_from`); NaN before the window is set."""
+        gap of a model that predicts no motion), scored as the gaps are; NaN before the window
+        is set."""
         if self.H is None:
             return math.nan
         H, x = self.H, np.asarray(self.valid.x, np.float64)
         n = (x.size // H) * H
         held = np.repeat(np.asarray(self.x_start, np.float64)[:n:H], H)
         e = x[:n] - held
-        return float(np.sqrt(np.mean(e[H if n >= 2 * H else 0 :] ** 2)))
+        return float(np.sqrt(np.mean(e[self.gap_from(n) :] ** 2)))
 
     def _simulate(self, phys, u, cands):
         keys = tuple(k for k in WINDOW_PARAMETERS if k != "xc")

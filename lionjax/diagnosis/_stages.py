@@ -65,6 +65,18 @@ class Run:
         return float(np.sqrt(np.mean(np.square(np.asarray(self.valid.F, np.float64)))))
 
     @functools.cached_property
+    def x_std(self) -> float:
+        """The validation record's position spread [m] (at least 1e-300), against which a
+        candidate is sized by the simulated gap it removes."""
+        return max(float(np.std(np.asarray(self.valid.x, np.float64))), 1e-300)
+
+    @functools.cached_property
+    def hold_gap(self) -> float:
+        """The gap [m] of holding each window's start position (``_Fitter.hold_gap``): a
+        reference simulation that predicts no motion, once the baseline has set the window."""
+        return self.fitter.hold_gap()
+
+    @functools.cached_property
     def stuck_share(self) -> float:
         """The share of the validation samples where the axis sticks (``_Fitter.stuck``)."""
         return float(np.mean(self.fitter.stuck_masks[1]))
@@ -100,8 +112,7 @@ class Run:
         samples within one are not): n_w·ln(gap_cur²/gap_new²) − p·ln n_w; −inf where either
         simulation diverged. Where the baseline is qualitatively wrong the equation error is no
         measure of an effect (below)."""
-        H = self.fitter.H
-        n_w = (self.valid.n_samples // H) - (1 if self.valid.n_samples >= 2 * H else 0)
+        n_w = (new.sim_error.size - new.gap_from) // self.fitter.H
         if not (math.isfinite(cur.gap) and math.isfinite(new.gap) and new.gap > 0 and n_w > 1):
             return -math.inf
         return n_w * 2 * math.log(cur.gap / new.gap) - p * math.log(n_w)
@@ -147,7 +158,7 @@ class Run:
         # simulated smoothed sign a reference for friction where the axis sticks for
         # Criteria.stuck_share of the record: without static friction it slides where the axis
         # stuck (only a diverging simulation is then worse)
-        hold = self.fitter.hold_gap()
+        hold = self.hold_gap
         sticks = all(k.masks_stick for k in ks) and self.stuck_share >= crit.stuck_share
         worse = (
             all(k.simulated for k in ks)
@@ -168,8 +179,7 @@ class Run:
         if all(r is not None for r in own):
             size = max(size, sum(own) / max(self.measured_F_rms, 1e-300))
         if by_sim and math.isfinite(new.gap):  # likewise: the simulated gap it removes
-            x_std = max(float(np.std(np.asarray(self.valid.x, np.float64))), 1e-300)
-            size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / x_std)
+            size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / self.x_std)
         # where the baseline is qualitatively wrong, the share of the equation error is no
         # measure of an effect: the simulated gap's share stands in for it
         shares = share >= crit.min_share or (
