@@ -238,6 +238,11 @@ class AbstractCandidate(eqx.Module):
     #: whether it adds the flexible mode's columns (ω, ζ profiled by the fitter on the first
     #: structure that holds them; its fits count from the estimated floor)
     holds_mode: ClassVar[bool] = False
+    #: whether its variants are one model held to narrower forms (the mode's input share κ
+    #: fitted, or held at 0): then the best validated *plausible* one is kept, since the wider
+    #: form fitted outside the effect's physics describes something else. (Not so for variants
+    #: of different shape: a soft saturation is no narrower hard clip.)
+    nested_variants: ClassVar[bool] = False
     #: the parameter of the input map u = sat(F(t − τ)) it adds, profiled by the fitter on its
     #: grid: ``"tau"`` (F(t − τ)) or ``"fmax"`` (sat with F_max); None: F enters as measured.
     #: A stack with an input map is not judged against the periodic look-alike
@@ -280,10 +285,11 @@ class AbstractCandidate(eqx.Module):
 
     def variants(self, now: tuple, *, stick_open: bool, outside: bool) -> list:
         """The fitter's variants the candidate alone is tried in, the best validated one then
-        fixed (:func:`~._stages.fit_alone`). ``now``: the fitter's current ``Variant`` (a named
-        tuple; a variant is ``now._replace(...)``); ``stick_open``: the axis sticks on either
-        record and no friction candidate has chosen ``stick`` yet; ``outside``: the validation
-        record leaves the training positions. By default the current variant alone."""
+        fixed (:func:`~._stages.fit_alone`; the best plausible one for ``nested_variants``).
+        ``now``: the fitter's current ``Variant`` (a named tuple; a variant is
+        ``now._replace(...)``); ``stick_open``: the axis sticks on either record and no
+        friction candidate has chosen ``stick`` yet; ``outside``: the validation record leaves
+        the training positions. By default the current variant alone."""
         return [now]
 
     def measured_rms(self, phys: dict[str, float], record, v) -> float | None:
@@ -585,11 +591,12 @@ class FlexibleModeCandidate(AbstractCandidate):
     """A lightly damped flexible mode (:class:`ModeColumns`): mass ratio μ, frequency f_mode
     [Hz] and damping ζ profiled on a grid, and the share κ of the input that passes through the
     mode (0 collocated sensor, 1 non-collocated), fitted or held at 0 (``ctx.mode_input``: the
-    diagnosis keeps the variant with the better validated score — in closed loop the free κ
-    also fits the feedback of position noise into F, and biases μ). Plausible when 0 < μ ≤
-    :data:`MAX_MODE_MASS` (≤ :data:`MAX_HEAVY_MODE_MASS` for a collocated mode, |κ| ≤
-    :data:`HEAVY_MODE_KAPPA`), ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤ 1.5, f_mode inside the
-    searched band (not on its first or last frequency: ``Limits.mode_band``), μ ≥
+    diagnosis keeps the variant with the better validated score among the plausible ones — in
+    closed loop the free κ also fits the feedback of position noise into F, and biases μ).
+    Plausible when 0 < μ ≤ :data:`MAX_MODE_MASS` (≤ :data:`MAX_HEAVY_MODE_MASS` for a
+    collocated mode, |κ| ≤ :data:`HEAVY_MODE_KAPPA`), ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤
+    1.5, f_mode inside the searched band (not on its first or last frequency:
+    ``Limits.mode_band``), μ ≥
     :data:`MODE_OVER_HOLD`·(ωh)²/12 (unless |κ| ≥ :data:`HOLD_KAPPA`) and its deflection
     rms(μ·(s²/D)[x]) on the validation record (``deflection`` [m]) at least
     :data:`MODE_OVER_NOISE` times the position noise in closed loop or for μ >
@@ -606,6 +613,7 @@ class FlexibleModeCandidate(AbstractCandidate):
     name: ClassVar[str] = "flexible_mode"
     n_params: ClassVar[int] = 4
     holds_mode: ClassVar[bool] = True
+    nested_variants: ClassVar[bool] = True
     simulated: ClassVar[bool] = False  # the windowed simulation is of the rigid body
     units: ClassVar[dict[str, str]] = {
         "mass_ratio": "",

@@ -62,7 +62,14 @@ min(1, explained/0.9), explained being the share of the excess validation error 
 fitted floor) that the final stack removes; ``none`` gets the weight of "no effect" times
 1 − h, h = ln(D/min_size)/ln(1/min_size) the share (log scale) of the sizes worth naming below
 the record's detection limit D (``noise["detection_limit"]``: the least one-parameter effect that
-would have reached ``threshold``); ``unexplained`` gets 1 − the largest share of a candidate that
+would have reached ``threshold``; for h, the largest of the candidates' limits: a flexible mode's
+gains count only above the estimated floor, and a baseline below it hides a mode whole). Both
+are discounted by the odds of the ``rivals``: implausible candidates that alone score above the
+stack's summed steps (``"none"`` turns ``unexplained`` where they beat it by the tie ratio; not
+a mode in closed loop, whose columns fit the position noise's path through the controller), and
+a flexible mode whose columns leave a named stack nothing significant to add where its own gains
+went uncounted below the floor — evidence the record prefers, for no name of the library.
+``unexplained`` gets 1 − the largest share of a candidate that
 is plausible or beats "no effect", at most 1 − the largest share of validation samples outside
 train's position, velocity or force range (``baseline["valid_outside_train"]``: there no
 candidate could be fitted). ``ambiguous`` lists every name (``"none"`` included) within a weight
@@ -93,7 +100,7 @@ from ._criteria import Criteria
 from ._library import DEFAULT_CANDIDATES
 from ._result import RESERVED, Diagnosis
 from ._stages import ROLES, check_candidates, fit_alone, parsimony, prepare, stack_effects
-from ._verdict import judge, report, weigh
+from ._verdict import judge, report, uncounted, weigh
 
 
 def _in_float64(fn):
@@ -232,7 +239,8 @@ def diagnose(
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
     stk = parsimony(run, stack_effects(run, alone))
     verdict = judge(run, stk)
-    return report(run, effects, stk, verdict, weigh(run, effects, stk, verdict))
+    confidence = weigh(run, effects, stk, verdict, uncounted(run, fitted, stk))
+    return report(run, effects, stk, verdict, confidence)
 
 
 __all__ = ["diagnose"]

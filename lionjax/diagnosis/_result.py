@@ -49,6 +49,9 @@ class Diagnosis:
         ambiguous: the names within a weight ratio of 1/20 of the verdict (near-ties,
             best first, the verdict included), or ``[]``.
         weights: BIC weights of ``"none"`` and of each plausible candidate alone.
+        rivals: {name: score} of the implausible candidates that, alone, explain the
+            validation error better than the whole stack (evidence against the verdict: its
+            confidence is discounted by their odds), or ``{}``.
         final: the stacked model's physical parameters and its ``gap``.
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
         series: validation signals for plotting (not in the JSON).
@@ -66,6 +69,7 @@ class Diagnosis:
     confidence: float
     ambiguous: list[str]
     weights: dict[str, float]
+    rivals: dict[str, float]
     series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
@@ -81,6 +85,7 @@ class Diagnosis:
                 "confidence": self.confidence,
                 "ambiguous": self.ambiguous,
                 "weights": self.weights,
+                "rivals": self.rivals,
                 "final": self.final,
                 "steps": [e.to_json() for e in self.steps],
                 "noise": self.noise,

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ._result import _UNITS, Diagnosis, EffectScore
-from ._stages import Run, Stack, shrink, sim_share
+from ._stages import Run, Stack, _try_fit, shrink, sim_share
 from ._structures import Fitted
 from ._where import structure, where_findings
 
@@ -184,6 +184,91 @@ def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, floa
     return {k: v / total for k, v in raw.items()}
 
 
+def uncounted(run: Run, fitted: dict[str, Fitted], stk: Stack) -> dict[str, float]:
+    """{name: score} of each candidate alone whose gains count only above the estimated floor
+    (:meth:`Run.floor_of`: the flexible mode, whose columns may cancel position noise) where
+    the baseline lies below that floor and a named stack adds nothing significant to it: the
+    candidate's columns explain all the stack's evidence, which then no more decides for the
+    stack's name than for the candidate's. Both scores count from no floor. (A held-out
+    closed-loop mode changing the response 2.3 % was named ``spring`` at 1.00: the spring scored
+    85, the mode's columns 633, and the spring added to them −943.)"""
+    out = {}
+    held = {c.name for c in stk.cands}
+    for c in run.candidates:
+        if not stk.cands or c.name in held or run.floor_of([c]) ** 2 <= run.base.ms_valid:
+            continue
+        both = _try_fit(run, [*stk.cands, c])
+        alone = fitted[c.name]
+        if both is None or not math.isfinite(alone.ms_valid):
+            continue
+        if run.score_ms(alone, both.ms_valid, run.params(stk.cands), 0.0) <= run.crit.threshold:
+            out[c.name] = run.score_ms(run.base, alone.ms_valid, run.params([c]), 0.0)
+    return out
+
+
+def _rivals(
+    run: Run, effects: list[EffectScore], stk: Stack, blind: dict[str, float]
+) -> dict[str, float]:
+    """Implausible candidates, each alone, that explain the validation error better than the
+    whole stack (score above the stack's summed step scores and the threshold, at least
+    ``min_size``): a structure the record prefers to the verdict, whose fitted parameters no
+    device effect of the library has — evidence against the verdict, not for another name (a
+    non-collocated mode fitted at ζ 0.28 scored 449 against the named delay's 397; a held-out
+    Coulomb record whose friction was taken for a dead zone's look-alike, 83, was ``none`` at
+    0.90). Not a rival: one whose stand-in (``simpler``) the stack holds (an asymmetric friction
+    with a negative side is Coulomb friction plus an offset), nor any against a stack the
+    windowed simulation confirms where the baseline is qualitatively wrong (there the equation
+    error is no measure: a mode's columns fitted dominant springs at 800–20 000), nor a
+    flexible mode's columns in closed loop, which fit the position noise's path through the
+    controller (a clean closed-loop record: ζ 0.4, the search's limit, scoring 1997). The
+    candidates of :func:`uncounted` (``blind``) are rivals too, plausible or not."""
+    crit = run.crit
+    if run.by_simulation(stk.cands) and (
+        sim_share(stk.fit.gap, run.base.gap) >= crit.dominant_sim_share
+    ):
+        return {}
+    held = {c.name for c in stk.cands} | set(stk.stands_for.values())
+    bar = _bar(run, stk)
+    by_name = run.by_name
+    out = {
+        s.name: s.score
+        for s in effects
+        if not s.plausible
+        and s.size >= crit.min_size
+        and s.score > bar
+        and not (run.closed_loop and by_name[s.name].holds_mode)
+        and not (by_name[s.name].simpler and set(by_name[s.name].simpler) <= held)
+    }
+    return out | {k: v for k, v in blind.items() if v > bar}
+
+
+def _bar(run: Run, stk: Stack) -> float:
+    """The verdict's evidence a rival is weighed against: the stack's summed step scores, at
+    least the threshold ("no effect"'s score for an empty stack)."""
+    return max(run.crit.threshold, sum(s.score for s in stk.steps))
+
+
+def _detection(run: Run) -> tuple[float, float]:
+    """(the record's detection limit, the largest of its candidates'): the smallest effect (size
+    as in ``min_size``, one parameter) that would have reached the threshold, ΔMS > (threshold
+    + ln N_eff)·MS₀/N_eff; and, for candidates whose gains count only above the estimated floor
+    (:meth:`Run.floor_of`: the flexible mode), the least that lifts MS₀ there first,
+    ΔMS > max(MS₀, floor²)·exp((threshold + p·ln N_eff)/N_eff) − MS₀ (a baseline below the
+    estimated floor hides such an effect whole: a held-out closed-loop mode changing the
+    response 2.3 % was ``none`` at 0.98 with a limit of 0.0055 while no gain of the mode's could
+    count)."""
+    crit, base = run.crit, run.base
+    n, ms0 = base.n_eff, base.ms_valid
+    generic = math.sqrt((crit.threshold + math.log(n)) * ms0 / n) / run.force_rms
+    worst = generic
+    for c in run.candidates:
+        lo = run.floor_of([c])
+        if lo**2 > ms0:
+            grow = math.exp((crit.threshold + run.params([c]) * math.log(n)) / n)
+            worst = max(worst, math.sqrt(lo**2 * grow - ms0) / run.force_rms)
+    return generic, worst
+
+
 @dataclasses.dataclass(frozen=True)
 class Confidence:
     verdict: str  # "none" may become "unexplained" (below)
@@ -191,23 +276,27 @@ class Confidence:
     weights: dict[str, float]
     ambiguous: list[str]
     detection: float  # the record's detection limit (share of the input's term)
+    detection_worst: float  # the largest of its candidates' limits (:func:`_detection`)
+    rivals: dict[str, float]  # implausible candidates that beat the stack (:func:`_rivals`)
 
 
-def weigh(run: Run, effects: list[EffectScore], stk: Stack, v: Verdict) -> Confidence:
-    """The verdict's confidence (:func:`lionjax.diagnose`: "Confidence")."""
-    crit, base = run.crit, run.base
+def weigh(
+    run: Run, effects: list[EffectScore], stk: Stack, v: Verdict, blind: dict[str, float]
+) -> Confidence:
+    """The verdict's confidence (:func:`lionjax.diagnose`: "Confidence"); ``blind``: the
+    scores of :func:`uncounted`."""
+    crit = run.crit
     weights = _weights(run, effects, stk)
-    n_eff = base.n_eff
-    # the smallest effect (size as in min_size, one parameter) that would have reached the
-    # threshold: ΔMS > (threshold + ln N_eff)·MS₀/N_eff
-    detection = (
-        math.sqrt((crit.threshold + math.log(n_eff)) * base.ms_valid / n_eff) / run.force_rms
-    )
+    detection, detection_worst = _detection(run)
+    rivals = _rivals(run, effects, stk, blind)
+    # the rivals' odds against the verdict's evidence, as the BIC weights count them
+    bar = _bar(run, stk)
+    doubt = 1.0 / (1.0 + sum(math.exp(min((s - bar) / 2, 700.0)) for s in rivals.values()))
     verdict = v.verdict
-    if verdict == "none" and weights["none"] < 1.0 / crit.tie_ratio:
-        # a plausible candidate beats "no effect" by more than the tie ratio yet removes too
-        # little of the gap to be named: there is an effect the library does not describe
-        # (Dahl friction's pre-sliding stiffness) — not "none" with a confidence near 0
+    if verdict == "none" and min(weights["none"], doubt) < 1.0 / crit.tie_ratio:
+        # a candidate beats "no effect" by more than the tie ratio yet removes too little of
+        # the gap to be named, or is implausible: there is an effect the library does not
+        # describe (Dahl friction's pre-sliding stiffness) — not "none" with a confidence near 0
         verdict = "unexplained"
     if verdict in stk.stands_for and stk.stands_for[verdict] in weights:
         # the stand-in and the candidate it replaced are one explanation: pool their evidence
@@ -220,7 +309,7 @@ def weigh(run: Run, effects: list[EffectScore], stk: Stack, v: Verdict) -> Confi
     if verdict == "none":
         # "nothing named" is only as sure as the record is sensitive: the share (log scale) of
         # the sizes worth naming, min_size … 1, below the detection limit is where one could hide
-        hidden = math.log(max(detection, crit.min_size) / crit.min_size) / math.log(
+        hidden = math.log(max(detection_worst, crit.min_size) / crit.min_size) / math.log(
             1.0 / crit.min_size
         )
         confidence = weights["none"] * (1.0 - min(hidden, 1.0))
@@ -238,7 +327,11 @@ def weigh(run: Run, effects: list[EffectScore], stk: Stack, v: Verdict) -> Confi
         confidence = weights.get(verdict, 0.0) * min(
             1.0, max(v.explained, 0.0) / crit.explained_full
         )
-    return Confidence(verdict, float(confidence), weights, ambiguous, detection)
+    if verdict != "unexplained":
+        confidence *= doubt
+    return Confidence(
+        verdict, float(confidence), weights, ambiguous, detection, detection_worst, rivals
+    )
 
 
 def _std_physical(f: Fitted) -> dict[str, float]:
@@ -385,6 +478,7 @@ def report(
             "equation_floor": run.floor,
             "n_effective": run.base.n_eff,
             "detection_limit": c.detection,
+            "detection_limit_worst": c.detection_worst,
             "feedback_share": run.feedback,
             # the share of each record's samples where the axis sticks (_Fitter.stuck)
             "stuck_share": {"train": float(np.mean(stuck[0])), "valid": float(np.mean(stuck[1]))},
@@ -395,5 +489,6 @@ def report(
         confidence=c.confidence,
         ambiguous=c.ambiguous,
         weights=c.weights,
+        rivals=c.rivals,
         series=series,
     )
