@@ -384,7 +384,7 @@ class Stack:
     stands_for: dict[str, str] = dataclasses.field(default_factory=dict)
 
 
-def _try_fit(run: Run, cands) -> Fitted | None:
+def try_fit(run: Run, cands) -> Fitted | None:
     """The fit of ``cands``, or None when its design would be wider than P_MAX."""
     try:
         return run.fitter.fit(cands)
@@ -403,7 +403,7 @@ def _stand_in(run: Run, trials, pool, stk: Stack):
         ks = tuple(names[n] for n in c.simpler)
         if len(stk.cands) + len(ks) > run.crit.max_effects:
             continue
-        f = _try_fit(run, [*stk.cands, *ks])
+        f = try_fit(run, [*stk.cands, *ks])
         if f is None:
             continue
         sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
@@ -422,7 +422,7 @@ def stack_effects(run: Run, alone: dict[str, tuple[EffectScore, Fitted]]) -> Sta
     pool = list(run.candidates)
     while pool and len(stk.cands) < run.crit.max_effects:
         fits = [
-            (c, alone[c.name][1] if not stk.cands else _try_fit(run, [*stk.cands, c])) for c in pool
+            (c, alone[c.name][1] if not stk.cands else try_fit(run, [*stk.cands, c])) for c in pool
         ]
         fits = [(c, f) for c, f in fits if f is not None]
         if not fits:

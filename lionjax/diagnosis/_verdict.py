@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ._result import _UNITS, Diagnosis, EffectScore
-from ._stages import Run, Stack, _try_fit, shrink, sim_share
+from ._stages import Run, Stack, shrink, sim_share, try_fit
 from ._structures import Fitted
 from ._where import structure, where_findings
 
@@ -197,7 +197,7 @@ def uncounted(run: Run, fitted: dict[str, Fitted], stk: Stack) -> dict[str, floa
     for c in run.candidates:
         if not stk.cands or c.name in held or run.floor_of([c]) ** 2 <= run.base.ms_valid:
             continue
-        both = _try_fit(run, [*stk.cands, c])
+        both = try_fit(run, [*stk.cands, c])
         alone = fitted[c.name]
         if both is None or not math.isfinite(alone.ms_valid):
             continue
