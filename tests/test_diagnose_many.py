@@ -150,6 +150,7 @@ def test_cli_pairs_argument_errors(pairs, tmp_path, capsys):
     empty.mkdir()
     (empty / "run1.csv").write_bytes((d / "p_offset_train.csv").read_bytes())
     (tmp_path / "bad.csv").write_text("name,train\na,x.csv\n")
+    (tmp_path / "dup.csv").write_text("name,train,valid\na,x.csv,y.csv\na,z.csv,w.csv\n")
     cases = (
         (["diagnose", d / "p_offset_train.csv", "--pairs", d], "TRAIN", "not allowed with --pairs"),
         (["diagnose"], "TRAIN or --pairs", "required"),
@@ -158,6 +159,7 @@ def test_cli_pairs_argument_errors(pairs, tmp_path, capsys):
         (["diagnose", "--pairs", empty], "nopairs", "no pairs of records named NAME_train"),
         (["diagnose", "--pairs", tmp_path / "bad.csv"], "bad.csv", "lacks the column(s) valid"),
         (["diagnose", "--pairs", tmp_path / "nothere"], "nothere", "no such file or folder"),
+        (["diagnose", "--pairs", tmp_path / "dup.csv"], "lines 2 and 3", "both name the pair"),
         (["diagnose", d / "p_offset_train.csv", "--csv", tmp_path / "o.csv"], "--csv", "--pairs"),
     )
     for argv, name, why in cases:

@@ -64,11 +64,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _no_cache_flag(p: argparse.ArgumentParser, default) -> None:
+    """``--no-compile-cache``: listed by ``lionjax --help``; also accepted after the command
+    (unlisted there, and ``default`` SUPPRESS keeps a flag given before the command)."""
     p.add_argument(
         "--no-compile-cache",
         action="store_true",
         default=default,
-        help="do not keep compiled programs on disk (default: kept in $LIONJAX_CACHE_DIR, else "
+        help=argparse.SUPPRESS
+        if default is argparse.SUPPRESS
+        else "do not keep compiled programs on disk (default: kept in $LIONJAX_CACHE_DIR, else "
         "$XDG_CACHE_HOME/lionjax/jax or ~/.cache/lionjax/jax; LIONJAX_NO_COMPILE_CACHE=1 also "
         "turns it off)",
     )

@@ -102,7 +102,7 @@ def _manifest_pairs(manifest: Path) -> list[tuple[str, Path, Path]]:
                 "name,train,valid."
             )
         rows = [{k.strip(): (v or "").strip() for k, v in r.items() if k} for r in reader]
-    pairs = []
+    pairs, lines = [], {}
     for i, r in enumerate(rows, start=2):
         empty = [c for c in MANIFEST if not r.get(c)]
         if empty:
@@ -110,6 +110,12 @@ def _manifest_pairs(manifest: Path) -> list[tuple[str, Path, Path]]:
                 f"--pairs {manifest}: line {i} has no {', '.join(empty)}; give every pair a "
                 "name, a train and a valid file."
             )
+        if r["name"] in lines:
+            raise InputError(
+                f"--pairs {manifest}: lines {lines[r['name']]} and {i} both name the pair "
+                f"{r['name']!r}; give each pair its own name."
+            )
+        lines[r["name"]] = i
         pairs.append((r["name"], manifest.parent / r["train"], manifest.parent / r["valid"]))
     if not pairs:
         raise InputError(
