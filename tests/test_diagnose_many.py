@@ -17,6 +17,7 @@ import pytest
 from test_cli_errors import _one_error, _run
 
 import lionjax as lj
+from lionjax.cli import build_parser
 from lionjax.cli._compile_cache import cache_dir
 from lionjax.diagnosis import _many
 
@@ -139,9 +140,9 @@ def test_cli_pairs_folder_and_manifest(pairs, tmp_path, capsys):
     )
     code, out, _ = _run(["diagnose", "--pairs", sub / "man.csv", "--json", js], capsys)
     assert code == 0
-    rows = {r["name"]: r for r in json.loads(js.read_text())["rows"]}
-    assert sorted(rows) == ["p_none", "p_offset"]
-    _same(rows["p_offset"], ref["p_offset"])
+    listed = json.loads(js.read_text())["rows"]
+    assert [r["name"] for r in listed] == ["p_offset", "p_none"]  # the manifest's order
+    _same(listed[0], ref["p_offset"])
 
 
 def test_cli_pairs_argument_errors(pairs, tmp_path, capsys):
@@ -170,6 +171,10 @@ def test_cli_pairs_argument_errors(pairs, tmp_path, capsys):
 
 
 def test_compile_cache_folder():
+    parse = build_parser().parse_args
+    assert parse(["--no-compile-cache", "identify", "a.csv"]).no_compile_cache
+    assert parse(["identify", "a.csv", "--no-compile-cache"]).no_compile_cache  # after it too
+    assert not parse(["identify", "a.csv"]).no_compile_cache
     assert cache_dir({}) == pathlib.Path.home() / ".cache" / "lionjax" / "jax"
     assert str(cache_dir({"XDG_CACHE_HOME": "/x"})) == "/x/lionjax/jax"
     assert str(cache_dir({"XDG_CACHE_HOME": "/x", "LIONJAX_CACHE_DIR": "/y"})) == "/y"
@@ -180,16 +185,18 @@ def test_compile_cache_is_kept_unless_turned_off(pairs, tmp_path):
     base = {k: v for k, v in os.environ.items() if not k.startswith("JAX_PERSISTENT_CACHE")}
     base.pop("JAX_COMPILATION_CACHE_DIR", None)  # the test suite's own cache
     data = str(pairs["dir"] / "p_offset_train.csv")
+    missing = str(tmp_path / "missing.csv")  # fails after the cache is set up, compiling nothing
     runs = (
-        ("on", {}, []),
-        ("env_off", {"LIONJAX_NO_COMPILE_CACHE": "1"}, []),
-        ("flag_off", {}, ["--no-compile-cache"]),
+        ("on", {}, [], data, 0),
+        ("env_off", {"LIONJAX_NO_COMPILE_CACHE": "1"}, [], missing, 2),
+        ("flag_off", {}, ["--no-compile-cache"], missing, 2),
     )
-    for name, extra, flag in runs:
+    for name, extra, flag, path, code in runs:
         env = {**base, "LIONJAX_CACHE_DIR": str(tmp_path / name), **extra}
-        cmd = [sys.executable, "-m", "lionjax.cli", *flag, "identify", data]
+        cmd = [sys.executable, "-m", "lionjax.cli", *flag, "identify", path]
         p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
-        assert p.returncode == 0, p.stderr
+        assert p.returncode == code, p.stderr
     kept = list((tmp_path / "on").iterdir())
     assert len(kept) > 3  # the identification's programs, each a file
-    assert not (tmp_path / "env_off").exists() and not (tmp_path / "flag_off").exists()
+    for name in ("env_off", "flag_off"):
+        assert not (tmp_path / name).exists(), name

@@ -171,8 +171,10 @@ def _run_pairs(args) -> int:
     rows = [
         dataclasses.replace(r, error=name_options(r.error)) if r.error else r for r in result.rows
     ]
-    rows += [lj.diagnosis.DiagnosisRow(name, error=why) for name, why in orphans]
-    result = dataclasses.replace(result, rows=tuple(sorted(rows, key=lambda r: r.name)))
+    if orphans:  # a folder's pairs come sorted by name: the unpaired files take their places
+        rows += [lj.diagnosis.DiagnosisRow(name, error=why) for name, why in orphans]
+        rows.sort(key=lambda r: r.name)
+    result = dataclasses.replace(result, rows=tuple(rows))  # a manifest's rows in its order
     print(table(result))
     for path, write in ((args.json, result.to_json), (args.csv, result.to_csv)):
         if path:
