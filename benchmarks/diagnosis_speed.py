@@ -10,6 +10,23 @@ stack, scores to 4 digits), so that two checkouts can be compared on the same ma
     PYTHONPATH=<checkout> python <checkout>/benchmarks/diagnosis_speed.py
 
 (float64, XLA's elemental CPU emitters as the test suite uses them: tests/conftest.py).
+
+``--many`` times many pairs of one length instead (float64, XLA's default emitters, as the
+command line runs): N pairs of the blind generator, all ``--duration`` s at ``--rate`` Hz, so
+they share one length bucket. It reports
+
+- seconds per pair cold (the first pair in the process, with every compilation) and compiled
+  (each later pair of the same shapes);
+- the same N pairs, after that warm-up, as a loop of ``lj.diagnose`` calls and as one
+  ``lj.diagnosis.diagnose_many`` call, in the same process, alternated ``--repeats`` times (the
+  least time of each, and the verdicts of both);
+- with ``--cli M``: M pairs written to a temporary folder, diagnosed by one
+  ``lionjax diagnose --pairs DIR`` process and by M separate ``lionjax diagnose TRAIN --validate
+  VALID`` processes (wall time of each arm, one run, each with a fresh compilation cache
+  folder, as a user's first run sees it), and whether the verdicts match; ``--no-cache-arm``
+  adds the separate processes without the cache (``LIONJAX_NO_COMPILE_CACHE=1``).
+
+    PYTHONPATH=<checkout> python benchmarks/diagnosis_speed.py --many [--pairs N] [--cli M]
 """
 
 from __future__ import annotations
@@ -18,8 +35,11 @@ import argparse
 import hashlib
 import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 #: (class, seed, source) of the timed records (test cases of tests/test_diagnose_*.py).
 CASES = (
@@ -36,13 +56,36 @@ CASES = (
 )
 
 
+#: Classes of the --many pairs, in turn (seed MANY_SEED + i for pair i).
+MANY_CLASSES = ("none", "offset", "coulomb_friction", "spring", "delay", "saturation")
+MANY_SEED = 4100000
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--passes", type=int, default=2, help="diagnoses of each record (default 2)")
     p.add_argument("--json", help="write the times and verdicts here")
+    g = p.add_argument_group("many pairs of one length (--many)")
+    g.add_argument("--many", action="store_true", help="time many pairs instead (see above)")
+    g.add_argument("--pairs", type=int, default=6, help="pairs timed in process (default 6)")
+    g.add_argument("--duration", type=float, default=4.0, help="record length [s] (default 4)")
+    g.add_argument("--rate", type=float, default=1000.0, help="sampling rate [Hz] (default 1000)")
+    g.add_argument(
+        "--repeats", type=int, default=2, help="loop and diagnose_many runs, alternated (2)"
+    )
+    g.add_argument("--cli", type=int, default=0, help="pairs of the CLI comparison (default 0)")
+    g.add_argument(
+        "--no-cache-arm",
+        action="store_true",
+        help="also time the separate processes without the compilation cache",
+    )
     args = p.parse_args(argv)
     if args.passes < 1:
         p.error(f"--passes must be >= 1, got {args.passes}")
+    if args.many:
+        if args.pairs < 2:
+            p.error(f"--pairs must be >= 2 (a cold pair and a compiled one), got {args.pairs}")
+        return many(args)
     flag = "--xla_cpu_use_fusion_emitters=false"
     if flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + flag).strip()
@@ -74,6 +117,139 @@ def main(argv=None) -> dict:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)
     return out
+
+
+def _pairs(n: int, duration: float, rate: float) -> list:
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import diagnosis_blind as blind
+
+    return [
+        (f"pair{i:03d}", *blind.make_case(cls, MANY_SEED + i, duration, rate=(rate, rate))[:2])
+        for i, cls in ((i, MANY_CLASSES[i % len(MANY_CLASSES)]) for i in range(n))
+    ]
+
+
+def _key(verdict, confidence, stack) -> tuple:
+    return (verdict, None if confidence is None else round(confidence, 6), list(stack))
+
+
+def many(args) -> dict:
+    """The --many mode (module docstring)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import lionjax as lj
+
+    pairs = _pairs(args.pairs, args.duration, args.rate)
+    per_pair = []
+    for name, train, valid in pairs:
+        t0 = time.perf_counter()
+        lj.diagnose(train, valid)
+        per_pair.append(time.perf_counter() - t0)
+        print(f"{name}: {per_pair[-1]:.2f} s", flush=True)
+    compiled = sorted(per_pair[1:])
+    t_loop, t_many = [], []
+    for _ in range(args.repeats):  # alternated, the least of each: other work on the core
+        t0 = time.perf_counter()
+        loop = [lj.diagnose(tr, va) for _, tr, va in pairs]
+        t_loop.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        rows = lj.diagnosis.diagnose_many(pairs).rows
+        t_many.append(time.perf_counter() - t0)
+    t_loop, t_many = min(t_loop), min(t_many)
+    same = [_key(d.verdict, d.confidence, d.stack) for d in loop] == [
+        _key(r.verdict, r.confidence, r.stack) for r in rows
+    ]
+    out = {
+        "mode": "many",
+        "pairs": args.pairs,
+        "samples": int(pairs[0][1].n_samples),
+        "rate_hz": args.rate,
+        "cold_s": per_pair[0],
+        "compiled_s_median": compiled[len(compiled) // 2],
+        "compiled_s": per_pair[1:],
+        "repeats": args.repeats,
+        "loop_s": t_loop,
+        "many_s": t_many,
+        "loop_over_many": t_loop / t_many,
+        "same_verdicts": same,
+        "verdicts": [_key(r.verdict, r.confidence, r.stack) for r in rows],
+        "lionjax": lj.__file__,
+        "jax": jax.__version__,
+        "cpus": sorted(os.sched_getaffinity(0)),
+    }
+    print(
+        f"{out['samples']} samples per record; per pair: cold {out['cold_s']:.2f} s, compiled "
+        f"{out['compiled_s_median']:.2f} s (median of {len(compiled)})\n"
+        f"{args.pairs} pairs after a warm-up: loop of lj.diagnose {t_loop:.2f} s, diagnose_many "
+        f"{t_many:.2f} s (loop/many {out['loop_over_many']:.2f}), same verdicts: {same}"
+    )
+    if args.cli:
+        out["cli"] = _cli(_pairs(args.cli, args.duration, args.rate), lj, args.no_cache_arm)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+    return out
+
+
+def _cli(pairs: list, lj, no_cache_arm: bool) -> dict:
+    """One ``lionjax diagnose --pairs DIR`` process against one process per pair (with the
+    compilation cache, fresh; and, with ``no_cache_arm``, without it)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    lionjax = [sys.executable, "-m", "lionjax.cli"]
+    out: dict = {"pairs": len(pairs)}
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp) / "pairs"
+        d.mkdir()
+        for name, train, valid in pairs:
+            lj.save_record(d / f"{name}_train.npz", train)
+            lj.save_record(d / f"{name}_valid.npz", valid)
+        env["LIONJAX_CACHE_DIR"] = str(Path(tmp) / "cache_pairs")
+        t0 = time.perf_counter()
+        cmd = [*lionjax, "diagnose", "--pairs", str(d), "--json", f"{tmp}/rows.json"]
+        subprocess.run(cmd, env=env, check=True, capture_output=True)
+        out["pairs_process_s"] = time.perf_counter() - t0
+        with open(f"{tmp}/rows.json") as f:
+            rows = {
+                r["name"]: _key(r["verdict"], r["confidence"], r["stack"])
+                for r in json.load(f)["rows"]
+            }
+        print(
+            f"{len(pairs)} pairs, one --pairs process: {out['pairs_process_s']:.1f} s", flush=True
+        )
+        arms = (("separate", {"LIONJAX_CACHE_DIR": str(Path(tmp) / "cache_single")}),)
+        if no_cache_arm:
+            arms += (("separate_no_cache", {"LIONJAX_NO_COMPILE_CACHE": "1"}),)
+        for arm, extra in arms:
+            t, single = _separate(pairs, d, tmp, lionjax, {**env, **extra})
+            same = rows == single
+            out[arm] = {
+                "seconds": t,
+                "ratio": t / out["pairs_process_s"],
+                "same_verdicts": same,
+                "mismatches": sorted(k for k in rows if rows[k] != single.get(k)),
+            }
+            print(
+                f"{len(pairs)} separate processes ({arm}): {t:.1f} s; separate/--pairs "
+                f"{out[arm]['ratio']:.2f}, same verdicts: {same}",
+                flush=True,
+            )
+    return out
+
+
+def _separate(pairs, d: Path, tmp: str, lionjax: list, env: dict) -> tuple[float, dict]:
+    """Wall time of one ``lionjax diagnose`` process per pair, and their verdicts."""
+    single = {}
+    t0 = time.perf_counter()
+    for name, _, _ in pairs:
+        out = f"{tmp}/{name}.json"
+        cmd = [*lionjax, "diagnose", str(d / f"{name}_train.npz"), "--validate"]
+        cmd += [str(d / f"{name}_valid.npz"), "--json", out]
+        subprocess.run(cmd, env=env, check=True, capture_output=True)
+        with open(out) as f:
+            j = json.load(f)
+        single[name] = _key(j["verdict"], j["confidence"], j["stack"])
+    return time.perf_counter() - t0, single
 
 
 if __name__ == "__main__":

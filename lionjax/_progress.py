@@ -43,12 +43,13 @@ def run_chunks(
     total: int,
     progress: bool = True,
     partial: str = "returning the grid points done (NaN elsewhere, complete=False)",
+    what: str = "chunks",
 ) -> bool:
     """Call ``run(job)`` for each job, drawing the bar after each if ``progress``.
 
     Ctrl-C stops between (or inside) jobs: a warning naming how many were done and what is
     returned (``partial``) goes to stderr and False is returned (the caller keeps what ``run``
-    stored); True when every job ran.
+    stored); True when every job ran. ``what`` names the jobs in the bar and the warning.
     """
     done = 0
     try:
@@ -56,11 +57,11 @@ def run_chunks(
             run(job)
             done += 1
             if progress:
-                bar(label, done, total)
+                bar(label, done, total, what)
     except KeyboardInterrupt:
         if progress:
             sys.stderr.write("\n")
-        sys.stderr.write(f"warning: {label} interrupted after {done}/{total} chunks; {partial}.\n")
+        sys.stderr.write(f"warning: {label} interrupted after {done}/{total} {what}; {partial}.\n")
         sys.stderr.flush()
         return False
     return True

@@ -128,8 +128,8 @@ def write_json(path: str | Path, payload) -> Path:
 
 def write_csv(path: str | Path, rows: list[dict]) -> Path:
     """Write dict rows as CSV with a header from the first row; list/tuple cells (pole sets,
-    initial guesses) joined with ';'; NaN and inf written as such (NaN: failed or not run,
-    inf: not settled). Written atomically; returns the path."""
+    initial guesses, a diagnosis' stack of names) joined with ';'; NaN and inf written as such
+    (NaN: failed or not run, inf: not settled). Written atomically; returns the path."""
     path = Path(path)
     with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -137,11 +137,16 @@ def write_csv(path: str | Path, rows: list[dict]) -> Path:
         for r in rows:
             w.writerow(
                 {
-                    k: ";".join(f"{x:g}" for x in v) if isinstance(v, list | tuple) else v
+                    k: ";".join(_cell(x) for x in v) if isinstance(v, list | tuple) else v
                     for k, v in r.items()
                 }
             )
     return path
+
+
+def _cell(x) -> str:
+    """One element of a list cell: numbers as ``%g``, anything else (names) as text."""
+    return str(x) if isinstance(x, str) else f"{x:g}"
 
 
 class Table:

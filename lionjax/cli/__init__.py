@@ -7,6 +7,10 @@ and — a bug — any other exception, is printed as one line ``lionjax COMMAND:
 the file or option and the fix, and exits with status 2; never a traceback (set the environment
 variable ``LIONJAX_TRACEBACK=1`` to get one for a bug report). Warnings (a probable unit mistake,
 a filter fast for the sampling) are printed as one line ``lionjax COMMAND: warning: …``.
+
+Every subcommand keeps its compiled programs in JAX's persistent compilation cache, so that a
+second process starts warm (:mod:`._compile_cache`: the folder, and the opt-out
+``--no-compile-cache`` / ``LIONJAX_NO_COMPILE_CACHE=1``).
 """
 
 from __future__ import annotations
@@ -48,13 +52,30 @@ def build_parser() -> argparse.ArgumentParser:
         description="Identify device dynamics with Lion's method and diagnose the sim-to-real gap.",
     )
     parser.add_argument("--version", action="store_true", help="print the version and exit")
+    _no_cache_flag(parser, False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in SUBCOMMANDS:
         mod = importlib.import_module(f"lionjax.cli._{name}")
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.__doc__)
         mod.add_arguments(p)
+        _no_cache_flag(p, argparse.SUPPRESS)  # also after the command; keeps one given before
         p.set_defaults(_run=mod.run)
     return parser
+
+
+def _no_cache_flag(p: argparse.ArgumentParser, default) -> None:
+    """``--no-compile-cache``: listed by ``lionjax --help``; also accepted after the command
+    (unlisted there, and ``default`` SUPPRESS keeps a flag given before the command)."""
+    p.add_argument(
+        "--no-compile-cache",
+        action="store_true",
+        default=default,
+        help=argparse.SUPPRESS
+        if default is argparse.SUPPRESS
+        else "do not keep compiled programs on disk (default: kept in $LIONJAX_CACHE_DIR, else "
+        "$XDG_CACHE_HOME/lionjax/jax or ~/.cache/lionjax/jax; LIONJAX_NO_COMPILE_CACHE=1 also "
+        "turns it off)",
+    )
 
 
 def _join_negative_values(argv: list[str]) -> list[str]:
@@ -96,6 +117,9 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", UserWarning)
             warnings.showwarning = _warning_printer(name)
+            from ._compile_cache import enable
+
+            enable(disabled=args.no_compile_cache)
             return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)

@@ -8,11 +8,17 @@ one's own (docs/effects.md). --json writes the payload (baseline, where,
 effects, stack, verdict, confidence, ambiguous, final, and the decimation applied);
 --plot writes a one-page summary (PNG/PDF/SVG by extension). --decimate R (or auto) diagnoses
 records too long for the memory at R× the sample interval.
+
+--pairs DIR diagnoses every pair NAME_train.* / NAME_valid.* of a folder (or --pairs FILE.csv,
+a manifest with the columns name,train,valid) in one process, sharing the compiled programs
+between pairs of the same lengths: one table row per pair (verdict, confidence, stack, shrink,
+detection limit, error), written by --json and --csv. The settings apply to every pair.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from .._errors import IdentificationError, InputError
 from .._plotting import FIGURE_SUFFIXES
@@ -26,9 +32,19 @@ OUTSIDE_WARN = 0.05
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("data", metavar="TRAIN", help="training record: .csv (t,x,F), .npz or .mat")
+    p.set_defaults(_parser=p)
+    p.add_argument(
+        "data", metavar="TRAIN", nargs="?", help="training record: .csv (t,x,F), .npz or .mat"
+    )
     p.add_argument("--validate", metavar="VALID", help="validation record (default: TRAIN)")
+    p.add_argument(
+        "--pairs",
+        metavar="DIR|FILE.csv",
+        help="diagnose many pairs instead of TRAIN: a folder of NAME_train.* and NAME_valid.* "
+        "records, or a manifest FILE.csv with the columns name,train,valid",
+    )
     p.add_argument("--json", metavar="OUT.json", help="write the diagnosis as JSON")
+    p.add_argument("--csv", metavar="OUT.csv", help="write the rows of --pairs as CSV")
     p.add_argument("--plot", metavar="OUT.png", help="write a one-page figure")
     g = p.add_argument_group("settings (defaults adapt to the record)")
     g.add_argument(
@@ -81,6 +97,22 @@ def _load(path, args):
     )
 
 
+#: The diagnosis' names of its arguments → the command line's options.
+_OPTIONS = (
+    ("filter_hz", "--filter-hz"),
+    ("window_s", "--window"),
+    ("max_memory_gb", "--max-memory-gb"),
+    ("argument 'candidates'", "--candidates"),
+)
+
+
+def name_options(message: str) -> str:
+    """The diagnosis' argument names in ``message`` → the command line's options."""
+    for old, new in _OPTIONS:
+        message = message.replace(old, new)
+    return message
+
+
 def _name_files(message: str, args) -> str:
     """The diagnosis' names of its records ("(argument 'train')") → the files; options named as
     the command line's."""
@@ -88,23 +120,75 @@ def _name_files(message: str, args) -> str:
     for old, new in (
         ("(argument 'train')", f"({args.data})"),
         ("(argument 'valid')", f"({valid}" + (", --validate)" if args.validate else ")")),
-        ("filter_hz", "--filter-hz"),
-        ("window_s", "--window"),
-        ("max_memory_gb", "--max-memory-gb"),
-        ("argument 'candidates'", "--candidates"),
     ):
         message = message.replace(old, new)
-    return message
+    return name_options(message)
+
+
+def _library(args):
+    import lionjax as lj
+
+    library = lj.diagnosis.DEFAULT_CANDIDATES
+    if args.candidates:
+        library = library + lj.diagnosis.load_candidates(args.candidates)
+    return library
 
 
 def run(args) -> int:
+    parser = args._parser
+    if args.pairs is not None:
+        from ._pairs import check_arguments
+
+        check_arguments(args, parser)
+        return _run_pairs(args)
+    if args.data is None:
+        parser.error("one of the arguments TRAIN or --pairs DIR|FILE.csv is required")
+    if args.csv:
+        parser.error("argument --csv writes the rows of --pairs; for one pair use --json")
+    return _run_one(args)
+
+
+def _run_pairs(args) -> int:
+    """Every pair of --pairs through diagnose_many; exit status 1 when some pair failed."""
+    import lionjax as lj
+
+    from ._pairs import find_pairs, table
+
+    check_output(args.json, "--json")
+    check_output(args.csv, "--csv")
+    library = _library(args)
+    pairs, orphans = find_pairs(args.pairs)
+    columns = lj.extend.parse_columns(args.columns) if args.columns else None
+    result = lj.diagnosis.diagnose_many(
+        pairs,
+        candidates=library,
+        progress=True,
+        load={"columns": columns, "force_scale": args.force_scale, "resample": args.resample},
+        filter_hz=args.filter_hz,
+        window_s=args.window,
+        max_memory_gb=args.max_memory_gb,
+    )
+    rows = [
+        dataclasses.replace(r, error=name_options(r.error)) if r.error else r for r in result.rows
+    ]
+    if orphans:  # a folder's pairs come sorted by name: the unpaired files take their places
+        rows += [lj.diagnosis.DiagnosisRow(name, error=why) for name, why in orphans]
+        rows.sort(key=lambda r: r.name)
+    result = dataclasses.replace(result, rows=tuple(rows))  # a manifest's rows in its order
+    print(table(result))
+    for path, write in ((args.json, result.to_json), (args.csv, result.to_csv)):
+        if path:
+            write(path)
+            print(f"wrote {path}")
+    return 1 if result.failures else 0
+
+
+def _run_one(args) -> int:
     import lionjax as lj
 
     check_output(args.json, "--json")
     check_output(args.plot, "--plot", FIGURE_SUFFIXES)
-    library = lj.diagnosis.DEFAULT_CANDIDATES
-    if args.candidates:
-        library = library + lj.diagnosis.load_candidates(args.candidates)
+    library = _library(args)
     with about(args.data):
         train = _load(args.data, args)
     if args.validate:

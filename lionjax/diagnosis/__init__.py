@@ -2,7 +2,8 @@
 
 :func:`diagnose` works on recorded data alone: it names the unmodelled effect that explains the
 model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figure;
-:func:`decimation_for` gives the least decimation that lets long records fit the memory.
+:func:`decimation_for` gives the least decimation that lets long records fit the memory;
+:func:`diagnose_many` diagnoses many (train, valid) pairs in one process, one row per pair.
 The library is open: a :class:`ForceEffect` subclass is a candidate of the user's own
 (docs/effects.md), passed as ``candidates=DEFAULT_CANDIDATES + (MyEffect(),)`` or loaded from a
 file by :func:`load_candidates`.
@@ -30,6 +31,11 @@ from ._criteria import Criteria as Criteria
 from ._force_effects import ForceEffect as ForceEffect
 from ._library import DEFAULT_CANDIDATES as DEFAULT_CANDIDATES
 from ._load import load_candidates as load_candidates
+from ._many import (
+    DiagnosisRow as DiagnosisRow,
+    ManyDiagnoses as ManyDiagnoses,
+    diagnose_many as diagnose_many,
+)
 from ._plot import plot_diagnosis as plot_diagnosis
 from ._result import Diagnosis as Diagnosis, EffectScore as EffectScore
 from ._statistics import decimation_for as decimation_for
