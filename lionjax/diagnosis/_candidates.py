@@ -311,6 +311,12 @@ class AbstractCandidate(eqx.Module):
         """Why the fitted parameters are not physical (``""`` when they are)."""
         return ""
 
+    def imitates(self, params: dict[str, float]) -> tuple[str, ...]:
+        """Names of library candidates that an implausible fit with these reported ``params``
+        (:meth:`report`) is a known look-alike of: it is then no evidence against them (the
+        verdict's ``rivals``, :func:`~._verdict.weigh`). None by default."""
+        return ()
+
 
 #: How far below zero one direction's friction level may be fitted, as a share of the other's
 #: (AsymmetricFrictionCandidate): zero within the fit's accuracy.
@@ -640,6 +646,13 @@ class FlexibleModeCandidate(AbstractCandidate):
         if "beta" in phys and phys.get("b"):
             out["input_share"] = phys["beta"] / phys["b"]
         return out
+
+    def imitates(self, params):
+        # a heavy mode the input passes through is a delay's look-alike (implausible rule 2):
+        # held-out delay records were fitted at μ 0.66–0.98, κ 0.76–1.19, scoring above the
+        # delay in open loop
+        heavy = params.get("mass_ratio", 0.0) > MAX_MODE_MASS
+        return ("delay",) if heavy and params.get("input_share", 0.0) >= HOLD_KAPPA else ()
 
     def implausible(self, phys, lim):
         r = self.report(phys)
