@@ -70,3 +70,18 @@ def test_a_name_the_mode_columns_explain_whole_is_not_confident():
     if d.verdict != "flexible_mode":
         assert d.confidence < 0.5, (d.verdict, d.confidence)
         assert "flexible_mode" in d.rivals
+
+
+def test_a_heavy_mode_that_imitates_the_named_delay_is_no_rival():
+    """A fractional input delay, open loop (scipy source, 563 Hz, response change 27 %): the
+    flexible mode's columns fit it as a heavy mode the input passes through (μ > 0.6, κ ≈ 1 —
+    implausible, the delay's known look-alike) and score above the delay. That fit is no
+    evidence against the delay: the verdict keeps its confidence (it was 0.00 when every
+    implausible fit above the stack counted)."""
+    d, info = _diagnose("delay", 8051010, "scipy")
+    assert info["truth"] == ["delay"]
+    mode = {e.name: e for e in d.effects}["flexible_mode"]
+    assert not mode.plausible and mode.score > _stack_score(d)  # the case is what it says
+    assert mode.params["mass_ratio"] > 0.6 and mode.params["input_share"] > 0.5
+    assert d.verdict == "delay" and d.confidence > 0.9, (d.verdict, d.confidence, d.rivals)
+    assert "flexible_mode" not in d.rivals
