@@ -355,10 +355,9 @@ def fit_alone(run: Run) -> dict[str, Fitted]:
             f = fitter.fit([c])
             lo = run.floor if _has_mode([c]) else 0.0
             tries.append((run.score_of(run.base, f, fitter.params(c), lo), f, var))
-        ok = [
-            t for t in tries if c.nested_variants and not c.implausible(t[1].physical, run.limits)
-        ]
-        _, fitted[c.name], var = max(ok or tries, key=lambda t: t[0])
+        if c.nested_variants:
+            tries = [t for t in tries if not c.implausible(t[1].physical, run.limits)] or tries
+        _, fitted[c.name], var = max(tries, key=lambda t: t[0])
         fitter.variant = var
     # the floor scores and shares count from: the estimate above is an upper bound only for
     # white, independent noise on x and F — in closed loop F carries the controller's answer to

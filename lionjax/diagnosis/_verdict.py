@@ -63,6 +63,15 @@ def _periodic(run: Run, stk: Stack) -> tuple[float, float, float, float, bool]:
     return ms, period, score, share, bool(better)
 
 
+def _confirmed(run: Run, stk: Stack) -> bool:
+    """Whether the baseline is qualitatively wrong and the windowed simulation confirms the
+    stack: every candidate simulated, removing at least ``dominant_sim_share`` of the gap."""
+    return (
+        run.by_simulation(stk.cands)
+        and sim_share(stk.fit.gap, run.base.gap) >= run.crit.dominant_sim_share
+    )
+
+
 def judge(run: Run, stk: Stack) -> Verdict:
     """The first of the stack, provided the stack explains the residual's structure as well as
     its size, and no out-of-library look-alike explains the gap better; else ``none`` (a
@@ -91,10 +100,7 @@ def judge(run: Run, stk: Stack) -> Verdict:
     # for a sharpened line: there a stack the windowed simulation confirms (removing at least
     # dominant_sim_share of the simulated gap) is not so judged (held-out dominant springs with
     # k fitted within 0.1 % were called `unexplained` at 0.00 for a line their residual kept)
-    confirmed = (
-        run.by_simulation(stk.cands)
-        and sim_share(stk.fit.gap, run.base.gap) >= crit.dominant_sim_share
-    )
+    confirmed = _confirmed(run, stk)
     peak_grew = (
         not confirmed
         and explained < crit.explained_full
@@ -207,10 +213,11 @@ def uncounted(run: Run, fitted: dict[str, Fitted], stk: Stack) -> dict[str, floa
 
 
 def _rivals(
-    run: Run, effects: list[EffectScore], stk: Stack, blind: dict[str, float]
+    run: Run, effects: list[EffectScore], stk: Stack, blind: dict[str, float], bar: float
 ) -> dict[str, float]:
     """Implausible candidates, each alone, that explain the validation error better than the
-    whole stack (score above the stack's summed step scores and the threshold, at least
+    whole stack (score above ``bar``, :func:`_bar`: the stack's summed step scores and the
+    threshold; at least
     ``min_size``): a structure the record prefers to the verdict, whose fitted parameters no
     device effect of the library has — evidence against the verdict, not for another name (a
     non-collocated mode fitted at ζ 0.28 scored 449 against the named delay's 397; a held-out
@@ -225,12 +232,9 @@ def _rivals(
     input passes through fits a delay, at 653 against the true delay's 516). The
     candidates of :func:`uncounted` (``blind``) are rivals too, plausible or not."""
     crit = run.crit
-    if run.by_simulation(stk.cands) and (
-        sim_share(stk.fit.gap, run.base.gap) >= crit.dominant_sim_share
-    ):
+    if _confirmed(run, stk):
         return {}
     held = {c.name for c in stk.cands} | set(stk.stands_for.values())
-    bar = _bar(run, stk)
     by_name = run.by_name
     out = {
         s.name: s.score
@@ -291,9 +295,9 @@ def weigh(
     crit = run.crit
     weights = _weights(run, effects, stk)
     detection, detection_worst = _detection(run)
-    rivals = _rivals(run, effects, stk, blind)
-    # the rivals' odds against the verdict's evidence, as the BIC weights count them
     bar = _bar(run, stk)
+    rivals = _rivals(run, effects, stk, blind, bar)
+    # the rivals' odds against the verdict's evidence, as the BIC weights count them
     doubt = 1.0 / (1.0 + sum(math.exp(min((s - bar) / 2, 700.0)) for s in rivals.values()))
     verdict = v.verdict
     if verdict == "none" and min(weights["none"], doubt) < 1.0 / crit.tie_ratio:
