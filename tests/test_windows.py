@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 from scipy.signal import cont2discrete, dlsim
 
 from lionjax import twin
-from lionjax.twin._windows import exact_hold_step, windowed_errors
+from lionjax.twin._windows import exact_hold_step, window_span, windowed_errors
 
 A, B, F0, DT, T = 22.0, 1.916, 0.3, 1e-3, 800
 
@@ -235,3 +235,29 @@ def test_extra_force_term_is_simulated():
     e_extra = windowed_errors(_params(), *args, lambda x, v, u, t: -c * x, jnp.zeros(T))
     e_spring = windowed_errors(_params(k=c), *args)
     np.testing.assert_allclose(np.asarray(e_extra), np.asarray(e_spring), rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("H", [1, 37, 256, 800])
+def test_windows_side_by_side_equal_one_scan(H):
+    """``span``: the windows stepped side by side (⌈2T/span⌉ rows of ``span`` steps) give the
+    record's one sequential scan, the reference the tests above hold against scipy and diffrax,
+    with friction (sticking), a spring, a position dependence and an extra force on: the same
+    steps, so equal to rounding. A window longer than the record (H = T) and one sample long
+    (H = 1) are the edges of the layout."""
+    assert window_span(H) >= H and window_span(H) < 2 * H or H == 1
+    rng = np.random.default_rng(H)
+    F = _force()
+    xs, vs = rng.normal(0, 0.01, T), rng.normal(0, 0.05, T)
+    p = _params(Fc=0.4, dF=0.1, k=30.0, da_dx=40.0, a_x2=5e3)
+    args = (jnp.asarray(F), jnp.asarray(rng.normal(0, 1e-3, T)), jnp.asarray(xs), jnp.asarray(vs))
+    args += (DT, jnp.asarray(H), T - 30)
+    t = jnp.asarray(np.arange(T) * DT)
+
+    def drag(x, v, u, tk):
+        return -2.0 * v * jnp.abs(v) + 0.1 * jnp.sin(2 * np.pi * 50.0 * tk)
+
+    for extra in (None, drag):
+        ref = np.asarray(windowed_errors(p, *args, extra, t))
+        got = np.asarray(windowed_errors(p, *args, extra, t, span=window_span(H)))
+        assert np.ptp(ref) > 1e-3
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.max(np.abs(ref)))

@@ -47,7 +47,7 @@ from .._least_squares import gram_lstsq
 from .._model_effects import LOCAL_F_MULTIPLIERS, MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
-from ..twin._windows import windowed_errors
+from ..twin._windows import window_span, windowed_errors
 from ._filtering import (
     MIN_PADDED,
     P_MAX,
@@ -252,7 +252,7 @@ def solve_grams(G: np.ndarray, n_rows: int):
 def _solve_small_grams(g: np.ndarray, n_rows: int):
     """:func:`solve_grams` of augmented Grams g (m, j + 1, j + 1), j ≤ P_MAX, each placed in
     the solver's fixed size (P_MAX + 1)² with unit diagonals in the unused slots (the Gram of
-    the unit pad columns of :meth:`Regressors.layout`, which hold no part of the record): one
+    unit columns outside the record, as :meth:`Regressors.gram` places them): one
     compiled program whatever j. The coefficients' first j slots are g's."""
     m, j = g.shape[0], g.shape[-1] - 1
     G = np.broadcast_to(np.eye(P_MAX + 1), (m, P_MAX + 1, P_MAX + 1)).copy()
@@ -365,9 +365,10 @@ class Regressors:
         return {n: self.known.get(n, (None, None)) for n in names}
 
     def layout(self, model: AbstractModel):
-        """(Wfix (Tp, P), mult (K, Tp), onehot (K, P), pad (Tp, P), p, Wdef (Tp, P)) of a
-        structure: fixed columns, F-dependent signals' multipliers and slots, the unit columns
-        of unused slots, the column count and the design for u = F."""
+        """(Wfix (Tp, P), mult (K, Tp), onehot (K, P), unused, p, Wdef (Tp, P)) of a
+        structure: fixed columns, F-dependent signals' multipliers and slots, the indices of
+        the unused slots (each a unit column outside the record in the solver's fixed-size
+        system: :meth:`gram`), the column count and the design for u = F."""
         cols = _columns(model)
         p = len(cols)
         nuis = self.nuisance(model)
@@ -415,15 +416,13 @@ class Regressors:
                 V = masked.get(f"{c.signal}|stick") if c.order == 0 else None
                 Wfix[:, j] = c.sign * (filt[c.signal] if V is None else V)[:, c.order]
         Wfix[:, p : p + n_nuis] = nuis
-        pad = np.zeros((self.Tp, P_MAX))
-        for j in range(p + n_nuis, P_MAX):
-            pad[self.T + j, j] = 1.0
+        unused = np.arange(p + n_nuis, P_MAX)
         # the design with the identity input map u = F (τ = 0, F_max = ∞): every column fixed
         names = [f"{n}·F" for n in fdep] + [f"_zero{k}" for k in range(len(fdep), K)]
         raw = {nm: (mult[k, : self.T] * self.F, "zoh") for k, nm in enumerate(names)}
         filt = self.filtered(raw)
         Wdef = Wfix + np.stack([filt[nm][:, 0] for nm in names], 1) @ onehot
-        return Wfix, mult, onehot, pad, p, Wdef
+        return Wfix, mult, onehot, unused, p, Wdef
 
     def _multiplier(self, model, signal: str) -> np.ndarray:
         """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the signals of the
@@ -456,8 +455,10 @@ class Regressors:
         return self.cache[key]
 
     def gram(self, model, *, grid: bool = False, n_free: int = 0, args=None):
-        """(A, AᵀA) of a structure, masked, cached per structure: A = [W·mask + pad | ε₁'s x
-        column·mask] (Tp, P_MAX + 1) with the unit pad columns of unused slots. W is the design
+        """(A, G) of a structure, cached per structure: A = [W | ε₁'s x column] on the record's
+        T samples (T, P_MAX + 1), G = AᵀA plus a unit diagonal in the unused slots (the Gram
+        of unit columns outside the record: the solver's system keeps one size, and the unused
+        coefficients come out 0). W is the design
         with u = F, or with ``grid`` its fixed columns only (the F-dependent slots zero, filled
         per input map by :func:`_solve_grid`); the ``n_free`` slots after the structure's columns
         are zero (:func:`rss_with_columns` fills them). The τ and F_max profiles and the flexible
@@ -466,13 +467,14 @@ class Regressors:
         twice)."""
 
         def make():
-            Wfix, mult, onehot, pad, p, Wdef = self._args(model) if args is None else args
+            Wfix, mult, onehot, unused, p, Wdef = self._args(model) if args is None else args
             n = self.width(model)
-            A = _augmented_design(
-                (Wfix if grid else Wdef) * self.mask[:, None] + pad, self.W0 * self.mask
-            )
+            A = _augmented_design((Wfix if grid else Wdef)[: self.T], self.W0[: self.T])
             A[:, n : n + n_free] = 0.0
-            return A, A.T @ A
+            G = A.T @ A
+            pads = unused[(unused < n) | (unused >= n + n_free)]
+            G[pads, pads] += 1.0
+            return A, G
 
         return self._cached(("gram", _model_key(model), grid, n_free), make)
 
@@ -512,11 +514,11 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
     """coef, RSS, Gram inverse, condition (each leading G) of the masked LS of ``model`` on
     ``regs`` (y = ε₁'s x column) per input map (τ, F_max) in ``inputs``."""
     args = regs._args(model)
-    Wfix, mult, onehot, pad, p, Wdef = args
+    Wfix, mult, onehot, unused, p, Wdef = args
     taus = np.array([float(t) for t, _ in inputs], np.float64)
     fmaxs = np.array([float(f) for _, f in inputs], np.float64)
     if len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
-        Gs = [_augmented_gram(Wdef * regs.mask[:, None] + pad, regs.W0 * regs.mask)[None]]
+        Gs = [regs.gram(model, args=args)[1][None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
         A, G0 = regs.gram(model, grid=True, args=args)
@@ -538,14 +540,14 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
                 f,
                 _i(regs.T),
             )
-            V = np.asarray(V, np.float64)[:m]
+            V = np.asarray(V, np.float64)[:m, :, : regs.T]
             Gs.append(_gram_with_columns(G0, A, V, O))
     return solve_grams(np.concatenate(Gs), regs.T)
 
 
 def _gram_with_columns(G0: np.ndarray, A: np.ndarray, V: np.ndarray, O: np.ndarray) -> np.ndarray:
-    """Augmented Grams (m, P + 1, P + 1) of [A + VᵀO]: the fixed design A = [W | y] (Tp, P + 1)
-    whose Gram is G0, plus K columns V (m, K, Tp) placed by the one-hot O (K, P + 1). Only the
+    """Augmented Grams (m, P + 1, P + 1) of [A + VᵀO]: the fixed design A = [W | y] (T, P + 1)
+    whose Gram is G0, plus K columns V (m, K, T) placed by the one-hot O (K, P + 1). Only the
     new blocks AᵀV and VᵀV are computed (float64): a profile grid shares the fixed columns."""
     C = V @ A  # (m, K, P + 1)
     D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
@@ -569,7 +571,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray, c
     """Training RSS of ``model`` (u = F) with K more ε₁ columns, for each of m sets ``cols``
     (m, K, T) (filtered, signs included): the profile of a column family over a nonlinear
     parameter (the flexible mode's ω, ζ) without building a design per grid point. The new
-    columns take the K first unused slots (whose unit pad columns leave the design); only their
+    columns take the K first unused slots (in place of their unit columns); only their
     Gram blocks are new. With ``coef``: (the fitted coefficients (m, n + K), the RSS, n), n the
     structure's columns and initial-state nuisance (the new columns' first slot), for
     :func:`rss_fixed_with_columns` on another record."""
@@ -579,8 +581,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray, c
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
     A, G0 = regs.gram(model, n_free=K, args=args)
-    V = np.zeros((m, K, regs.Tp))
-    V[:, :, : regs.T] = cols
+    V = np.asarray(cols, np.float64)
     O = np.zeros((K, P_MAX + 1))
     O[np.arange(K), n + np.arange(K)] = 1.0
     c, rss = solve_grams(_gram_with_columns(G0, A, V, O), regs.T)[:2]
@@ -625,7 +626,7 @@ def rss_fixed_with_columns(
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     """ε₁ on ``regs.record`` for fixed θ (validation): only the filter's initial-state
     nuisance coefficients are refitted on this record."""
-    Wfix, mult, onehot, pad, p, Wdef = regs._args(model)
+    Wfix, mult, onehot, unused, p, Wdef = regs._args(model)
     W = Wdef[:, :p].copy()
     if np.any(onehot) and (inp[0] != 0 or inp[1] != np.inf):
         W = Wfix[:, :p].copy()
@@ -636,7 +637,7 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     nuis = regs.nuisance(model)
     n = nuis.shape[1]
     # the nuisance's least squares on the masked record
-    g = _augmented_gram(nuis * regs.mask[:, None], r0 * regs.mask)
+    g = _augmented_gram(nuis[: regs.T], r0[: regs.T])
     eta = _solve_small_grams(g[None], regs.T)[0][0, :n]
     return (r0 + nuis @ eta)[: regs.T]
 
@@ -665,5 +666,5 @@ def simulate_windows(
     t = None
     if extra is not None:
         t = jnp.asarray(float(t0) + float(dt) * np.arange(Tp), jnp.float64)
-    e = windowed_errors(pj, *args, _f(dt), _i(H), _i(Tn), extra, t)
+    e = windowed_errors(pj, *args, _f(dt), _i(H), _i(Tn), extra, t, span=window_span(H))
     return np.asarray(e)[:T]
