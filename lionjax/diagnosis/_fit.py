@@ -378,19 +378,8 @@ class Regressors:
                 f"structure with {p} columns and {n_nuis} initial-state columns exceeds "
                 f"P_MAX = {P_MAX}"
             )
-        fixed = sorted({c.signal for c in cols if not f_dependent(c.signal)})
-        raw = self._raw(model, [s for s in fixed if s != "x"])
-        raw["x"] = (self.x, "foh")
-        filt = self.filtered(raw)
+        fixed = self.fixed_columns(model, cols)
         m = self.force_mask
-        masked = {}  # force columns of m·signal (those held only filtered, a mode's, stay whole)
-        if m is not None:
-            forces = {
-                c.signal
-                for c in cols
-                if c.order == 0 and c.signal in raw and raw[c.signal][0] is not None
-            }
-            masked = self.filtered({f"{n}|stick": (m * raw[n][0], raw[n][1]) for n in forces})
         Wfix = np.zeros((self.Tp, P_MAX))
         n_dep = sum(f_dependent(c.signal) for c in cols)
         K = next((k for k in K_BUCKETS if k >= n_dep), n_dep)
@@ -413,8 +402,7 @@ class Regressors:
                 onehot[kk, j] = c.sign
                 kk += 1
             else:
-                V = masked.get(f"{c.signal}|stick") if c.order == 0 else None
-                Wfix[:, j] = c.sign * (filt[c.signal] if V is None else V)[:, c.order]
+                Wfix[:, j] = fixed[j]
         Wfix[:, p : p + n_nuis] = nuis
         unused = np.arange(p + n_nuis, P_MAX)
         # the design with the identity input map u = F (τ = 0, F_max = ∞): every column fixed
@@ -423,6 +411,46 @@ class Regressors:
         filt = self.filtered(raw)
         Wdef = Wfix + np.stack([filt[nm][:, 0] for nm in names], 1) @ onehot
         return Wfix, mult, onehot, unused, p, Wdef
+
+    def fixed_columns(self, model: AbstractModel, cols: Sequence) -> dict[int, np.ndarray]:
+        """{j: (Tp,) filtered column} of the columns ``cols`` of ``model`` that do not depend on
+        F, signs included; with a force mask, each force column (order 0) is built from
+        m·signal (those held only filtered, a mode's, stay whole)."""
+        fixed = sorted({c.signal for c in cols if not f_dependent(c.signal)})
+        raw = self._raw(model, [s for s in fixed if s != "x"])
+        raw["x"] = (self.x, "foh")
+        filt = self.filtered(raw)
+        m = self.force_mask
+        masked = {}
+        if m is not None:
+            forces = {
+                c.signal
+                for c in cols
+                if c.order == 0 and c.signal in raw and raw[c.signal][0] is not None
+            }
+            masked = self.filtered({f"{n}|stick": (m * raw[n][0], raw[n][1]) for n in forces})
+        out = {}
+        for j, c in enumerate(cols):
+            if not f_dependent(c.signal):
+                V = masked.get(f"{c.signal}|stick") if c.order == 0 else None
+                out[j] = c.sign * (filt[c.signal] if V is None else V)[:, c.order]
+        return out
+
+    def added_columns(self, model: AbstractModel, base: AbstractModel) -> np.ndarray | None:
+        """(K, T) filtered columns (signs included) that ``model`` adds to ``base``, for
+        :func:`rss_with_columns` on ``base``; None where it adds more than columns of its own
+        signals (an F-dependent column, initial-state columns) or lacks one of ``base``'s."""
+        have = set(_model_key(base))
+        keys = _model_key(model)
+        new = [c for c, k in zip(_columns(model), keys, strict=True) if k not in have]
+        if (
+            len(keys) - len(new) != len(have)
+            or any(f_dependent(c.signal) for c in new)
+            or self.nuisance(model).shape[1] != self.nuisance(base).shape[1]
+        ):
+            return None
+        cols = self.fixed_columns(model, new)
+        return np.stack([cols[j][: self.T] for j in range(len(new))])
 
     def _multiplier(self, model, signal: str) -> np.ndarray:
         """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the signals of the

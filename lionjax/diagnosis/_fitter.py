@@ -31,6 +31,7 @@ from ._candidates import (
 )
 from ._criteria import DIVERGED
 from ._filtering import (
+    P_MAX,
     edge_pad,
     filter_signals,
     mode_columns,
@@ -128,9 +129,16 @@ class _Fitter:
                 raise RuntimeError("_Fitter.limits must be set before a ForceEffect is fitted")
             tried: list[ForceEffect] = []
 
+            base = self._model([])
+
             def rss(e: ForceEffect) -> float:
+                # the baseline's Gram is shared; only the effect's columns are new
                 tried.append(e)
-                return float(fit_batch(self.rtr, self._model([e]), [(0.0, math.inf)])[1][0])
+                model = self._model([e])
+                cols = self.rtr.added_columns(model, base)
+                if cols is None or len(cols) + self.rtr.width(base) > P_MAX:
+                    return float(fit_batch(self.rtr, model, [(0.0, math.inf)])[1][0])
+                return float(rss_with_columns(self.rtr, base, cols[None])[0])
 
             best = cand.profile(rss, self.limits)
             if not isinstance(best, ForceEffect) or best.name != cand.name:
