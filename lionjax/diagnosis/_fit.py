@@ -680,8 +680,9 @@ def simulate_windows(
     samples after the last whole window are 0.
 
     The twin's exact-hold simulator (:func:`lionjax.twin._windows.windowed_errors`: model,
-    sticking, restarts) on the record padded to its length bucket: H, dt and the parameters are
-    traced, so one program serves every record of a bucket. Each window starts from the
+    sticking, restarts) on the record padded to its length bucket, its windows stepped side by
+    side (``span``: the least power of two ≥ H): H, dt and the parameters are traced, so one
+    program serves every record of a bucket whose windows share that power of two. Each window starts from the
     estimated state (x_start, v_start) at its first sample. ``extra``: an optional force term
     ``extra(x, v, u, t)`` [N] (:class:`~._force_effects.SimulatedForce`), with t = t0 + k·dt.
     """
