@@ -682,9 +682,10 @@ def simulate_windows(
     The twin's exact-hold simulator (:func:`lionjax.twin._windows.windowed_errors`: model,
     sticking, restarts) on the record padded to its length bucket, its windows stepped side by
     side (``span``: the least power of two ≥ H): H, dt and the parameters are traced, so one
-    program serves every record of a bucket whose windows share that power of two. Each window starts from the
-    estimated state (x_start, v_start) at its first sample. ``extra``: an optional force term
-    ``extra(x, v, u, t)`` [N] (:class:`~._force_effects.SimulatedForce`), with t = t0 + k·dt.
+    program serves every record of a bucket whose windows share that power of two. Each window
+    starts from the estimated state (x_start, v_start) at its first sample. ``extra``: an
+    optional force term ``extra(x, v, u, t)`` [N] (:class:`~._force_effects.SimulatedForce`,
+    elementwise in its arguments), with t = t0 + k·dt.
     """
     T = int(np.asarray(u).shape[0])
     H = int(H)
