@@ -31,7 +31,6 @@ from ._candidates import (
 )
 from ._criteria import DIVERGED
 from ._filtering import (
-    P_MAX,
     edge_pad,
     filter_signals,
     mode_columns,
@@ -136,7 +135,7 @@ class _Fitter:
                 tried.append(e)
                 model = self._model([e])
                 cols = self.rtr.added_columns(model, base)
-                if cols is None or len(cols) + self.rtr.width(base) > P_MAX:
+                if cols is None:
                     return float(fit_batch(self.rtr, model, [(0.0, math.inf)])[1][0])
                 return float(rss_with_columns(self.rtr, base, cols[None])[0])
 

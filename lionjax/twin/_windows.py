@@ -132,7 +132,6 @@ def windowed_errors(
     dt = jnp.asarray(dt, u.dtype)
     T = u.shape[0]
     k = jnp.arange(T)
-    restart = (k % H) == 0
     a, b, Fc = p["a"], p["b"], p["Fc"]
     Fp, Fn = Fc + p.get("dF", 0.0), Fc - p.get("dF", 0.0)  # the levels while ẋ > 0, ẋ < 0
     sticky = Fp + Fn > 0
@@ -181,7 +180,7 @@ def windowed_errors(
 
     if span is None:
         z = jnp.zeros((), u.dtype)
-        _, xs = jax.lax.scan(body, (z, z), (u, restart, x_start, v_start, t))
+        _, xs = jax.lax.scan(body, (z, z), (u, k % H == 0, x_start, v_start, t))
     else:
         # sample w·H + j of window w at [w, j]; slots past the window (j ≥ H) or the record
         # are stepped on the last sample's values and dropped when scattered back
@@ -189,9 +188,10 @@ def windowed_errors(
         idx = jnp.arange(n_w)[:, None] * H + jnp.arange(span)[None, :]
         keep = (jnp.arange(span)[None, :] < H) & (idx < T)
         at = jnp.minimum(idx, T - 1)
-        inputs = (u[at].T, (jnp.arange(span) == 0)[:, None] & keep.T, x_start[at].T, v_start[at].T)
+        restart = (jnp.arange(span) == 0)[:, None] & keep.T
+        inputs = (u[at].T, restart, x_start[at].T, v_start[at].T, t[at].T)
         z = jnp.zeros((n_w,), u.dtype)
-        _, X = jax.lax.scan(body, (z, z), inputs + (t[at].T,))
+        _, X = jax.lax.scan(body, (z, z), inputs)
         xs = jnp.zeros_like(u).at[jnp.where(keep, idx, T).T].set(X, mode="drop")
     return jnp.where(k < n_valid, xs - x_meas, 0.0)
 
