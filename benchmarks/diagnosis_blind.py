@@ -36,8 +36,9 @@ tries; a simulation that blows up counts as too strong); a draw no strength can 
 above the excited band) is redrawn whole, up to 6 draws. Cases whose size stays outside the band
 are kept, counted and flagged (``size_in_band``). Two- and three-effect classes size each effect
 alone. The *dominant* classes use the band [80 %, 99.9 %] instead (the baseline mass–damper is
-qualitatively wrong; the spring [80 %, 200 %], below), and a stiction draw whose records stick
-throughout (≥ 95 % of samples) is redrawn. The force-sensor artefacts leave the device's motion
+qualitatively wrong; the spring [80 %, 200 %], below), and a stiction draw whose stuck share
+misses its aim (30–80 %) is redrawn: on up to 4 setups (excitations) with up to 6 draws each,
+else kept and flagged out of band (``setup_draws`` counts the setups). The force-sensor artefacts leave the device's motion
 unchanged (c = 0 by construction): they are sized by their amplitude A/F_rms instead (F_rms the
 clean valid record's logged force).
 
@@ -68,8 +69,8 @@ Classes → accepted answer:
                                also LuGre), F_s = 1.5–2.5 F_c, v_s = 1–5 % of the clean v_rms,
                                open loop, slow input (f_hi 1.5–4 Hz); c in [80, 99.9] %, the
                                stuck share (|v_true| ≤ v_s/10 or less than an encoder step over
-                               ±5 ms; the larger of the two records') aimed at 30–70 % and
-                               recorded
+                               ±5 ms; the larger of the two records') held at 30–80 % (a draw
+                               that misses it is redrawn, above) and recorded
     triple                   → all three names in ``d.stack`` (``offset`` counts as present when
                                ``spring`` is: its equilibrium holds a constant force); one of
                                coulomb_friction+spring+offset (open loop),
@@ -175,10 +176,16 @@ DOMINANT_BAND = (0.80, 0.999)
 #: it, so that their difference exceeds the clean response (29 of 38 draws lay at 99.9–100.1 %)
 SPRING_BAND = (0.80, 2.0)
 #: share of samples the stiction class aims to stick (|v_true| ≤ v_s/10, or less than an encoder
-#: step over ±5 ms)
-STICK_AIM = (0.30, 0.70)
+#: step over ±5 ms), on both records: about half the time. Up to 80 %: at a response change of
+#: 80 % a slow open-loop record sticks on 75–90 % of its samples as often as not (9 of 21 draws
+#: found no strength with both within 30–70 % on four setups)
+STICK_AIM = (0.30, 0.80)
 #: stuck share above which a record is stuck throughout (shows nothing of the plant)
 STUCK_THROUGHOUT = 0.95
+#: classes whose sizing has an aim besides the band; setups drawn for one such case before its
+#: draw is kept with the aim missed (flagged out of band)
+AIMED = ("stiction_dominant",)
+SETUP_DRAWS = 4
 
 RATE_BINS = ((250, 500), (500, 1000), (1000, 2000), (2000, 5000))
 CONF_BINS = ((0.0, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.0))
@@ -319,6 +326,12 @@ class Draw:
     rate_max: float = 0.0
     #: draws whole before the sizing gives up (1: a redraw changes nothing that sizes it)
     max_draws: int = 6
+
+    def in_aim(self) -> bool:
+        """Whether the sized draw's metric lies within its aim (True without an aim)."""
+        if self.aim is None:
+            return True
+        return self.aim_value is not None and self.aim[0] <= self.aim_value <= self.aim[1]
 
 
 def draw_effect(name: str, rng, st: Setup, stats: dict) -> Draw:
@@ -873,8 +886,9 @@ def size_effect(st: Setup, d: Draw, rng, v0: np.ndarray) -> bool:
     inside = [t for t in tried if lo <= t[1] <= hi]  # only with an aim: the change in band
     if inside:
         d.strength, d.change, d.aim_value = min(inside, key=lambda t: aim_miss(t[2]))
-        # a record stuck throughout is no record of the effect: the draw is redrawn
-        return d.aim_value is None or d.aim_value < STUCK_THROUGHOUT
+        # an aim missed is a draw redrawn (a training record stuck on 90 % of its samples
+        # was kept as "in band" and shows nothing of the plant: 14 of 38 such draws)
+        return d.aim_value is None or aim_miss(d.aim_value) == 0.0
     # never keep a strength that stops the axis for good (metric 1: stuck throughout) when
     # another was tried
     moving = [t for t in tried if t[2] is None or t[2] < STUCK_THROUGHOUT] or tried
@@ -914,6 +928,37 @@ def _drive_spring(st: Setup) -> None:
         st.rms = need
 
 
+def _draw_effects(cls, names, rng, source, rate, duration, durations, setup_kw):
+    """One setup and its effects, each sized: (setup, clean valid stats, clean valid v,
+    clean train (x, F, x_true, v_true), draws)."""
+    st = draw_setup(rng, source, rate, (duration, duration) if duration else durations, **setup_kw)
+    if cls == "spring_dominant":
+        _drive_spring(st)
+    x0, F0, _, v0 = simulate(st, [], 1)
+    stats = _stats(x0, F0, v0)
+    # a hard clip must lie within both records' force range: the diagnosis fits on the train
+    # record, and a clip it never reaches cannot be identified there (before this, 8 of 8
+    # hard-saturation misses in four runs of 140 had a train record 0.0 % changed)
+    train0 = simulate(st, [], 0)  # (x, F, x_true, v_true) of the train record without effects
+    stats["F_max_both"] = min(stats["F_max"], float(np.max(np.abs(train0[1]))))
+    (lt, ht), (lv, hv) = (np.quantile(r, [0.05, 0.95]) for r in (train0[0], x0))
+    stats["x_both"] = (max(lt, lv), min(ht, hv)) if min(ht, hv) > max(lt, lv) else (lt, ht)
+    draws = []
+    for nm in names:
+        redraw = 0
+        while True:  # a draw no strength can size (e.g. a mode far above the excited band) is
+            d = draw_effect(nm, rng, st, stats)  # redrawn whole, up to d.max_draws draws
+            d.redraws = redraw
+            if d.artefact:  # sized by its amplitude: the device never feels it
+                d.strength = _logu(rng, *d.prior)
+                break
+            if size_effect(st, d, rng, v0) or redraw + 1 >= d.max_draws:
+                break
+            redraw += 1
+        draws.append(d)
+    return st, stats, v0, train0, draws
+
+
 def make_case(
     cls: str,
     seed: int,
@@ -945,31 +990,14 @@ def make_case(
         # jumps between them and the change from ~0.7 to 1 (all levels below break-away)
         kinds = tuple(k for k in bs.EXCITATIONS if k != "steps")
         setup_kw = {"closed": False, "f_lo": (0.2, 0.6), "f_hi": (1.5, 4.0), "kinds": kinds}
-    st = draw_setup(rng, source, rate, (duration, duration) if duration else durations, **setup_kw)
-    if cls == "spring_dominant":
-        _drive_spring(st)
-    x0, F0, _, v0 = simulate(st, [], 1)
-    stats = _stats(x0, F0, v0)
-    # a hard clip must lie within both records' force range: the diagnosis fits on the train
-    # record, and a clip it never reaches cannot be identified there (before this, 8 of 8
-    # hard-saturation misses in four runs of 140 had a train record 0.0 % changed)
-    train0 = simulate(st, [], 0)  # (x, F, x_true, v_true) of the train record without effects
-    stats["F_max_both"] = min(stats["F_max"], float(np.max(np.abs(train0[1]))))
-    (lt, ht), (lv, hv) = (np.quantile(r, [0.05, 0.95]) for r in (train0[0], x0))
-    stats["x_both"] = (max(lt, lv), min(ht, hv)) if min(ht, hv) > max(lt, lv) else (lt, ht)
-    draws = []
-    for nm in names:
-        redraw = 0
-        while True:  # a draw no strength can size (e.g. a mode far above the excited band) is
-            d = draw_effect(nm, rng, st, stats)  # redrawn whole, up to d.max_draws draws
-            d.redraws = redraw
-            if d.artefact:  # sized by its amplitude: the device never feels it
-                d.strength = _logu(rng, *d.prior)
-                break
-            if size_effect(st, d, rng, v0) or redraw + 1 >= d.max_draws:
-                break
-            redraw += 1
-        draws.append(d)
+    # an aim (the stiction class' stuck share) that no draw of the effect holds on this
+    # setup's excitation is sought on a new setup, up to SETUP_DRAWS setups
+    for setup_draw in range(SETUP_DRAWS if cls in AIMED else 1):
+        st, stats, v0, train0, draws = _draw_effects(
+            cls, names, rng, source, rate, duration, durations, setup_kw
+        )
+        if all(d.in_aim() for d in draws):
+            break
     recs, changes, v_eff = [], [], []
     for j in range(2):
         x, F, _, v = simulate(st, draws, j)
@@ -983,8 +1011,7 @@ def make_case(
     in_band = [
         d.prior[0] <= d.strength <= d.prior[1]
         if d.artefact
-        else d.band[0] <= d.change <= d.band[1]
-        and (d.aim_value is None or d.aim_value < STUCK_THROUGHOUT)
+        else d.band[0] <= d.change <= d.band[1] and d.in_aim()
         for d in draws
     ]
     info = {
@@ -1007,6 +1034,7 @@ def make_case(
         }
         if st.closed
         else None,
+        "setup_draws": setup_draw + 1,
         "excitation_rms": st.rms,
         "excitation": list(st.exc_info),
         "q": st.q,

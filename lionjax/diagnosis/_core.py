@@ -74,7 +74,11 @@ is plausible or beats "no effect", at most 1 − the largest share of validation
 train's position, velocity or force range (``baseline["valid_outside_train"]``: there no
 candidate could be fitted). ``ambiguous`` lists every name (``"none"`` included) within a weight
 ratio of 1/20 of the verdict, so a near-tie (an offset vs a spring with equilibrium in closed
-loop) is reported rather than decided by library order. Where the stack holds a sensor artefact
+loop) is reported rather than decided by library order. A stack that holds the whole stand-in
+of a candidate fitted implausibly perhaps only by bias (``stand_in_doubtful``: asymmetric
+friction with one level slightly negative, against Coulomb friction plus a larger offset) is
+a reading of that candidate too: its name joins ``ambiguous`` and the verdict's confidence is
+shared, divided by the number of readings. Where the stack holds a sensor artefact
 (``acts_on = "measurement"``), a device effect it did not stack explained alone what the
 artefact explains, and holds no weight.
 

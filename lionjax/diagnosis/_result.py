@@ -47,7 +47,9 @@ class Diagnosis:
         verdict: ``stack[0]``, ``"none"`` or ``"unexplained"``.
         confidence: evidence for the verdict in [0, 1] (see :func:`diagnose`).
         ambiguous: the names within a weight ratio of 1/20 of the verdict (near-ties,
-            best first, the verdict included), or ``[]``.
+            best first, the verdict included), then the candidates of which the stack is
+            a reading too (asymmetric friction for Coulomb friction plus a larger offset,
+            where its fit may be biased), or ``[]``.
         weights: BIC weights of ``"none"`` and of each plausible candidate alone.
         rivals: {name: score} of the implausible candidates that, alone, explain the
             validation error better than the whole stack (evidence against the verdict: its

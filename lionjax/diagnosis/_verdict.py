@@ -249,6 +249,24 @@ def _rivals(
     return out | {k: v for k, v in blind.items() if v > bar}
 
 
+def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) -> list[str]:
+    """Candidates of which the stack is a reading too: fitted alone implausibly but perhaps
+    only by bias (:meth:`~._candidates.AbstractCandidate.stand_in_doubtful`), their stand-in
+    (``simpler``) held whole by the stack, ``verdict`` among it. Asymmetric friction whose
+    one level is fitted slightly negative and Coulomb friction with an offset larger than it
+    are one force while the axis moves: a held-out asymmetric-friction record (levels 0.034 /
+    0.167 N, under direction-dependent viscous friction) was named ``offset`` at 1.00."""
+    held = {c.name for c in stk.cands}
+    out = []
+    for s in effects:
+        c = run.by_name[s.name]
+        if s.plausible or s.name in held or verdict not in c.simpler:
+            continue
+        if set(c.simpler) <= held and c.stand_in_doubtful(s.params):
+            out.append(s.name)
+    return out
+
+
 def _bar(run: Run, stk: Stack) -> float:
     """The verdict's evidence a rival is weighed against: the stack's summed step scores, at
     least the threshold ("no effect"'s score for an empty stack)."""
@@ -336,6 +354,10 @@ def weigh(
         )
     if verdict != "unexplained":
         confidence *= doubt
+    readings = _readings(run, effects, stk, verdict)
+    if readings:  # one more reading of the same force: the confidence is shared among them
+        ambiguous = list(dict.fromkeys([*(ambiguous or [verdict]), *readings]))
+        confidence /= 1 + len(readings)
     return Confidence(
         verdict, float(confidence), weights, ambiguous, detection, detection_worst, rivals
     )
