@@ -992,11 +992,13 @@ def make_case(
         setup_kw = {"closed": False, "f_lo": (0.2, 0.6), "f_hi": (1.5, 4.0), "kinds": kinds}
     # an aim (the stiction class' stuck share) that no draw of the effect holds on this
     # setup's excitation is sought on a new setup, up to SETUP_DRAWS setups
-    for setup_draw in range(SETUP_DRAWS if cls in AIMED else 1):
+    setups = 0
+    while True:
         st, stats, v0, train0, draws = _draw_effects(
             cls, names, rng, source, rate, duration, durations, setup_kw
         )
-        if all(d.in_aim() for d in draws):
+        setups += 1
+        if all(d.in_aim() for d in draws) or setups >= (SETUP_DRAWS if cls in AIMED else 1):
             break
     recs, changes, v_eff = [], [], []
     for j in range(2):
@@ -1034,7 +1036,7 @@ def make_case(
         }
         if st.closed
         else None,
-        "setup_draws": setup_draw + 1,
+        "setup_draws": setups,
         "excitation_rms": st.rms,
         "excitation": list(st.exc_info),
         "q": st.q,

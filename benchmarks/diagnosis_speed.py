@@ -27,6 +27,16 @@ they share one length bucket. It reports
   adds the separate processes without the cache (``LIONJAX_NO_COMPILE_CACHE=1``).
 
     PYTHONPATH=<checkout> python benchmarks/diagnosis_speed.py --many [--pairs N] [--cli M]
+
+``--lengths N1,N2,…`` measures time and peak memory against the record's length: for each N, a
+fresh process diagnoses a pair of N training samples and max(N/5, 4000) validation samples (a
+mass–damper with an offset, exact zero-order-hold samples, band-limited noise input, encoder
+steps and position noise; ``--rate`` Hz) and reports its wall time (compilation included, as a
+first run sees it), its peak RSS, the diagnosis' memory estimate for the pair, and the
+verdict; a pair the diagnosis refuses for memory (its estimate above this machine's memory) is
+listed with the reason.
+
+    PYTHONPATH=<checkout> python benchmarks/diagnosis_speed.py --lengths 1e4,1e5,1e6 [--json F]
 """
 
 from __future__ import annotations
@@ -34,6 +44,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import math
 import os
 import subprocess
 import sys
@@ -79,7 +90,15 @@ def main(argv=None) -> dict:
         action="store_true",
         help="also time the separate processes without the compilation cache",
     )
+    p.add_argument(
+        "--lengths", help="time and peak RSS against training samples N1,N2,… (see above)"
+    )
+    p.add_argument("--one-length", type=float, help=argparse.SUPPRESS)  # a --lengths child
     args = p.parse_args(argv)
+    if args.one_length:
+        return _one_length(int(args.one_length), args.rate)
+    if args.lengths:
+        return lengths(args)
     if args.passes < 1:
         p.error(f"--passes must be >= 1, got {args.passes}")
     if args.many:
@@ -250,6 +269,82 @@ def _separate(pairs, d: Path, tmp: str, lionjax: list, env: dict) -> tuple[float
             j = json.load(f)
         single[name] = _key(j["verdict"], j["confidence"], j["stack"])
     return time.perf_counter() - t0, single
+
+
+def _long_record(n: int, rate: float, seed: int):
+    """(x, F, dt) of a mass–damper ẍ + aẋ = b(F + F₀) (a = 8 1/s, b = 2 1/kg, F₀ = 0.3 N),
+    sampled exactly under a zero-order hold, driven by noise low-passed at 4 Hz (RMS ≈ 1 N), x
+    rounded to 1 µm encoder steps plus 0.3 µm noise."""
+    import numpy as np
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(seed)
+    dt, a, b, F0 = 1.0 / rate, 8.0, 2.0, 0.3
+    p = np.exp(-2 * np.pi * 4.0 * dt)  # two first-order low-passes at 4 Hz
+    F = lfilter([(1 - p) ** 2], [1, -2 * p, p * p], rng.standard_normal(n))
+    F *= 1.0 / max(float(np.std(F)), 1e-12)
+    e = np.exp(-a * dt)
+    u = b * (F + F0)
+    v = lfilter([0.0, (1 - e) / a], [1, -e], u)  # v[k+1] = e·v[k] + (1 − e)/a·u[k]
+    dx = (1 - e) / a * v + (dt - (1 - e) / a) / a * u  # x[k+1] − x[k]
+    x = np.concatenate([[0.0], np.cumsum(dx[:-1])])
+    x = np.round(x / 1e-6) * 1e-6 + 0.3e-6 * rng.standard_normal(n)
+    return x, F, dt
+
+
+def _one_length(n: int, rate: float) -> dict:
+    """A --lengths child: diagnose one pair of n training samples; print one JSON line."""
+    import resource
+
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import lionjax as lj
+    from lionjax.diagnosis._fit import memory_estimate  # what diagnose checks against
+
+    nv = max(n // 5, 4000)
+    train, valid = (lj.Record(*_long_record(k, rate, seed)) for k, seed in ((n, 1), (nv, 2)))
+    out = {"train_samples": n, "valid_samples": nv, "rate_hz": rate}
+    out["memory_estimate_gb"] = memory_estimate(n, nv) / 1e9
+    t0 = time.perf_counter()
+    try:
+        d = lj.diagnose(train, valid)
+        out.update(status="ok", verdict=d.verdict, confidence=d.confidence, stack=d.stack)
+    except lj.InputError as e:  # refused for memory (the message says by how much)
+        out.update(status="refused", reason=str(e))
+    out["seconds"] = time.perf_counter() - t0
+    out["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e9
+    print(json.dumps(out), flush=True)
+    return out
+
+
+def lengths(args) -> dict:
+    """The --lengths mode (module docstring): one fresh process per length."""
+    rows = []
+    for text in args.lengths.split(","):
+        n = int(float(text))
+        cmd = [sys.executable, os.path.abspath(__file__), "--one-length", str(n)]
+        cmd += ["--rate", str(args.rate)]
+        t0 = time.perf_counter()
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            row = {"train_samples": n, "status": "failed", "stderr": r.stderr[-2000:]}
+        else:
+            row = json.loads(r.stdout.strip().splitlines()[-1])
+        row["process_s"] = time.perf_counter() - t0
+        rows.append(row)
+        print(
+            f"N = {n:>9d}: {row['status']:8s} diagnose {row.get('seconds', math.nan):7.1f} s, "
+            f"process {row['process_s']:7.1f} s, peak RSS {row.get('peak_rss_gb', math.nan):6.2f} "
+            f"GB (estimate {row.get('memory_estimate_gb', math.nan):6.2f} GB) "
+            f"{row.get('verdict', row.get('reason', ''))[:100]}",
+            flush=True,
+        )
+    out = {"mode": "lengths", "rate_hz": args.rate, "rows": rows}
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+    return out
 
 
 if __name__ == "__main__":

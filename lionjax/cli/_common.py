@@ -18,13 +18,25 @@ CURRENT_FILE: contextvars.ContextVar[str | None] = contextvars.ContextVar(
     "lionjax_cli_file", default=None
 )
 
-# The library's names of arguments → the command line's (in messages of the core layer).
+# The library's names of arguments → the command line's (in messages of the core layer and
+# of the diagnosis).
 _CLI_WORDS = (
     (re.compile(r"argument '?bank'?"), "--poles/--coeffs"),
     (re.compile(r"argument '?theta0'?"), "--theta0"),
     (re.compile(r"argument '?gain'?"), "--gain"),
     (re.compile(r"\bresample=True\b"), "--resample"),
+    (re.compile(r"filter_hz"), "--filter-hz"),
+    (re.compile(r"window_s"), "--window"),
+    (re.compile(r"max_memory_gb"), "--max-memory-gb"),
+    (re.compile(r"argument 'candidates'"), "--candidates"),
 )
+
+
+def cli_words(message: str) -> str:
+    """The library's argument names in ``message`` → the command line's options."""
+    for pattern, word in _CLI_WORDS:
+        message = pattern.sub(word, message)
+    return message
 
 
 def float_list(text: str, argument: str) -> list[float]:
@@ -68,8 +80,7 @@ def one_line(message: str) -> str:
     the options', and one line — except a list of several files or elements (indented lines
     after a heading), one line each. ``X failed for 1 of 1 element(s):`` + reason becomes
     ``X failed: reason``."""
-    for pattern, word in _CLI_WORDS:
-        message = pattern.sub(word, message)
+    message = cli_words(message)
     lines = [ln.rstrip() for ln in message.strip().splitlines() if ln.strip()]
     if not lines:
         return "(no message)"

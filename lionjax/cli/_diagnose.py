@@ -23,7 +23,7 @@ import dataclasses
 from .._errors import IdentificationError, InputError
 from .._plotting import FIGURE_SUFFIXES
 from .._tables import check_output, write_json
-from ._common import about, format_table, number
+from ._common import about, cli_words, format_table, number
 
 NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: which unmodelled effect, where, how much it explains"
@@ -97,22 +97,6 @@ def _load(path, args):
     )
 
 
-#: The diagnosis' names of its arguments → the command line's options.
-_OPTIONS = (
-    ("filter_hz", "--filter-hz"),
-    ("window_s", "--window"),
-    ("max_memory_gb", "--max-memory-gb"),
-    ("argument 'candidates'", "--candidates"),
-)
-
-
-def name_options(message: str) -> str:
-    """The diagnosis' argument names in ``message`` → the command line's options."""
-    for old, new in _OPTIONS:
-        message = message.replace(old, new)
-    return message
-
-
 def _name_files(message: str, args) -> str:
     """The diagnosis' names of its records ("(argument 'train')") → the files; options named as
     the command line's."""
@@ -122,7 +106,7 @@ def _name_files(message: str, args) -> str:
         ("(argument 'valid')", f"({valid}" + (", --validate)" if args.validate else ")")),
     ):
         message = message.replace(old, new)
-    return name_options(message)
+    return cli_words(message)
 
 
 def _library(args):
@@ -168,9 +152,7 @@ def _run_pairs(args) -> int:
         window_s=args.window,
         max_memory_gb=args.max_memory_gb,
     )
-    rows = [
-        dataclasses.replace(r, error=name_options(r.error)) if r.error else r for r in result.rows
-    ]
+    rows = [dataclasses.replace(r, error=cli_words(r.error)) if r.error else r for r in result.rows]
     if orphans:  # a folder's pairs come sorted by name: the unpaired files take their places
         rows += [lj.diagnosis.DiagnosisRow(name, error=why) for name, why in orphans]
         rows.sort(key=lambda r: r.name)
