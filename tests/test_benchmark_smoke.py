@@ -1,4 +1,4 @@
-"""Smoke run of benchmarks/throughput.py at a tiny size (the study module is not written yet; numba skipped when not installed)."""
+"""Smoke runs of the benchmarks at tiny sizes (throughput.py; gpu_check.py --dry-run; the records of diagnosis_speed.py --lengths against scipy; numba skipped when not installed)."""
 
 import json
 import os
@@ -63,3 +63,23 @@ def test_gpu_check_dry_run(tmp_path):
     assert data["pytest"]["status"] == "collected"
     assert {c["status"] for c in data["criteria"].values()} == {"not measured"}
     assert "PASS" in res.stdout and "ACCEPTANCE" in res.stdout
+
+
+def test_long_record_against_scipy():
+    """diagnosis_speed.py --lengths' records: the mass–damper ẍ + aẋ = b(F + F₀) sampled under
+    a zero-order hold, against scipy's exact discretisation (cont2discrete, zoh) driven by the
+    same input, before the encoder steps and noise (agreement within 2 µm: one step plus 3σ of
+    the 0.3 µm noise)."""
+    import numpy as np
+    from scipy.signal import cont2discrete, dlsim
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import diagnosis_speed
+
+    x, F, dt = diagnosis_speed._long_record(5000, 1000.0, seed=3)
+    a, b, F0 = 8.0, 2.0, 0.3
+    A, B = np.array([[0.0, 1.0], [0.0, -a]]), np.array([[0.0], [b]])
+    sysd = cont2discrete((A, B, np.array([[1.0, 0.0]]), np.zeros((1, 1))), dt, method="zoh")
+    _, y, _ = dlsim(sysd, F + F0)
+    assert dt == 1e-3 and np.max(np.abs(x - y[:, 0])) < 2e-6
+    assert np.ptp(x) > 100e-6  # the input moves the axis well beyond the encoder step
