@@ -25,9 +25,9 @@ _CLI_WORDS = (
     (re.compile(r"argument '?theta0'?"), "--theta0"),
     (re.compile(r"argument '?gain'?"), "--gain"),
     (re.compile(r"\bresample=True\b"), "--resample"),
-    (re.compile(r"filter_hz"), "--filter-hz"),
-    (re.compile(r"window_s"), "--window"),
-    (re.compile(r"max_memory_gb"), "--max-memory-gb"),
+    (re.compile(r"\bfilter_hz\b"), "--filter-hz"),
+    (re.compile(r"\bwindow_s\b"), "--window"),
+    (re.compile(r"\bmax_memory_gb\b"), "--max-memory-gb"),
     (re.compile(r"argument 'candidates'"), "--candidates"),
 )
 
