@@ -1,4 +1,4 @@
-"""Smoke runs of the benchmarks at tiny sizes (throughput.py; gpu_check.py --dry-run; the records of diagnosis_speed.py --lengths against scipy; numba skipped when not installed)."""
+"""Smoke runs of the benchmarks at tiny sizes (throughput.py with its numba arm; gpu_check.py --dry-run; the records of diagnosis_speed.py --lengths against scipy)."""
 
 import json
 import os
