@@ -177,8 +177,8 @@ DOMINANT_BAND = (0.80, 0.999)
 SPRING_BAND = (0.80, 2.0)
 #: share of samples the stiction class aims to stick (|v_true| ≤ v_s/10, or less than an encoder
 #: step over ±5 ms), on both records: about half the time. Up to 80 %: at a response change of
-#: 80 % a slow open-loop record sticks on 75–90 % of its samples as often as not (9 of 21 draws
-#: found no strength with both within 30–70 % on four setups)
+#: 80 % a slow open-loop record often sticks on 75–90 % of its samples (11 of 25 draws found
+#: no strength with both within 30–70 % on four setups)
 STICK_AIM = (0.30, 0.80)
 #: stuck share above which a record is stuck throughout (shows nothing of the plant)
 STUCK_THROUGHOUT = 0.95
