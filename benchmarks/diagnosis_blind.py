@@ -38,9 +38,9 @@ are kept, counted and flagged (``size_in_band``). Two- and three-effect classes 
 alone. The *dominant* classes use the band [80 %, 99.9 %] instead (the baseline mass–damper is
 qualitatively wrong; the spring [80 %, 200 %], below), and a stiction draw whose stuck share
 misses its aim (30–80 %) is redrawn: on up to 4 setups (excitations) with up to 6 draws each,
-else kept and flagged out of band (``setup_draws`` counts the setups). The force-sensor artefacts leave the device's motion
-unchanged (c = 0 by construction): they are sized by their amplitude A/F_rms instead (F_rms the
-clean valid record's logged force).
+else kept and flagged out of band (``setup_draws`` counts the setups). The force-sensor
+artefacts leave the device's motion unchanged (c = 0 by construction): they are sized by their
+amplitude A/F_rms instead (F_rms the clean valid record's logged force).
 
 Classes → accepted answer:
     none                     → verdict ``none``
@@ -182,9 +182,8 @@ SPRING_BAND = (0.80, 2.0)
 STICK_AIM = (0.30, 0.80)
 #: stuck share above which a record is stuck throughout (shows nothing of the plant)
 STUCK_THROUGHOUT = 0.95
-#: classes whose sizing has an aim besides the band; setups drawn for one such case before its
-#: draw is kept with the aim missed (flagged out of band)
-AIMED = ("stiction_dominant",)
+#: setups drawn for a case whose draw has an aim besides the band (the stiction class) before
+#: its draw is kept with the aim missed (flagged out of band)
 SETUP_DRAWS = 4
 
 RATE_BINS = ((250, 500), (500, 1000), (1000, 2000), (2000, 5000))
@@ -888,7 +887,7 @@ def size_effect(st: Setup, d: Draw, rng, v0: np.ndarray) -> bool:
         d.strength, d.change, d.aim_value = min(inside, key=lambda t: aim_miss(t[2]))
         # an aim missed is a draw redrawn (a training record stuck on 90 % of its samples
         # was kept as "in band" and shows nothing of the plant: 14 of 38 such draws)
-        return d.aim_value is None or aim_miss(d.aim_value) == 0.0
+        return d.in_aim()
     # never keep a strength that stops the axis for good (metric 1: stuck throughout) when
     # another was tried
     moving = [t for t in tried if t[2] is None or t[2] < STUCK_THROUGHOUT] or tried
@@ -998,7 +997,7 @@ def make_case(
             cls, names, rng, source, rate, duration, durations, setup_kw
         )
         setups += 1
-        if all(d.in_aim() for d in draws) or setups >= (SETUP_DRAWS if cls in AIMED else 1):
+        if all(d.in_aim() for d in draws) or setups >= SETUP_DRAWS:  # True without an aim
             break
     recs, changes, v_eff = [], [], []
     for j in range(2):

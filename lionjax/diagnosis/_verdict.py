@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ._candidates import AbstractCandidate
 from ._result import _UNITS, Diagnosis, EffectScore
 from ._stages import Run, Stack, shrink, sim_share, try_fit
 from ._structures import Fitted
@@ -244,9 +245,14 @@ def _rivals(
         and s.score > bar
         and not (run.closed_loop and by_name[s.name].holds_mode)
         and not set(by_name[s.name].imitates(s.params)) & held
-        and not (by_name[s.name].simpler and set(by_name[s.name].simpler) <= held)
+        and not _holds_stand_in(held, by_name[s.name])
     }
     return out | {k: v for k, v in blind.items() if v > bar}
+
+
+def _holds_stand_in(held: set[str], c: AbstractCandidate) -> bool:
+    """Whether the names ``held`` include the whole stand-in (``simpler``) of ``c``."""
+    return bool(c.simpler) and set(c.simpler) <= held
 
 
 def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) -> list[str]:
@@ -262,7 +268,7 @@ def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) ->
         c = run.by_name[s.name]
         if s.plausible or s.name in held or verdict not in c.simpler:
             continue
-        if set(c.simpler) <= held and c.stand_in_doubtful(s.params):
+        if _holds_stand_in(held, c) and c.stand_in_doubtful(s.params):
             out.append(s.name)
     return out
 
