@@ -41,6 +41,9 @@ class Criteria(eqx.Module):
 
     The stack:
         max_effects: largest stack.
+        pair_from: where no candidate is significant alone on the stack, the pairs of the
+            pair_from best plausible ones are tried as one step (effects that hide each other:
+            a spring under a 15 ms delay, neither significant alone).
 
     The verdict:
         floor_factor: the gap is "at the noise floor" (``baseline["at_noise_floor"]``) when ε₁'s
@@ -80,6 +83,7 @@ class Criteria(eqx.Module):
     dominant_sim_share: float = 0.5
     stuck_share: float = 0.3
     max_effects: int = 3
+    pair_from: int = 3
     floor_factor: float = 1.5
     noise_peak: float = 100.0
     peak_growth: float = 2.0
@@ -105,3 +109,5 @@ class Criteria(eqx.Module):
             )
         if not (isinstance(self.max_effects, int) and self.max_effects >= 1):
             raise InputError(f"diagnose: expected max_effects ≥ 1, got {self.max_effects!r}.")
+        if not (isinstance(self.pair_from, int) and self.pair_from >= 0):
+            raise InputError(f"diagnose: expected pair_from ≥ 0, got {self.pair_from!r}.")

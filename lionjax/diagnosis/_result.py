@@ -109,6 +109,7 @@ RESERVED = (
     "x_hi",
     "Fc_pos",
     "Fc_neg",
+    "presliding",
     "soft",
     "mass_ratio",
     "beta",

@@ -75,6 +75,14 @@ LOCAL_W_RANGE = (1 / 100, 1.0)
 SOFT_N = 15
 #: Shortest stick [s] the friction candidates' stick variant masks (_Fitter.stuck).
 STICK_MIN_S = 0.01
+#: The pre-sliding distances z [m] friction's Dahl form is profiled over
+#: (:meth:`_Fitter._profile_presliding`): PRESLIDING_PER_DECADE per decade from a tenth of the
+#: position noise (at least PRESLIDING_RANGE[0]) to PRESLIDING_RANGE[1]. Pre-sliding in metal
+#: contacts spans 1–10 µm, the blind benchmark's LuGre bristles F_s/σ₀ 2–30 µm (fitted at
+#: 0.3–1.2 times that); a longer "pre-sliding" fits a force that depends on position (a
+#: cogging record with a 266 µm period was fitted at z = 39 µm).
+PRESLIDING_RANGE = (1e-7, 3e-5)
+PRESLIDING_PER_DECADE = 6
 #: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
 DEAD_ZONE_QUANTILES = tuple(float(q) for q in np.geomspace(0.01, 0.8, 16))
 #: The position-periodic look-alike (:meth:`_Fitter.periodic_lookalike`): the cycles κ across

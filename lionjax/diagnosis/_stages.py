@@ -341,14 +341,15 @@ def fit_alone(run: Run) -> dict[str, Fitted]:
     estimated floor, the others from nothing yet. Sets ``run.fit_floor``. (A held-out
     collocated mode, μ 0.58 at 29.4 Hz, fitted μ 0.55 at 29.7 Hz with κ held at 0, and κ
     −0.64, μ 0.30 at 38 Hz with κ free, which scored higher and was refused.)"""
-    fitter, fitted, stick_chosen = run.fitter, {}, False
+    fitter, fitted, friction_chosen = run.fitter, {}, False
     for c in run.candidates:
         variants = c.variants(
             fitter.variant,
-            stick_open=not stick_chosen and fitter.sticks,
+            friction_open=not friction_chosen,
+            sticks=fitter.sticks,
             outside=run.outside["position"] > 0,
         )
-        stick_chosen = stick_chosen or (c.masks_stick and len(variants) > 1)
+        friction_chosen = friction_chosen or (c.friction_form and len(variants) > 1)
         tries = []
         for var in variants:
             fitter.variant = var
@@ -411,6 +412,41 @@ def _stand_in(run: Run, trials, pool, stk: Stack):
     return None
 
 
+def _compatible(c: AbstractCandidate, k: AbstractCandidate) -> bool:
+    """Whether ``c`` may be stacked with ``k`` (neither contains nor excludes the other)."""
+    return (
+        c is not k
+        and c.name not in k.subsumes
+        and k.name not in c.subsumes
+        and c.name not in k.excludes
+        and k.name not in c.excludes
+    )
+
+
+def _pair(run: Run, trials, stk: Stack):
+    """(score, fit, candidates) of the best pair of the :data:`~._criteria.Criteria.pair_from`
+    best plausible trials that gain on the current stack (share > 0) and are significant
+    together as one step, or None. Effects that hide each other — a spring under a 15 ms
+    delay, neither significant alone, the residual of either so correlated that 12 effective
+    samples remain — are found together."""
+    if len(stk.cands) + 2 > run.crit.max_effects:
+        return None
+    top = [t for t in trials if t[0].plausible and t[0].share > 0][: run.crit.pair_from]
+    found = []
+    for i, ti in enumerate(top):
+        for tj in top[i + 1 :]:
+            ks = (ti[2], tj[2])
+            if not _compatible(*ks):
+                continue
+            f = try_fit(run, [*stk.cands, *ks])
+            if f is None:
+                continue
+            sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
+            if sc.significant:
+                found.append((sc, f, ks))
+    return max(found, key=lambda t: t[0].score, default=None)
+
+
 def stack_effects(run: Run, alone: dict[str, tuple[EffectScore, Fitted]]) -> Stack:
     """Greedy stacking: the best significant candidate on the current stack, until none is —
     or, when none is, the stand-in pair of an implausible candidate that is significant as one
@@ -437,7 +473,7 @@ def stack_effects(run: Run, alone: dict[str, tuple[EffectScore, Fitted]]) -> Sta
             stk.steps.append(best[0])
             added: tuple[AbstractCandidate, ...] = (best[2],)
         else:
-            best = _stand_in(run, trials, pool, stk)
+            best = _stand_in(run, trials, pool, stk) or _pair(run, trials, stk)
             if best is None:
                 break
             added = best[2]

@@ -93,6 +93,7 @@ class Variant(NamedTuple):
     fmax_shape: int  # the saturation's shape: +1 hard, −1 soft, 0 both
     position_clamp: bool  # a(x), b(x) held beyond the training positions
     stick: bool  # friction's force columns masked where the axis sticks
+    presliding: bool  # friction's sign as Dahl's pre-sliding state (else the smoothed sign)
 
 
 def _pattern_search(start, best, steps, move, rss_of, seen, rounds: int, max_steps: int):
