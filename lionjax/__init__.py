@@ -6,9 +6,9 @@ The top level is the method's core, read top to bottom as the method runs (docs/
   :func:`resample`; batches of records: :func:`stack_records`, :func:`shard_records`;
 - the filter bank 1/Λ(s): :class:`FilterBank`, :func:`default_bank`;
 - models ẍ + aẋ = bF + effects, as regressors: :class:`MassDamper`, :class:`Piecewise`,
-  :class:`Augmented` with :class:`Offset`, :class:`Coulomb`, :class:`Spring`,
-  :class:`PolynomialPosition`, :class:`LocalizedPosition` (bases :class:`AbstractModel`,
-  :class:`AbstractEffect`);
+  :class:`Augmented` with :class:`Offset`, :class:`Coulomb`, :class:`PreslidingFriction`,
+  :class:`Spring`, :class:`PolynomialPosition`, :class:`LocalizedPosition` (bases
+  :class:`AbstractModel`, :class:`AbstractEffect`);
 - Lion's law on one record: :func:`lion` with a gain (:class:`FixedGain`, :class:`AutoGain`)
   and a stepper (:class:`ExactStep`, :class:`EulerStep`, :class:`DiffraxStep`);
   least squares: :func:`least_squares`, :func:`linear_lstsq`;
@@ -79,6 +79,7 @@ from ._model_effects import (
     Coulomb as Coulomb,
     LocalizedPosition as LocalizedPosition,
     PolynomialPosition as PolynomialPosition,
+    PreslidingFriction as PreslidingFriction,
     Spring as Spring,
 )
 from ._models import (
@@ -111,7 +112,7 @@ __all__ = [
     "FilterBank", "default_bank",
     # models and effects
     "AbstractModel", "MassDamper", "Piecewise", "Augmented", "AbstractEffect", "Offset",
-    "Coulomb", "Spring", "PolynomialPosition", "LocalizedPosition",
+    "Coulomb", "PreslidingFriction", "Spring", "PolynomialPosition", "LocalizedPosition",
     # Lion's law and least squares on one record
     "AbstractGain", "FixedGain", "AutoGain", "AbstractStepper", "ExactStep", "EulerStep",
     "DiffraxStep", "lion", "least_squares", "linear_lstsq",

@@ -13,6 +13,8 @@ ones, names suffixed ``_i``; ``PolynomialPosition`` excepted, it modulates a and
 
 - offset (:class:`Offset`): −(1/Λ)[1], parameter b·F₀;
 - Coulomb (:class:`Coulomb`): +(1/Λ)[sgñ v̂], parameter b·F_c;
+- Coulomb with Dahl's pre-sliding (:class:`PreslidingFriction`): +(1/Λ)[ζ], ζ Dahl's state of
+  v̂'s displacement over the pre-sliding distance z, parameter b·F_c;
 - spring (:class:`Spring`): +(1/Λ)[x], parameter b·k; with an equilibrium add the offset
   column, whose parameter is then b·(F₀ + k·x₀);
 - position (:class:`PolynomialPosition`, degree K ≤ 3, default 1):
@@ -29,6 +31,7 @@ profiles them (:mod:`lionjax.diagnosis`).
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import equinox as eqx
@@ -48,7 +51,9 @@ __all__ = [
     "LocalizedPosition",
     "Offset",
     "PolynomialPosition",
+    "PreslidingFriction",
     "Spring",
+    "dahl_states",
     "zero_phase_lowpass",
     "zero_phase_velocity",
 ]
@@ -113,6 +118,73 @@ class Coulomb(AbstractEffect):
     def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
         v = zero_phase_velocity(record.x, record.dt, self.omega)
         return {"sgn_v": (jnp.tanh(v / self.v_eps), "foh")}
+
+    def physical(self, theta: Array, b: Array) -> dict[str, Array]:
+        return {"Fc": theta[..., 0] / b}
+
+
+@jax.jit
+def dahl_states(
+    v: Float[Array, " T"], dt: ArrayLike, zs: Float[ArrayLike, " m"]
+) -> Float[Array, "m T"]:
+    """Dahl's friction state ζ ∈ [−1, 1] for each pre-sliding distance ``zs`` [m], driven by
+    the velocity ``v`` [m/s] sampled every ``dt`` [s]: dζ/dx = (1 − ζ·sgn ẋ)/z, integrated
+    exactly over each sample's displacement d = (v[k−1] + v[k])·dt/2 (ζ → s + (ζ − s)·e^{−|d|/z},
+    s = sgn d), from ζ = 0 at the first sample. Friction F_c·ζ deflects the contact elastically
+    (stiffness F_c/z) under a force below F_c and slides at F_c·sgn ẋ after a travel of a few z
+    (Dahl 1968; LuGre's bristles with σ₀ = F_c/z)."""
+    d = jnp.concatenate([jnp.zeros((1,), v.dtype), 0.5 * (v[1:] + v[:-1]) * dt])
+    zs = jnp.asarray(zs, v.dtype)
+
+    def step(zeta, dk):
+        s = jnp.sign(dk)
+        zeta = s + (zeta - s) * jnp.exp(-jnp.abs(dk) / zs)
+        return zeta, zeta
+
+    _, out = jax.lax.scan(step, jnp.zeros_like(zs), d)
+    return out.T
+
+
+def presliding_signal(z: float) -> str:
+    """The raw signal name of :class:`PreslidingFriction`'s ζ at the distance ``z`` [m]."""
+    return f"dahl@{float(z):.9g}"
+
+
+class PreslidingFriction(AbstractEffect):
+    """Coulomb friction with Dahl's pre-sliding, F_c·ζ [N] (:func:`dahl_states`): ζ follows the
+    displacement of v̂ and saturates at ±1 after a travel of a few ``z``, so that a force below
+    F_c deflects the contact elastically instead of sliding. Column +(1/Λ)[ζ], parameter b·F_c,
+    as :class:`Coulomb`'s (whose smoothed sign is the sliding limit z → 0).
+
+    Attributes:
+        omega: bandwidth ω [rad/s] of the zero-phase velocity filter (:func:`zero_phase_velocity`).
+        z: the pre-sliding distance [m] (F_c/σ₀ for a contact stiffness σ₀ [N/m]): a number,
+            since it names the column's signal.
+    """
+
+    omega: float
+    z: float
+
+    def __check_init__(self):
+        for name, unit in (("omega", "rad/s"), ("z", "m")):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(
+                    f"PreslidingFriction: argument {name!r} must be a finite number > 0 "
+                    f"[{unit}], got {v!r}."
+                )
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("bFc",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column(presliding_signal(self.z), 0, 1.0),)
+
+    def signals(self, record: Record) -> dict[str, tuple[Array, Hold]]:
+        v = zero_phase_velocity(record.x, record.dt, self.omega)
+        zeta = dahl_states(v, record.dt, jnp.asarray([self.z], v.dtype))[0]
+        return {presliding_signal(self.z): (zeta, "foh")}
 
     def physical(self, theta: Array, b: Array) -> dict[str, Array]:
         return {"Fc": theta[..., 0] / b}

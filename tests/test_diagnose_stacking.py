@@ -264,3 +264,22 @@ def test_stand_in_of_a_doubtful_asymmetric_fit_shares_the_confidence(cls, source
         assert d.verdict in d.ambiguous and d.confidence <= 0.5
     else:
         assert d.confidence > 0.8
+
+
+def test_effects_that_hide_each_other_are_found_as_a_pair():
+    """A spring (k = 4.3 N/m) under a 4.4 ms delay, with Dahl friction (scipy, 472 Hz, open
+    loop): alone, neither the spring nor the delay is significant — the residual of either is
+    so correlated that few effective samples remain — and the stack stayed empty. Where no
+    candidate is significant alone, the pairs of the best plausible ones are tried as one
+    step (``Criteria.pair_from``): the spring and the delay together are, and friction follows.
+    With the pair step switched off the stack is empty, as it was."""
+    train, valid, info = blind.make_case("triple", 50161013, source="scipy")
+    truth = {e["name"] for e in info["effects"]}
+    assert truth == {"spring", "delay", "coulomb_friction"}
+    d = lj.diagnose(train, valid)
+    assert set(d.stack) == truth, d.stack
+    together = [s for s in d.steps if s.reason.startswith("significant together with")]
+    assert {s.name for s in together} == {"spring", "delay"}
+    assert d.final["params"]["tau"] == pytest.approx(info["effects"][1]["params"]["tau"], rel=0.3)
+    off = lj.diagnose(train, valid, criteria=lj.diagnosis.Criteria(pair_from=0))
+    assert off.stack == [] and off.verdict == "unexplained"

@@ -33,7 +33,6 @@ import math
 from typing import ClassVar, Literal
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -44,6 +43,7 @@ from .._model_effects import (
     LocalizedPosition,
     Offset,
     PolynomialPosition,
+    PreslidingFriction,
     Spring,
     zero_phase_velocity,
 )
@@ -120,56 +120,6 @@ class DirectionalFriction(AbstractEffect):
 
     def physical(self, theta: Array, b: Array) -> dict:
         return {"dF": theta[..., 0] / b}
-
-
-@jax.jit
-def dahl_states(v: Array, dt: Array, zs: Array) -> Array:
-    """Dahl's friction state ζ ∈ [−1, 1], (m, T), for each pre-sliding distance ``zs`` (m,) [m],
-    driven by the velocity ``v`` (T,) [m/s]: dζ/dx = (1 − ζ·sgn ẋ)/z, integrated exactly over
-    each sample's displacement d = (v[k−1] + v[k])·dt/2 (ζ → s + (ζ − s)·e^{−|d|/z}, s = sgn d),
-    from ζ = 0. Friction F_c·ζ deflects the contact elastically (stiffness F_c/z) under a
-    force below F_c and slides at F_c·sgn ẋ after a travel of a few z."""
-    d = jnp.concatenate([jnp.zeros((1,), v.dtype), 0.5 * (v[1:] + v[:-1]) * dt])
-    zs = jnp.asarray(zs, v.dtype)
-
-    def step(zeta, dk):
-        s = jnp.sign(dk)
-        zeta = s + (zeta - s) * jnp.exp(-jnp.abs(dk) / zs)
-        return zeta, zeta
-
-    _, out = jax.lax.scan(step, jnp.zeros_like(zs), d)
-    return out.T
-
-
-def presliding_signal(z: float) -> str:
-    """The raw signal name of :class:`PreslidingFriction`'s ζ at the distance ``z`` [m]."""
-    return f"dahl@{float(z):.9g}"
-
-
-class PreslidingFriction(AbstractEffect):
-    """Coulomb friction with Dahl's pre-sliding, F_c·ζ [N] (:func:`dahl_states`): ζ follows the
-    displacement of v̂ and saturates at ±1 after a travel of a few ``z`` [m] (the pre-sliding
-    distance F_c/σ₀ of a bristle stiffness σ₀), so that a force below F_c deflects the contact
-    instead of sliding. Column +(1/Λ)[ζ], parameter b·F_c, as :class:`~lionjax.Coulomb`'s
-    (whose smoothed sign is the limit z → 0); v̂ as its."""
-
-    omega: float
-    z: float
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return ("bFc",)
-
-    def columns(self) -> tuple[Column, ...]:
-        return (Column(presliding_signal(self.z), 0, 1.0),)
-
-    def signals(self, record: Record) -> dict:
-        v = jnp.asarray(zero_phase_velocity(record.x, record.dt, self.omega), jnp.float64)
-        zeta = dahl_states(v, jnp.float64(record.dt), jnp.asarray([self.z], jnp.float64))[0]
-        return {presliding_signal(self.z): (zeta, "foh")}
-
-    def physical(self, theta: Array, b: Array) -> dict:
-        return {"Fc": theta[..., 0] / b}
 
 
 class ForceClip(AbstractEffect):

@@ -13,9 +13,11 @@ import numpy as np
 from .._errors import InputError
 from .._model_effects import (
     MAX_POSITION_DEGREE,
+    dahl_states,
     local_values,
     position_terms,
     position_values,
+    presliding_signal,
 )
 from .._models import Augmented, MassDamper
 from .._record import Record
@@ -27,9 +29,7 @@ from ._candidates import (
     ForceClip,
     Limits,
     VelocityDrag,
-    dahl_states,
     mode_signal_names,
-    presliding_signal,
 )
 from ._criteria import DIVERGED
 from ._filtering import (
@@ -39,6 +39,7 @@ from ._filtering import (
     mode_free_responses,
     mode_seed,
     mode_signals,
+    padded_length,
     zero_phase,
 )
 from ._fit import (
@@ -77,6 +78,8 @@ from ._settings import (
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
 from ._structures import Fitted, Variant, _effects_of, _has_mode, _has_position, _pattern_search
 
+#: Pre-sliding distances whose Dahl states are computed in one call (:meth:`_Fitter._dahl`).
+DAHL_BATCH = 16
 #: Hard clips evaluated between the best one's neighbours on the quantile grid
 #: (:meth:`_Fitter._refine_clip`).
 CLIP_REFINE = 8
@@ -428,8 +431,19 @@ class _Fitter:
     def _dahl(self, rec: Record, v: np.ndarray, zs) -> dict:
         """Raw signals {name: (ζ (T,), hold)} of Dahl's state (:func:`dahl_states`) at the
         pre-sliding distances ``zs`` [m] on ``rec`` (``v``: its v̂)."""
-        Z = np.asarray(dahl_states(jnp.asarray(v, jnp.float64), self.st.dt, jnp.asarray(zs)))
-        return {presliding_signal(z): (Z[i], "foh") for i, z in enumerate(zs)}
+        # one compiled program per length bucket: v̂ padded with zeros (ζ then holds), the
+        # distances padded to DAHL_BATCH
+        T, zs = len(v), [float(z) for z in zs]
+        vp = np.zeros(padded_length(T))
+        vp[:T] = v
+        out = {}
+        for i in range(0, len(zs), DAHL_BATCH):
+            chunk = zs[i : i + DAHL_BATCH]
+            zp = np.full(DAHL_BATCH, chunk[-1])
+            zp[: len(chunk)] = chunk
+            Z = np.asarray(dahl_states(jnp.asarray(vp), self.st.dt, jnp.asarray(zp)))
+            out |= {presliding_signal(z): (Z[j, :T], "foh") for j, z in enumerate(chunk)}
+        return out
 
     def _profile_presliding(self, cands) -> float:
         """Friction's pre-sliding distance z [m]: the least training RSS of the structure over
@@ -476,10 +490,8 @@ class _Fitter:
                 zq = float(np.exp(g[1] + 0.5 * h * (r[0] - r[2]) / curv))
                 if rss_of([zq])[0] < rss[i]:
                     z = zq
-        for rg, rec, v in ((self.rtr, self.train, self.v_train), (self.rva, self.valid, self.v_valid)):
-            rg.known.update(self._dahl(rec, v, [z]))
-        if self._stick_regs is not None:
-            for rg, (rec, v) in zip(self._stick_regs, self.records(), strict=True):
+        for pair in ((self.rtr, self.rva), *([self._stick_regs] if self._stick_regs else [])):
+            for rg, (rec, v) in zip(pair, self.records(), strict=True):
                 rg.known.update(self._dahl(rec, v, [z]))
         return z
 
