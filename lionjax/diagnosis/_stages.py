@@ -426,10 +426,16 @@ def _compatible(c: AbstractCandidate, k: AbstractCandidate) -> bool:
 def _pair(run: Run, trials, stk: Stack):
     """(score, fit, candidates) of the best pair of the :data:`~._criteria.Criteria.pair_from`
     best plausible trials that gain on the current stack (share > 0) and are significant
-    together as one step, or None. Effects that hide each other — a spring under a 15 ms
+    together as one step, or None; not tried once the stack removes ``explained_full`` of
+    the baseline's excess. Effects that hide each other — a spring under a 15 ms
     delay, neither significant alone, the residual of either so correlated that 12 effective
     samples remain — are found together."""
     if len(stk.cands) + 2 > run.crit.max_effects:
+        return None
+    # a stack that already removes explained_full of the excess needs no pair (nor does a
+    # record without excess): each pair is a fit, with its profiles
+    ex0 = run.excess(run.base.ms_valid)
+    if not ex0 > 0 or run.excess(stk.fit.ms_valid) <= (1 - run.crit.explained_full) * ex0:
         return None
     top = [t for t in trials if t[0].plausible and t[0].share > 0][: run.crit.pair_from]
     found = []
