@@ -186,25 +186,12 @@ class _Fitter:
     @property
     def variant(self) -> Variant:
         """The profiled variants now fixed."""
-        return Variant(
-            self.degree,
-            self.mode_input,
-            self.fmax_shape,
-            self.position_clamp,
-            self.stick,
-            self.presliding,
-        )
+        return Variant(*(getattr(self, f) for f in Variant._fields))
 
     @variant.setter
     def variant(self, var: Variant) -> None:
-        (
-            self.degree,
-            self.mode_input,
-            self.fmax_shape,
-            self.position_clamp,
-            self.stick,
-            self.presliding,
-        ) = var
+        for f, value in zip(Variant._fields, var, strict=True):
+            setattr(self, f, value)
 
     def stuck(self, rec: Record, v: np.ndarray) -> np.ndarray:
         """(T,) True where the axis sticks: |v̂| within 3σ of its noise (the position noise

@@ -403,13 +403,20 @@ def _stand_in(run: Run, trials, pool, stk: Stack):
         ks = tuple(names[n] for n in c.simpler)
         if len(stk.cands) + len(ks) > run.crit.max_effects:
             continue
-        f = try_fit(run, [*stk.cands, *ks])
-        if f is None:
-            continue
-        sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
-        if sc.significant:
-            return sc, f, ks
+        step = _as_one_step(run, stk, ks)
+        if step is not None:
+            return step
     return None
+
+
+def _as_one_step(run: Run, stk: Stack, ks: tuple):
+    """(score, fit, ks) of the candidates ``ks`` added to the stack together, where they are
+    significant as one step; else None (also where the design would be too wide)."""
+    f = try_fit(run, [*stk.cands, *ks])
+    if f is None:
+        return None
+    sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
+    return (sc, f, ks) if sc.significant else None
 
 
 def _compatible(c: AbstractCandidate, k: AbstractCandidate) -> bool:
@@ -442,14 +449,9 @@ def _pair(run: Run, trials, stk: Stack):
     for i, ti in enumerate(top):
         for tj in top[i + 1 :]:
             ks = (ti[2], tj[2])
-            if not _compatible(*ks):
-                continue
-            f = try_fit(run, [*stk.cands, *ks])
-            if f is None:
-                continue
-            sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
-            if sc.significant:
-                found.append((sc, f, ks))
+            step = _as_one_step(run, stk, ks) if _compatible(*ks) else None
+            if step is not None:
+                found.append(step)
     return max(found, key=lambda t: t[0].score, default=None)
 
 
