@@ -41,8 +41,9 @@ class Criteria(eqx.Module):
 
     The stack:
         max_effects: largest stack.
-        pair_from: where no candidate is significant alone on the stack, the pairs of the
-            pair_from best plausible ones are tried as one step (effects that hide each other:
+        pair_from: where no candidate is significant alone on the stack, pairs are tried as
+            one step: the pair_from·(pair_from − 1)/2 compatible pairs of the highest summed
+            scores among the 2·pair_from best plausible candidates (effects that hide each other:
             a spring under a 15 ms delay, neither significant alone).
 
     The verdict:
@@ -57,6 +58,12 @@ class Criteria(eqx.Module):
             structure: the verdict is ``unexplained``.
         explained_full: share of the excess gap a stack must remove to earn full confidence
             (and above which a line it leaves sharpened is at the noise level).
+        dead_zone_lookalike_gain: friction (a candidate with ``dead_zone_lookalike``) is
+            implausible where a dead zone's input in its place, on the same structure, lowers
+            the validated mean square by more than this many times what friction lowers it
+            (held-out dead zones: 1.36–15; friction records vetoed at 1.03–1.21 by a bare
+            comparison: stiction in stick–slip and a friction small under a delay, where the
+            force's sign and the velocity's nearly agree).
         dead_zone_lookalike_share: a named stack is ``unexplained`` where the dead zone's
             look-alike on the baseline structure validates below this share of its mean square.
         drag_lookalike_share: a named stack is ``unexplained`` where a force quadratic in the
@@ -89,6 +96,7 @@ class Criteria(eqx.Module):
     peak_growth: float = 2.0
     peak_power_kept: float = 0.5
     explained_full: float = 0.9
+    dead_zone_lookalike_gain: float = 1.25
     dead_zone_lookalike_share: float = 0.8
     drag_lookalike_share: float = 0.8
     periodic_score_factor: float = 4.0
@@ -109,5 +117,10 @@ class Criteria(eqx.Module):
             )
         if not (isinstance(self.max_effects, int) and self.max_effects >= 1):
             raise InputError(f"diagnose: expected max_effects ≥ 1, got {self.max_effects!r}.")
+        if not self.dead_zone_lookalike_gain > 0:
+            raise InputError(
+                "diagnose: expected dead_zone_lookalike_gain > 0, got "
+                f"{self.dead_zone_lookalike_gain!r}."
+            )
         if not (isinstance(self.pair_from, int) and self.pair_from >= 0):
             raise InputError(f"diagnose: expected pair_from ≥ 0, got {self.pair_from!r}.")

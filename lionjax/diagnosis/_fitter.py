@@ -67,7 +67,15 @@ from ._settings import (
     Settings,
 )
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
-from ._structures import Fitted, Variant, _effects_of, _has_mode, _has_position, _pattern_search
+from ._structures import (
+    Fitted,
+    Variant,
+    _effects_of,
+    _has_mode,
+    _has_position,
+    _parabola_vertex,
+    _pattern_search,
+)
 
 #: Pre-sliding distances whose Dahl states are computed in one call (:meth:`_Fitter._dahl`).
 DAHL_BATCH = 16
@@ -291,13 +299,9 @@ class _Fitter(LookAlikes):
             return 0.0
         z = zs[i]
         if 0 < i < len(zs) - 1:  # a parabola in ln z through the best and its neighbours
-            g, r = np.log(zs[i - 1 : i + 2]), rss[i - 1 : i + 2]
-            curv = r[0] - 2 * r[1] + r[2]
-            if curv > 0:
-                h = g[1] - g[0]
-                zq = float(np.exp(g[1] + 0.5 * h * (r[0] - r[2]) / curv))
-                if rss_of([zq])[0] < rss[i]:
-                    z = zq
+            v = _parabola_vertex(np.log(zs[i - 1 : i + 2]), rss[i - 1 : i + 2])
+            if v is not None and rss_of([math.exp(v)])[0] < rss[i]:
+                z = math.exp(v)
         for pair in ((self.rtr, self.rva), *([self._stick_regs] if self._stick_regs else [])):
             for rg, (rec, v) in zip(pair, self.records(), strict=True):
                 rg.known.update(self._dahl(rec, v, [z]))
@@ -520,14 +524,9 @@ class _Fitter(LookAlikes):
         same = 0 < i < len(grid) - 1 and len({np.sign(g) for g in grid[i - 1 : i + 2]}) == 1
         if same:  # parabolic refinement (log grid for τ) within one saturation shape
             g = np.log(grid[i - 1 : i + 2]) if which == "tau" else grid[i - 1 : i + 2]
-            r = rss[i - 1 : i + 2]
-            den = (g[0] - g[1]) * (g[0] - g[2]) * (g[1] - g[2])
-            A = (g[2] * (r[1] - r[0]) + g[1] * (r[0] - r[2]) + g[0] * (r[2] - r[1])) / den
-            B = g[2] ** 2 * (r[0] - r[1]) + g[1] ** 2 * (r[2] - r[0]) + g[0] ** 2 * (r[1] - r[2])
-            if A > 0:
-                v = -B / den / (2 * A)
-                v = float(np.clip(v, min(g[0], g[2]), max(g[0], g[2])))  # soft: g < 0
-                best = float(np.exp(v)) if which == "tau" else v
+            v = _parabola_vertex(g, rss[i - 1 : i + 2])  # soft: g < 0
+            if v is not None:
+                best = math.exp(v) if which == "tau" else v
         return best
 
     def _refine_clip(self, model, tau, grid, rss, i, regs):

@@ -96,6 +96,19 @@ class Variant(NamedTuple):
     presliding: bool  # friction's sign as Dahl's pre-sliding state (else the smoothed sign)
 
 
+def _parabola_vertex(g, r) -> float | None:
+    """The abscissa of the vertex of the parabola through (gₖ, rₖ), k = 0, 1, 2 (any spacing),
+    held within [g₀, g₂]; None where the parabola does not open upward. A profile's minimum
+    between the grid's best point and its neighbours."""
+    (g0, g1, g2), (r0, r1, r2) = (float(v) for v in g), (float(v) for v in r)
+    den = (g0 - g1) * (g0 - g2) * (g1 - g2)
+    A = (g2 * (r1 - r0) + g1 * (r0 - r2) + g0 * (r2 - r1)) / den
+    B = (g2**2 * (r0 - r1) + g1**2 * (r2 - r0) + g0**2 * (r1 - r2)) / den
+    if not A > 0:
+        return None
+    return min(max(-B / (2 * A), min(g0, g2)), max(g0, g2))
+
+
 def _pattern_search(start, best, steps, move, rss_of, seen, rounds: int, max_steps: int):
     """(point, RSS) of a pattern search in two parameters from ``start`` (its RSS ``best``): the
     8 neighbours ``move(point, i, j, steps)`` (i, j ∈ {−1, 0, 1}, clamped by ``move``) of the

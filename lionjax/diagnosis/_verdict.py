@@ -175,9 +175,15 @@ def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, floa
     """BIC weights exp(score/2) of each plausible candidate alone large enough to be named
     (score = −ΔBIC) and of "no effect", whose prior odds are the significance threshold: at
     score = threshold the two tie. Where the stack holds a sensor artefact, a device effect it
-    did not stack explained alone what the artefact explains: its evidence is the artefact's."""
+    did not stack explained alone what the artefact explains: its evidence is the artefact's.
+    The first of candidates stacked together (a stand-in or a pair, a plausible and
+    significant step) counts their joint score where it is higher than its own alone, or where
+    it was implausible alone (Coulomb friction at 138 alone and 913 with an offset, against a
+    spring at 281 alone)."""
     crit = run.crit
     plausible = {s.name: s.score for s in effects if s.plausible and s.size >= crit.min_size}
+    for k, sc in stk.together.items():
+        plausible[k] = max(plausible.get(k, -math.inf), sc)
     if any(c.acts_on == "measurement" for c in stk.cands):
         kept = {c.name for c in stk.cands} | {
             c.name for c in run.candidates if c.acts_on == "measurement"
