@@ -72,6 +72,25 @@ def test_a_name_the_mode_columns_explain_whole_is_not_confident():
         assert "flexible_mode" in d.rivals
 
 
+def test_a_weak_mode_the_named_stack_adds_nothing_to_discounts_it():
+    """Two weak closed-loop modes (response changes 3.0 % and 2.4 %), each named with
+    confidence before. (1) Collocated, 10 Hz (twin, 806 Hz): b(x) scored 37 and was named
+    ``position_dependent`` at 0.99; the mode, fitted within 8 % of its frequency, scored 28
+    counted from the floor and 223 from none, and b(x) adds nothing to its columns — a rival,
+    though the baseline lies just above the floor. (2) Non-collocated, 24 Hz (scipy, 1.26 kHz),
+    the baseline below the floor: ``delay`` was named at 1.00; the mode with its input share
+    (heavy, the delay's known look-alike) validates far better and the delay adds nothing to
+    it: a second reading, the confidence shared."""
+    d, info = _diagnose("flexible_mode", 70080005, "twin")
+    assert info["truth"] == ["flexible_mode"] and info["closed_loop"]
+    if d.verdict != "flexible_mode":
+        assert d.confidence < 0.5 and "flexible_mode" in d.rivals, (d.verdict, d.confidence)
+    d, info = _diagnose("flexible_mode", 70081006, "scipy")
+    assert info["truth"] == ["flexible_mode"] and info["closed_loop"]
+    if d.verdict != "flexible_mode":
+        assert d.confidence <= 0.5 and "flexible_mode" in d.ambiguous, (d.verdict, d.confidence)
+
+
 def test_a_heavy_mode_that_imitates_the_named_delay_is_no_rival():
     """A fractional input delay, open loop (scipy source, 563 Hz, response change 27 %): the
     flexible mode's columns fit it as a heavy mode the input passes through (μ > 0.6, κ ≈ 1 —

@@ -57,6 +57,8 @@ class Run:
     dominant: bool  # the baseline is qualitatively wrong: a ≤ 0 or b ≤ 0
     outside: dict[str, float]
     fit_floor: float = math.inf
+    #: each candidate's fit alone under each of its variants, chosen or not (:func:`fit_alone`)
+    variant_fits: dict = dataclasses.field(default_factory=dict)
 
     @functools.cached_property
     def measured_F_rms(self) -> float:
@@ -357,6 +359,7 @@ def fit_alone(run: Run) -> dict[str, Fitted]:
             f = fitter.fit([c])
             lo = run.floor if _has_mode([c]) else 0.0
             tries.append((run.score_of(run.base, f, fitter.params(c), lo), f, var))
+        run.variant_fits[c.name] = [(var, f) for _, f, var in tries]
         if c.nested_variants:
             tries = [t for t in tries if not c.implausible(t[1].physical, run.limits)] or tries
         _, fitted[c.name], var = max(tries, key=lambda t: t[0])

@@ -197,26 +197,62 @@ def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, floa
     return {k: v / total for k, v in raw.items()}
 
 
-def uncounted(run: Run, fitted: dict[str, Fitted], stk: Stack) -> dict[str, float]:
-    """{name: score} of each candidate alone whose gains count only above the estimated floor
-    (:meth:`Run.floor_of`: the flexible mode, whose columns may cancel position noise) where
-    the baseline lies below that floor and a named stack adds nothing significant to it: the
-    candidate's columns explain all the stack's evidence, which then no more decides for the
-    stack's name than for the candidate's. Both scores count from no floor. (A held-out
-    closed-loop mode changing the response 2.3 % was named ``spring`` at 1.00: the spring scored
-    85, the mode's columns 633, and the spring added to them −943.)"""
-    out = {}
+def uncounted(
+    run: Run, fitted: dict[str, Fitted], stk: Stack
+) -> tuple[dict[str, float], list[str]]:
+    """The candidates whose gains count only above the estimated floor (:meth:`Run.floor_of`:
+    the flexible mode, whose columns may cancel position noise) and whose columns explain all
+    the named stack's evidence: under one of its variants (with the input share or without,
+    plausible or not) the candidate alone, counted from no floor, outscores the stack
+    (:func:`_bar`), and the stack adds nothing significant to it. That evidence then no more
+    decides for the stack's name than for the candidate's.
+
+    Returns ({name: score from no floor} of the rivals, [names]). A variant whose fit the
+    candidate knows for a look-alike of the stack's (``imitates``: a heavy mode the input
+    passes through, and a delay) is no rival; where the baseline lies below the floor, so that
+    nothing the candidate explains counted, it is a second reading of the record (the
+    confidence is shared).
+
+    Held-out closed-loop modes changing the response 2.3–3 %: one named ``spring`` at 1.00 (the
+    spring scoring 85, the mode's columns 633, and the spring added to them −943); a collocated
+    one named ``position_dependent`` at 0.99 (37 against the mode's 28 from the floor and 223
+    from none, b(x) adding −48 to it); a non-collocated one named ``delay`` at 1.00 (the delay
+    adding −64 to the mode with its input share, which scored 2055)."""
+    rivals: dict[str, float] = {}
+    readings: list[str] = []
     held = {c.name for c in stk.cands}
+    if not stk.cands:
+        return rivals, readings
+    bar, fitter, keep = _bar(run, stk), run.fitter, run.fitter.variant
     for c in run.candidates:
-        if not stk.cands or c.name in held or run.floor_of([c]) ** 2 <= run.base.ms_valid:
+        if not c.holds_mode or c.name in held:
             continue
-        both = try_fit(run, [*stk.cands, c])
-        alone = fitted[c.name]
-        if both is None or not math.isfinite(alone.ms_valid):
-            continue
-        if run.score_ms(alone, both.ms_valid, run.params(stk.cands), 0.0) <= run.crit.threshold:
-            out[c.name] = run.score_ms(run.base, alone.ms_valid, run.params([c]), 0.0)
-    return out
+        tries = run.variant_fits.get(c.name, [(keep, fitted[c.name])])
+        chosen = next(v for v, f in tries if f is fitted[c.name])
+        for var, alone in tries:
+            # the stack's own variants as they are now, the candidate's as in this fit
+            fitter.variant = keep._replace(
+                **{k: getattr(var, k) for k in var._fields if getattr(var, k) != getattr(chosen, k)}
+            )
+            sc = run.score_ms(run.base, alone.ms_valid, run.params([c]), 0.0)
+            if not (math.isfinite(alone.ms_valid) and sc > bar):
+                continue
+            both = try_fit(run, [*stk.cands, c])
+            if (
+                both is None
+                or run.score_ms(alone, both.ms_valid, run.params(stk.cands), 0.0)
+                > run.crit.threshold
+            ):
+                continue
+            if set(c.imitates(c.report(alone.physical))) & held:
+                # a look-alike whose gains count: the simpler name stands (held-out delays were
+                # fitted as heavy modes the input passes through, scoring above the delay)
+                if run.base.ms_valid <= run.floor_of([c]) ** 2:
+                    readings.append(c.name)
+            else:
+                rivals[c.name] = max(rivals.get(c.name, -math.inf), sc)
+        fitter.variant = keep
+    return rivals, [r for r in dict.fromkeys(readings) if r not in rivals]
 
 
 def _rivals(
@@ -237,7 +273,7 @@ def _rivals(
     controller (a clean closed-loop record: ζ 0.4, the search's limit, scoring 1997), nor a
     fit its candidate knows for a look-alike of the stack's (``imitates``: a heavy mode the
     input passes through fits a delay, at 653 against the true delay's 516). The
-    candidates of :func:`uncounted` (``blind``) are rivals too, plausible or not."""
+    rivals of :func:`uncounted` (``blind``) are rivals too, plausible or not."""
     crit = run.crit
     if _confirmed(run, stk):
         return {}
@@ -318,11 +354,16 @@ class Confidence:
 
 
 def weigh(
-    run: Run, effects: list[EffectScore], stk: Stack, v: Verdict, blind: dict[str, float]
+    run: Run,
+    effects: list[EffectScore],
+    stk: Stack,
+    v: Verdict,
+    unseen: tuple[dict[str, float], list[str]],
 ) -> Confidence:
-    """The verdict's confidence (:func:`lionjax.diagnose`: "Confidence"); ``blind``: the
-    scores of :func:`uncounted`."""
+    """The verdict's confidence (:func:`lionjax.diagnose`: "Confidence"); ``unseen``: the
+    rivals and readings of :func:`uncounted`."""
     crit = run.crit
+    blind, also = unseen
     weights = _weights(run, effects, stk)
     detection, detection_worst = _detection(run)
     bar = _bar(run, stk)
@@ -366,8 +407,9 @@ def weigh(
         )
     if verdict != "unexplained":
         confidence *= doubt
-    readings = _readings(run, effects, stk, verdict)
-    if readings:  # one more reading of the same force: the confidence is shared among them
+    readings = list(dict.fromkeys([*_readings(run, effects, stk, verdict), *also]))
+    if readings and verdict not in ("none", "unexplained"):
+        # one more reading of the same force: the confidence is shared among them
         ambiguous = list(dict.fromkeys([*(ambiguous or [verdict]), *readings]))
         confidence /= 1 + len(readings)
     return Confidence(
