@@ -126,7 +126,7 @@ def main(argv=None) -> dict:
             "jax": jax.__version__,
             "jaxlib": _version("jaxlib"),
             "numpy": np.__version__,
-            "cupy": _version("cupy") or _version("cupy-cuda12x"),
+            "cupy": _cupy_version(),
             "lionjax_kernel_params": _triton_params(),
         },
         "config": {
@@ -348,7 +348,10 @@ def main(argv=None) -> dict:
                 status = "collected" if res.returncode == 0 else "failed"
             py.update(status=status, returncode=res.returncode, summary=last)
             if res.returncode:
-                py["tail"] = (res.stdout + res.stderr)[-3000:]
+                py["tail"] = (res.stdout + res.stderr)[-3000:] or (
+                    "no output: the process ended before pytest reported (run the command by "
+                    "hand with -s to see what killed it)"
+                )
         except subprocess.TimeoutExpired:
             py.update(status="timeout", reason=f"over {max(left, 30.0):.0f} s")
         py["seconds"] = time.perf_counter() - t0
@@ -399,6 +402,17 @@ def _version(dist: str) -> str | None:
         return metadata.version(dist)
     except metadata.PackageNotFoundError:
         return None
+
+
+def _cupy_version() -> str | None:
+    """CuPy's version, whichever wheel holds it (``cupy``, ``cupy-cuda12x``, ``cupy-cuda13x`` …)."""
+    from importlib import metadata
+
+    for d in metadata.distributions():
+        name = (d.metadata["Name"] or "").lower()
+        if name == "cupy" or name.startswith("cupy-cuda"):
+            return f"{name} {d.version}"
+    return None
 
 
 def _triton_params() -> dict:
