@@ -161,9 +161,10 @@ class Run:
         # Criteria.stuck_share of the record: without static friction it slides where the axis
         # stuck (only a diverging simulation is then worse)
         hold = self.hold_gap
+        simulated = all(k.simulated for k in ks)
         sticks = all(k.masks_stick for k in ks) and self.stuck_share >= crit.stuck_share
         worse = (
-            all(k.simulated for k in ks)
+            simulated
             and math.isfinite(cur.gap)
             and not cur.gap >= hold
             and not new.gap <= (1 + crit.max_worsening) * cur.gap
@@ -183,9 +184,17 @@ class Run:
         if by_sim and math.isfinite(new.gap):  # likewise: the simulated gap it removes
             size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / self.x_std)
         # where the baseline is qualitatively wrong, the share of the equation error is no
-        # measure of an effect: the simulated gap's share stands in for it
-        shares = share >= crit.min_share or (
-            by_sim and sim_share(new.gap, cur.gap) >= crit.dominant_sim_share
+        # measure of an effect: the simulated gap's share stands in for it; after a first
+        # effect, whose misfit the equation error keeps, it may too (Criteria.later_sim_share)
+        least = crit.min_share_deep if len(cur.names) >= 2 else crit.min_share
+        shares = (
+            share >= least
+            or (by_sim and sim_share(new.gap, cur.gap) >= crit.dominant_sim_share)
+            or (
+                bool(cur.names)
+                and simulated
+                and sim_share(new.gap, cur.gap) >= crit.later_sim_share
+            )
         )
         sig = sc > crit.threshold and shares and size >= crit.min_size and plausible and not worse
         if plausible:
