@@ -51,6 +51,7 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
 The stages (each a function of a shared :class:`~._stages.Run`): :func:`~._stages.prepare`
 (settings, baseline and noise floor) → :func:`~._stages.fit_alone` (each candidate alone) →
 scores → :func:`~._stages.stack_effects` → :func:`~._stages.parsimony` →
+:func:`~._stages.prune` →
 :func:`~._verdict.judge` (the verdict) → :func:`~._verdict.weigh` (its confidence) →
 :func:`~._verdict.report`. The thresholds are the fields of :class:`~._criteria.Criteria`.
 
@@ -103,7 +104,7 @@ from ._candidates import AbstractCandidate
 from ._criteria import Criteria
 from ._library import DEFAULT_CANDIDATES
 from ._result import RESERVED, Diagnosis
-from ._stages import ROLES, check_candidates, fit_alone, parsimony, prepare, stack_effects
+from ._stages import ROLES, check_candidates, fit_alone, parsimony, prepare, prune, stack_effects
 from ._verdict import judge, report, uncounted, weigh
 
 
@@ -241,7 +242,7 @@ def diagnose(
         for c in library
     }
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
-    stk = parsimony(run, stack_effects(run, alone))
+    stk = prune(run, parsimony(run, stack_effects(run, alone)))
     verdict = judge(run, stk)
     confidence = weigh(run, effects, stk, verdict, uncounted(run, fitted, stk))
     return report(run, effects, stk, verdict, confidence)
