@@ -30,9 +30,9 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 # emitters' kernels run 2.6-3.6x faster (benchmarks/README.md, "Compile time and the XLA:CPU
 # emitters").
 # (Gated on the jaxlib it was measured with: XLA aborts on a flag it does not know. Not set where
-# a GPU plugin is installed: on an H200 with jax 0.11.2 and jax-cuda13-pjrt, every pytest run
-# that started a computation ended at once with status 1 and no output while the flag was set,
-# and ran (45 passed) without it.)
+# a GPU plugin is installed: on an H200 with jax 0.11.2 and jax-cuda13-pjrt, pytest on the GPU
+# test files ended with status 1 and no output while the flag was set, and ran (45 passed)
+# with this line disabled, nothing else changed.)
 _FLAG = "--xla_cpu_use_fusion_emitters=false"
 _JAXLIB = tuple(int(p) for p in re.findall(r"\d+", metadata.version("jaxlib"))[:2])
 _GPU_PLUGIN = any(
