@@ -398,7 +398,7 @@ class Stack:
     """The greedy stack: its candidates in the order added, the steps' scores, its fit, which
     stand-in replaced which candidate (:func:`parsimony`), and the score of each step that
     added candidates together (a stand-in or a pair), under the first of them (``together``:
-    their joint evidence, which none of them has alone; ``joint``: the names of that step), and
+    their joint evidence, which none of them has alone, and the names of that step), and
     the stand-ins among those steps (``laws``: the candidates that stand in for one implausible
     or unneeded candidate, one law in several columns: Coulomb friction and an offset for
     asymmetric friction)."""
@@ -407,8 +407,7 @@ class Stack:
     steps: list[EffectScore]
     fit: Fitted
     stands_for: dict[str, str] = dataclasses.field(default_factory=dict)
-    together: dict[str, float] = dataclasses.field(default_factory=dict)
-    joint: dict[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
+    together: dict[str, tuple[float, tuple[str, ...]]] = dataclasses.field(default_factory=dict)
     laws: list[tuple[str, ...]] = dataclasses.field(default_factory=list)
 
 
@@ -526,10 +525,10 @@ def stack_effects(run: Run, alone: dict[str, tuple[EffectScore, Fitted]]) -> Sta
             if best is None:
                 break
             added = best[2]
-            stk.together[added[0].name] = best[0].score
-            stk.joint[added[0].name] = tuple(k.name for k in added)
+            names = tuple(k.name for k in added)
+            stk.together[added[0].name] = (best[0].score, names)
             if best is alt:
-                stk.laws.append(stk.joint[added[0].name])
+                stk.laws.append(names)
             for k in added:
                 others = ", ".join(o.name for o in added if o is not k)
                 stk.steps.append(
@@ -641,10 +640,10 @@ def prune(run: Run, stk: Stack) -> Stack:
         ]
         stk.stands_for.pop(c.name, None)
         if c.name in stk.together:  # the joint step's evidence passes to its next member
-            left = [n for n in stk.joint.pop(c.name) if n != c.name]
-            score = stk.together.pop(c.name)
+            score, names = stk.together.pop(c.name)
+            left = tuple(n for n in names if n != c.name)
             if left:
-                stk.together[left[0]], stk.joint[left[0]] = score, tuple(left)
+                stk.together[left[0]] = (score, left)
     return stk
 
 

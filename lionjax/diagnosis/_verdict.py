@@ -182,7 +182,7 @@ def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, floa
     spring at 281 alone)."""
     crit = run.crit
     plausible = {s.name: s.score for s in effects if s.plausible and s.size >= crit.min_size}
-    for k, sc in stk.together.items():
+    for k, (sc, _) in stk.together.items():
         plausible[k] = max(plausible.get(k, -math.inf), sc)
     if any(c.acts_on == "measurement" for c in stk.cands):
         kept = {c.name for c in stk.cands} | {
