@@ -52,8 +52,10 @@ class Diagnosis:
             where its fit may be biased), or ``[]``.
         weights: BIC weights of ``"none"`` and of each plausible candidate alone.
         rivals: {name: score} of the implausible candidates that, alone, explain the
-            validation error better than the whole stack (evidence against the verdict: its
-            confidence is discounted by their odds), or ``{}``.
+            validation error better than the whole stack, and of the out-of-library
+            look-alikes (``"dead_zone_lookalike"``, ``"drag_lookalike"``) that score above the
+            stack with fewer parameters (evidence against the verdict: its confidence is
+            discounted by their odds), or ``{}``.
         final: the stacked model's physical parameters and its ``gap``.
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
         series: validation signals for plotting (not in the JSON).
