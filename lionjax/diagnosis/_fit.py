@@ -577,7 +577,9 @@ def _gram_with_columns(G0: np.ndarray, A: np.ndarray, V: np.ndarray, O: np.ndarr
     """Augmented Grams (m, P + 1, P + 1) of [A + VᵀO]: the fixed design A = [W | y] (T, P + 1)
     whose Gram is G0, plus K columns V (m, K, T) placed by the one-hot O (K, P + 1). Only the
     new blocks AᵀV and VᵀV are computed (float64): a profile grid shares the fixed columns."""
-    C = V @ A  # (m, K, P + 1)
+    m, K, T = V.shape
+    # one product for the whole batch (A read once; a batched V @ A multiplies m thin blocks)
+    C = (V.reshape(m * K, T) @ A).reshape(m, K, -1)  # (m, K, P + 1)
     D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
     OC = np.einsum("kp,mkq->mpq", O, C)
     return G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
