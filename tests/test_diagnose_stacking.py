@@ -359,3 +359,38 @@ def test_a_candidate_the_later_stack_makes_redundant_is_dropped():
     assert d.stack == ["spring", "delay"] and d.verdict == "spring"
     assert "position_dependent dropped" in d.steps[0].reason
     assert d.final["params"]["tau"] == pytest.approx(truth["delay"]["tau"], rel=0.3)
+
+
+def test_effects_no_pair_of_which_gains_alone_are_found_together():
+    """Dahl friction, a spring and an offset, open loop (scipy, 755 Hz), each changing the
+    response 27–50 % alone: the baseline's residual is so correlated that every candidate alone
+    scores below the threshold (Coulomb friction 7, the spring −7), and the pair search, which
+    takes only candidates that gain alone, never met them. Every pair of device candidates is
+    tried where nothing is significant above the floor; Coulomb friction with the spring (whose
+    equilibrium term holds the offset) removes the whole excess. F_c and k against the
+    simulator's."""
+    train, valid, info = blind.make_case("triple", 100161019, source="scipy")
+    truth = {e["name"]: e["params"] for e in info["effects"]}
+    d = lj.diagnose(train, valid)
+    alone = {e.name: e.score for e in d.effects}
+    assert alone["coulomb_friction"] < 10 and alone["spring"] < 10  # the case is what it says
+    assert {"coulomb_friction", "spring"} <= set(d.stack)
+    assert "together" in d.steps[0].reason
+    assert d.final["params"]["Fc"] == pytest.approx(truth["coulomb_friction"]["fc"], rel=0.05)
+    assert d.final["params"]["k"] == pytest.approx(truth["spring"]["k"], rel=0.05)
+
+
+def test_effects_hidden_behind_the_first_are_found_together():
+    """A spring, a 9 ms delay and Stribeck friction, closed loop (scipy, 597 Hz): the spring is
+    stacked, then the delay alone gains nothing (τ 6 ms) and friction alone comes out pushing
+    along the motion (F_c < 0). Fitted together on the spring, the delay and the friction remove
+    the rest. τ and k against the simulator's; F_c between its sliding and static levels."""
+    train, valid, info = blind.make_case("triple", 100161018, source="scipy")
+    truth = {e["name"]: e["params"] for e in info["effects"]}
+    d = lj.diagnose(train, valid)
+    assert d.stack[0] == "spring" and set(d.stack) == {"spring", "delay", "coulomb_friction"}
+    p = d.final["params"]
+    assert p["k"] == pytest.approx(truth["spring"]["k"], rel=0.05)
+    assert p["tau"] == pytest.approx(truth["delay"]["tau"], rel=0.1)
+    fr = truth["coulomb_friction"]
+    assert 0.9 * fr["fc"] < p["Fc"] < 1.1 * fr["fs"]
