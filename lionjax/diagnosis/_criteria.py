@@ -55,7 +55,10 @@ class Criteria(eqx.Module):
         pair_from: where no candidate is significant alone on the stack, pairs are tried as
             one step: the pair_from·(pair_from − 1)/2 compatible pairs of the highest summed
             scores among the 2·pair_from best plausible candidates (effects that hide each other:
-            a spring under a 15 ms delay, neither significant alone).
+            a spring under a 15 ms delay, neither significant alone); where none is either and
+            the stack stays above floor_factor × the floor, every compatible pair of device
+            candidates, then the pair_from best pairs each with a third, and one removing
+            explained_full of the excess is stacked. 0: no pair is tried.
 
     The verdict:
         floor_factor: the gap is "at the noise floor" (``baseline["at_noise_floor"]``) when ε₁'s

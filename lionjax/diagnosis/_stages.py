@@ -492,22 +492,30 @@ def _hidden(run: Run, trials, stk: Stack):
     """(score, fit, candidates) of effects that hide each other, or None: where nothing is
     significant on the stack, alone or as :func:`_pair`'s pairs, the stack's error lies above
     ``floor_factor`` times the floor and two more effects fit, every compatible pair of the
-    device candidates (fitted alone plausibly or not: one's misfit can bias another's sign; the
-    flexible mode's columns left out, as they fit any residual shape in part) is fitted on the
-    stack, then the ``pair_from`` best pairs each with every compatible third. The best
-    combination that is significant as one step and removes at least ``explained_full`` of the
-    stack's excess is taken: effects hidden so are a whole explanation together. Held-out
-    open-loop triples, each effect changing the response 10–50 %, scored −8 to 7 alone, the
-    baseline's residual so correlated that 10–21 effective samples remained; Coulomb friction
-    with a spring scored 40–51 and removed all the excess, an offset, a delay and LuGre
-    friction 22 together and 6 at best as a pair. After a spring, a 9 ms delay and Stribeck
-    friction fitted alone gave F_c < 0. An out-of-library effect fitted so leaves more (dead
-    zones, backlash and cogging left 58–70 % to a named stack)."""
+    device candidates (fitted alone plausibly or with implausible parameters: one's misfit can
+    bias another's sign; the flexible mode's columns left out, as they fit any residual shape in
+    part) is fitted on the stack, then the ``pair_from`` best pairs each with every compatible
+    third. The best combination that is significant as one step and removes at least
+    ``explained_full`` of the stack's excess is taken: effects hidden so are a whole explanation
+    together. Held-out open-loop triples, each effect changing the response 10–50 %, scored −8
+    to 7 alone, the baseline's residual so correlated that 10–21 effective samples remained;
+    Coulomb friction with a spring scored 40–51 and removed all the excess, an offset, a delay
+    and LuGre friction 22 together and 6 at best as a pair. After a spring, a 9 ms delay and
+    Stribeck friction fitted alone gave F_c < 0. An out-of-library effect fitted so leaves more
+    (dead zones, backlash and cogging left 58–70 % to a named stack)."""
     crit = run.crit
     room = crit.max_effects - len(stk.cands)
-    if room < 2 or stk.fit.equation_gap <= crit.floor_factor * run.floor:
+    if not crit.pair_from or room < 2 or stk.fit.equation_gap <= crit.floor_factor * run.floor:
         return None
-    pool = [t[2] for t in trials if t[2].acts_on == "device" and not t[2].holds_mode]
+    # a candidate refused alone for what the record shows against it (a dead zone's look-alike
+    # that validates better, the loop's noise), not for its own fitted parameters, stays out
+    pool = [
+        t[2]
+        for t in trials
+        if t[2].acts_on == "device"
+        and not t[2].holds_mode
+        and (t[0].plausible or t[2].implausible(t[1].physical, run.limits))
+    ]
 
     def fitted(combos) -> dict:
         return {ks: f for ks in combos if (f := try_fit(run, [*stk.cands, *ks])) is not None}
