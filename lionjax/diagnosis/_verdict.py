@@ -58,8 +58,12 @@ def _periodic(run: Run, stk: Stack) -> tuple[float, float, float, float, bool]:
     else:
         ms, period = run.fitter.periodic_lookalike(stk.cands)
     score = run.score_ms(cur, ms, 3, 0.0) if math.isfinite(ms) and ms > 0 else -math.inf
-    ex_cur = run.excess(cur.ms_valid)
-    share = 1 - run.excess(ms) / ex_cur if ex_cur > 0 and math.isfinite(ms) else 0.0
+    # its validated fit bounds the floor, as every validated fit does (a held-out cogging record
+    # at 1.34× the floor: Coulomb friction set the fitted floor to its own error, and the
+    # look-alike that scored 193 on it had no excess to take a share of)
+    lo2 = min(run.fit_floor**2, ms) if math.isfinite(ms) else run.fit_floor**2
+    ex_cur = max(cur.ms_valid - lo2, 0.0)
+    share = 1 - max(ms - lo2, 0.0) / ex_cur if ex_cur > 0 and math.isfinite(ms) else 0.0
     better = score > crit.periodic_score_factor * crit.threshold and share >= crit.min_share
     return ms, period, score, share, bool(better)
 
