@@ -132,3 +132,21 @@ def test_a_drag_that_explains_the_stack_with_fewer_parameters_discounts_it():
         assert d.final["drag_lookalike_ratio"] < 1.1  # the case is what it says
         assert "drag_lookalike" in d.rivals, d.rivals
         assert d.confidence < 0.5, (d.verdict, d.confidence)
+
+
+def test_unexplained_is_only_as_sure_as_the_record_is_sensitive():
+    """A closed-loop flexible mode changing the response 3.4 % (twin, 4.7 kHz): the mode's
+    profile ran to the search's edge and was refused, no other candidate removed anything, and
+    the record was `unexplained` at 0.97 — "no effect of the library explains it" — for a
+    detection limit of 0.013. As for `none`, an effect below the limit could be what is left:
+    the confidence is at most 1 − ln(D/min_size)/ln(1/min_size), D from the report."""
+    import math
+
+    d, info = _diagnose("flexible_mode", 110080002, "twin")
+    assert info["truth"] == ["flexible_mode"]
+    if d.verdict == "unexplained":
+        lo = lj.diagnosis.Criteria().min_size
+        D = d.noise["detection_limit_worst"]
+        hidden = math.log(max(D, lo) / lo) / math.log(1 / lo)
+        assert d.confidence <= 1 - hidden + 1e-12, (d.confidence, D)
+    assert d.verdict == "flexible_mode" or d.confidence < 0.9, (d.verdict, d.confidence)

@@ -79,7 +79,8 @@ parameters.
 ``unexplained`` gets 1 − the largest share of a candidate that
 is plausible or beats "no effect", at most 1 − the largest share of validation samples outside
 train's position, velocity or force range (``baseline["valid_outside_train"]``: there no
-candidate could be fitted). ``ambiguous`` lists every name (``"none"`` included) within a weight
+candidate could be fitted), times 1 − h as ``none`` unless the periodic look-alike decided.
+``ambiguous`` lists every name (``"none"`` included) within a weight
 ratio of 1/20 of the verdict, so a near-tie (an offset vs a spring with equilibrium in closed
 loop) is reported rather than decided by library order. A stack that holds the whole stand-in
 of a candidate fitted implausibly perhaps only by bias (``stand_in_doubtful``: asymmetric
