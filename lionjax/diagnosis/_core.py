@@ -55,40 +55,36 @@ scores → :func:`~._stages.stack_effects` → :func:`~._stages.parsimony` →
 :func:`~._verdict.judge` (the verdict) → :func:`~._verdict.weigh` (its confidence) →
 :func:`~._verdict.report`. The thresholds are the fields of :class:`~._criteria.Criteria`.
 
-**Confidence.** Each candidate alone has the score sᵢ = −ΔBIC against the baseline; "no effect"
-has the score ``threshold`` (the significance threshold as prior odds: a candidate at the
-threshold ties with it). The BIC weights over "no effect" and the plausible candidates of at
-least ``min_size`` are wᵢ ∝ exp(sᵢ/2). A named verdict's confidence is its weight times
-min(1, explained/0.9), explained being the share of the excess validation error (above the
-fitted floor) that the final stack removes, and for a stack of candidates whose models are
-exact (``exact_share``: the flexible mode, a linear resonance) times tol/rest where it leaves
-a rest of the excess above the tolerated tol = 1 − exact_share (2 %); ``none`` gets the weight
-of "no effect" times 1 − h, h = ln(D/min_size)/ln(1/min_size) the share (log scale) of the
-sizes worth naming below the record's detection limit D (``noise["detection_limit"]``: the
-least one-parameter effect that would have reached ``threshold``; for h, the largest of the
-candidates' limits: a flexible mode's gains count
-only above the estimated floor, and a baseline below it hides a mode whole). Both
-are discounted by the odds of the ``rivals``: implausible candidates that alone score above the
-stack's summed steps (``"none"`` turns ``unexplained`` where they beat it by the tie ratio; not
-a mode in closed loop, whose columns fit the position noise's path through the controller), and
-a flexible mode whose columns leave a named stack nothing significant to add where its own gains
-went uncounted below the floor — evidence the record prefers, for no name of the library —
-and, at the odds of their score over the stack's joint score, the out-of-library look-alikes (a
-dead zone's input, a drag quadratic in the velocity) that score above the stack with fewer
-parameters.
-``unexplained`` gets 1 − the largest share of a candidate that
-is plausible or beats "no effect", at most 1 − the largest share of validation samples outside
-train's position, velocity or force range (``baseline["valid_outside_train"]``: there no
-candidate could be fitted), times 1 − h as ``none`` unless the periodic look-alike decided.
-``ambiguous`` lists every name (``"none"`` included) within a weight
-ratio of 1/20 of the verdict, so a near-tie (an offset vs a spring with equilibrium in closed
-loop) is reported rather than decided by library order. A stack that holds the whole stand-in
-of a candidate fitted implausibly perhaps only by bias (``stand_in_doubtful``: asymmetric
-friction with one level slightly negative, against Coulomb friction plus a larger offset) is
-a reading of that candidate too: its name joins ``ambiguous`` and the verdict's confidence is
-shared, divided by the number of readings. Where the stack holds a sensor artefact
-(``acts_on = "measurement"``), a device effect it did not stack explained alone what the
-artefact explains, and holds no weight.
+**Confidence.** Each candidate alone has the score sᵢ = −ΔBIC against the baseline; "no effect" has
+the score ``threshold`` (the significance threshold as prior odds: a candidate at the threshold ties
+with it). The BIC weights over "no effect" and the plausible candidates of at least ``min_size`` are
+wᵢ ∝ exp(sᵢ/2). A named verdict's confidence is its weight times min(1, explained/0.9), explained
+being the share of the excess validation error (above the fitted floor) that the final stack
+removes, and for a stack of candidates whose models are exact (``exact_share``: the flexible mode, a
+linear resonance) times tol/rest where it leaves a rest of the excess above the tolerated tol = 1 −
+exact_share (2 %); ``none`` gets the weight of "no effect" times 1 − h, h =
+ln(D/min_size)/ln(1/min_size) the share (log scale) of the sizes worth naming below the record's
+detection limit D (``noise["detection_limit"]``: the least one-parameter effect that would have
+reached ``threshold``; for h, the largest of the candidates' limits: a flexible mode's gains count
+only above the estimated floor, and a baseline below it hides a mode whole). Both are discounted by
+the odds of the ``rivals``: implausible candidates that alone score above the stack's summed steps
+(``"none"`` turns ``unexplained`` where they beat it by the tie ratio; not a mode in closed loop,
+whose columns fit the position noise's path through the controller), and a flexible mode whose
+columns leave a named stack nothing significant to add where its own gains went uncounted below the
+floor — evidence the record prefers, for no name of the library — and, at the odds of their score
+over the stack's joint score, the out-of-library look-alikes (a dead zone's input, a drag quadratic
+in the velocity) that score above the stack with fewer parameters. ``unexplained`` gets 1 − the
+largest share of a candidate that is plausible or beats "no effect", at most 1 − the largest share
+of validation samples outside train's position, velocity or force range
+(``baseline["valid_outside_train"]``: there no candidate could be fitted), times 1 − h as ``none``
+unless the periodic look-alike decided. ``ambiguous`` lists every name (``"none"`` included) within
+a weight ratio of 1/20 of the verdict, so a near-tie (an offset vs a spring with equilibrium in
+closed loop) is reported rather than decided by library order. A stack that holds the whole stand-in
+of a candidate fitted implausibly perhaps only by bias (``stand_in_doubtful``: asymmetric friction
+with one level slightly negative, against Coulomb friction plus a larger offset) is a reading of
+that candidate too: its name joins ``ambiguous`` and the verdict's confidence is shared, divided by
+the number of readings. Where the stack holds a sensor artefact (``acts_on = "measurement"``), a
+device effect it did not stack explained alone what the artefact explains, and holds no weight.
 
 **Precision.** The diagnosis computes in float64 whether or not ``jax_enable_x64`` is on (as the
 command line does), so the same records give the same verdict in either setting; a float32 record

@@ -440,8 +440,12 @@ def _as_one_step(run: Run, stk: Stack, ks: tuple):
     """(score, fit, ks) of the candidates ``ks`` added to the stack together, where they are
     significant as one step; else None (also where the design would be too wide)."""
     f = try_fit(run, [*stk.cands, *ks])
-    if f is None:
-        return None
+    return None if f is None else _step_of(run, stk, ks, f)
+
+
+def _step_of(run: Run, stk: Stack, ks: tuple, f: Fitted):
+    """(score, fit, ks) of the candidates ``ks`` fitted with the stack in ``f``, where they are
+    significant as one step; else None."""
     sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
     return (sc, f, ks) if sc.significant else None
 
@@ -521,12 +525,8 @@ def _hidden(run: Run, trials, stk: Stack):
         return {ks: f for ks in combos if (f := try_fit(run, [*stk.cands, *ks])) is not None}
 
     def whole(fits: dict) -> list:
-        out = []
-        for ks, f in fits.items():
-            sc = run.assess(stk.fit, f, ks, run.floor_of([*stk.cands, *ks]))
-            if sc.significant and sc.share >= crit.explained_full:
-                out.append((sc, f, ks))
-        return out
+        steps = (_step_of(run, stk, ks, f) for ks, f in fits.items())
+        return [s for s in steps if s is not None and s[0].share >= crit.explained_full]
 
     fits = fitted((a, b) for i, a in enumerate(pool) for b in pool[i + 1 :] if _compatible(a, b))
     found = whole(fits)

@@ -61,7 +61,7 @@ def _periodic(run: Run, stk: Stack) -> tuple[float, float, float, float, bool]:
     # its validated fit bounds the floor, as every validated fit does (a held-out cogging record
     # at 1.34× the floor: Coulomb friction set the fitted floor to its own error, and the
     # look-alike that scored 193 on it had no excess to take a share of)
-    lo2 = min(run.fit_floor**2, ms) if math.isfinite(ms) else run.fit_floor**2
+    lo2 = min(run.fit_floor**2, ms)
     ex_cur = max(cur.ms_valid - lo2, 0.0)
     share = 1 - max(ms - lo2, 0.0) / ex_cur if ex_cur > 0 and math.isfinite(ms) else 0.0
     better = score > crit.periodic_score_factor * crit.threshold and share >= crit.min_share
