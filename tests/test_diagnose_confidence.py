@@ -3,7 +3,10 @@ the blind benchmark (benchmarks/diagnosis_blind.py, held-out seeds) on which the
 named a wrong effect, or `none`, at confidence ≥ 0.9 — each now below 0.5 for a reason the
 report shows — against the simulated truth."""
 
+import math
+
 import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
+import pytest
 
 import lionjax as lj
 
@@ -119,6 +122,34 @@ def test_a_resonance_that_leaves_a_rest_is_not_confident():
         assert rest > 0.02
         assert d.confidence <= 0.02 / rest + 1e-12, (d.confidence, rest)
     assert d.verdict == "unexplained" or d.confidence < 0.9, (d.verdict, d.confidence)
+
+
+def test_a_resonance_fitted_exactly_one_way_only_is_not_confident():
+    """Backlash between two masses, closed loop (twin, 2.5 kHz): a flexible mode's columns fit
+    training and leave 0.0 % of validation's excess (named so at 1.00, f 11.8 Hz for the
+    truth's 20 Hz with its gap). Fitted on validation and validated on training, the same
+    model removes nothing: an exact model of the device holds both ways. The confidence is at
+    most the odds of that reverse score over the threshold, times 2 % over its rest."""
+    d, info = _diagnose("backlash", 110130003, "twin")
+    assert info["truth"] == ["backlash"]  # out of the library
+    if d.verdict == "flexible_mode":
+        rev = d.final["reverse"]
+        rest, score = rev["remaining_excess_share"], rev["score"]
+        bound = 1.0 / (1.0 + math.exp((10.0 - score) / 2)) * min(1.0, 0.02 / max(rest, 1e-300))
+        assert d.confidence <= bound + 1e-12, (d.confidence, rev)
+    assert d.verdict == "unexplained" or d.confidence < 0.9, (d.verdict, d.confidence)
+
+
+def test_a_true_resonance_holds_both_ways():
+    """A flexible mode, open loop (scipy, 16 Hz): fitted on either record it validates on the
+    other (the reverse score far above the threshold, the rest within the 2 % tolerated), so it
+    stays confident; its frequency against the simulator's."""
+    d, info = _diagnose("flexible_mode", 100081001, "scipy")
+    assert d.verdict == "flexible_mode" and d.confidence > 0.9, (d.verdict, d.confidence)
+    rev = d.final["reverse"]
+    assert rev["score"] > 100 and rev["remaining_excess_share"] <= 0.02, rev
+    f = info["effects"][0]["params"]["frequency"]
+    assert d.final["params"]["f_mode"] == pytest.approx(f, rel=0.05)
 
 
 def test_a_drag_that_explains_the_stack_with_fewer_parameters_discounts_it():

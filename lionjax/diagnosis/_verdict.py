@@ -11,7 +11,7 @@ import numpy as np
 
 from ._candidates import AbstractCandidate
 from ._result import _UNITS, Diagnosis, EffectScore
-from ._stages import Run, Stack, shrink, sim_share, try_fit
+from ._stages import Run, Stack, prepare, shrink, sim_share, try_fit
 from ._structures import Fitted
 from ._where import structure, where_findings
 
@@ -35,6 +35,9 @@ class Verdict:
     periodic_score: float
     periodic_share: float
     periodic_better: bool
+    #: an exact stack with the records' roles swapped: (the rest of the excess it leaves, its
+    #: score); None: not an exact stack (:func:`_reverse`)
+    reverse: tuple[float, float] | None = None
 
 
 def _explained(run: Run, stk: Stack) -> float:
@@ -156,6 +159,7 @@ def judge(run: Run, stk: Stack) -> Verdict:
         verdict = "none"
     else:
         verdict = "unexplained"
+    reverse = _reverse(run, stk) if stk.cands and verdict != "unexplained" else None
     return Verdict(
         verdict,
         bool(at_floor),
@@ -172,7 +176,38 @@ def judge(run: Run, stk: Stack) -> Verdict:
         p_score,
         p_share,
         p_better,
+        reverse,
     )
+
+
+def _reverse(run: Run, stk: Stack) -> tuple[float, float] | None:
+    """For a stack of candidates whose models are exact
+    (:attr:`~._candidates.AbstractCandidate.exact_share`): the stack fitted on the validation
+    record and validated on the training record (the settings' filter kept), as (the share of
+    the excess above the estimated floor it leaves there, its score against that baseline). An
+    exact model of the device holds both ways; an effect it only resembles at one record's
+    amplitudes need not. None for other stacks (the rest a model that is not exact may leave is
+    unknown). Held-out modes were named both ways at 1.00, their frequencies within 9 %;
+    backlash between two masses, named `flexible_mode` at 1.00 leaving 0.0 % of the excess,
+    scored −16 the other way, the training record's baseline already at the floor."""
+    exact = [c.exact_share for c in stk.cands]
+    if None in exact:
+        return None
+    rv = prepare(
+        run.valid,
+        run.train,
+        run.candidates,
+        run.crit,
+        run.st.filter_hz,
+        run.st.window_s,
+        math.inf,
+    )
+    f = try_fit(rv, stk.cands)
+    if f is None:
+        return 1.0, -math.inf
+    ex0 = max(rv.base.ms_valid - rv.floor**2, 0.0)
+    rest = max(f.ms_valid - rv.floor**2, 0.0) / ex0 if ex0 > 0 else 1.0
+    return rest, rv.score_of(rv.base, f, rv.params(stk.cands), rv.floor)
 
 
 def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, float]:
@@ -350,13 +385,22 @@ def _explains(run: Run, stk: Stack, v: Verdict) -> float:
     """The part of a named verdict's confidence its stack's fit earns: min(1, explained /
     ``explained_full``); and where every stacked candidate's model is exact
     (:attr:`~._candidates.AbstractCandidate.exact_share`), times tol/rest where the stack leaves
-    a rest of the excess above what a true instance leaves, tol = 1 − the least exact share.
-    Held-out backlash between two masses and a clean closed-loop record, each fitted by a
-    flexible mode's columns, were named so at 0.98–1.00, leaving 2.7–12 % of the excess."""
+    a rest of the excess above what a true instance leaves, tol = 1 − the least exact share, in
+    either direction; the other way (the records' roles swapped, :func:`_reverse`) also times
+    the odds of its score s over the threshold t, 1/(1 + exp((t − s)/2)), as "no effect" is
+    weighed. Held-out backlash between two masses and a clean closed-loop record, each fitted by
+    a flexible mode's columns, were named so at 0.98–1.00, leaving 2.7–12 % of the excess."""
     out = min(1.0, max(v.explained, 0.0) / run.crit.explained_full)
     exact = [c.exact_share for c in stk.cands]
-    if exact and None not in exact:
-        tol, rest = 1.0 - min(exact), 1.0 - v.explained
+    if not exact or None in exact:
+        return out
+    tol = 1.0 - min(exact)
+    rests = [1.0 - v.explained]
+    if v.reverse is not None:
+        rest, score = v.reverse
+        rests.append(rest)
+        out /= 1.0 + math.exp(min((run.crit.threshold - score) / 2, 700.0))
+    for rest in rests:
         if rest > tol:
             out *= tol / rest
     return out
@@ -497,6 +541,10 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
         "equation_gap": cur.equation_gap,
         "equation_shrink": 1 - cur.equation_gap / base.equation_gap,
         "remaining_excess_share": run.excess(cur.ms_valid) / ex0 if ex0 > 0 else 0.0,
+        # an exact stack with the records' roles swapped (else None): its rest and score
+        "reverse": None
+        if v.reverse is None
+        else {"remaining_excess_share": v.reverse[0], "score": v.reverse[1]},
     }
     final.update(params)
     final["structure"] = v.s_final
