@@ -394,3 +394,18 @@ def test_effects_hidden_behind_the_first_are_found_together():
     assert p["tau"] == pytest.approx(truth["delay"]["tau"], rel=0.1)
     fr = truth["coulomb_friction"]
     assert 0.9 * fr["fc"] < p["Fc"] < 1.1 * fr["fs"]
+
+
+def test_a_stand_in_opens_the_stack_to_what_it_replaced_excluded():
+    """Stribeck friction, a spring and an offset, open loop (twin, 573 Hz): asymmetric
+    friction is stacked first (it explains a friction level and the offset in one), and
+    excludes a spring; parsimony then puts Coulomb friction and an offset in its place, and
+    the stacking goes on from there: the spring joins. k and F_c against the simulator's."""
+    train, valid, info = blind.make_case("triple", 110160008, source="twin")
+    truth = {e["name"]: e["params"] for e in info["effects"]}
+    d = lj.diagnose(train, valid)
+    assert set(d.stack) == {"coulomb_friction", "offset", "spring"}, d.stack
+    p = d.final["params"]
+    assert p["k"] == pytest.approx(truth["spring"]["k"], rel=0.06)
+    fr = truth["coulomb_friction"]
+    assert 0.9 * fr["fc"] < p["Fc"] < 1.1 * fr["fs"]

@@ -245,7 +245,12 @@ def diagnose(
         for c in library
     }
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
-    stk = prune(run, parsimony(run, stack_effects(run, alone)))
+    stk = parsimony(run, stack_effects(run, alone))
+    if stk.stands_for and len(stk.cands) < crit.max_effects:
+        # a stand-in opens the stack to what the candidate it replaced excluded (asymmetric
+        # friction excludes a spring, its stand-in Coulomb friction + offset does not)
+        stk = parsimony(run, stack_effects(run, alone, stk))
+    stk = prune(run, stk)
     verdict = judge(run, stk)
     confidence = weigh(run, effects, stk, verdict, uncounted(run, fitted, stk))
     return report(run, effects, stk, verdict, confidence)

@@ -450,14 +450,20 @@ def _step_of(run: Run, stk: Stack, ks: tuple, f: Fitted):
     return (sc, f, ks) if sc.significant else None
 
 
+def _excludes(k: AbstractCandidate, c: AbstractCandidate) -> bool:
+    """Whether ``k`` excludes ``c`` or a candidate ``c`` contains (asymmetric friction excludes
+    an offset, so also a spring or a drifting offset, which hold one)."""
+    return bool(set(k.excludes) & {c.name, *c.subsumes})
+
+
 def _compatible(c: AbstractCandidate, k: AbstractCandidate) -> bool:
     """Whether ``c`` may be stacked with ``k`` (neither contains nor excludes the other)."""
     return (
         c is not k
         and c.name not in k.subsumes
         and k.name not in c.subsumes
-        and c.name not in k.excludes
-        and k.name not in c.excludes
+        and not _excludes(k, c)
+        and not _excludes(c, k)
     )
 
 
@@ -542,15 +548,31 @@ def _hidden(run: Run, trials, stk: Stack):
     return max(found, key=lambda t: t[0].score, default=None)
 
 
-def stack_effects(run: Run, alone: dict[str, tuple[EffectScore, Fitted]]) -> Stack:
-    """Greedy stacking: the best significant candidate on the current stack, until none is.
-    When none is, or when an implausible candidate outranks the best one, the stand-in pair of
-    an implausible candidate that is significant as one step is tried, and the better score is
-    taken (asymmetric friction with F⁺ < 0 < F⁻ is Coulomb friction and an offset larger than
-    it: a closed-loop record with F_c = 0.12 N and F₀ = 0.17 N, Coulomb alone 3.6, the offset
-    6.2, the pair 38)."""
-    stk = Stack([], [], run.base)
-    pool = list(run.candidates)
+def _fits_with(c: AbstractCandidate, added) -> bool:
+    """Whether ``c`` may still be stacked after the candidates ``added``: not after one that
+    contains it (spring ⊃ offset) nor with one the data cannot tell apart from it or from what
+    it contains (asymmetric friction and an offset; and so a drifting offset: a held-out Dahl
+    triple stacked asymmetric friction, then the drift, which parsimony made an offset)."""
+    return all(
+        c is not k and c.name not in k.subsumes and not _excludes(k, c) and not _excludes(c, k)
+        for k in added
+    )
+
+
+def stack_effects(
+    run: Run, alone: dict[str, tuple[EffectScore, Fitted]], start: Stack | None = None
+) -> Stack:
+    """Greedy stacking: the best significant candidate on the current stack (empty, or
+    ``start``: after :func:`parsimony` put a stand-in in, what the candidate it replaced
+    excluded may join), until none is. When none is, or when an implausible candidate outranks the
+    best one, the stand-in pair of an implausible candidate that is significant as one step is
+    tried, and the better score is taken (asymmetric friction with F⁺ < 0 < F⁻ is Coulomb
+    friction and an offset larger than it: a closed-loop record with F_c = 0.12 N and F₀ =
+    0.17 N, Coulomb alone 3.6, the offset 6.2, the pair 38)."""
+    stk = Stack([], [], run.base) if start is None else start
+    # (a candidate a stand-in replaced does not come back: its own parameters were not needed)
+    gone = set(stk.stands_for.values())
+    pool = [c for c in run.candidates if _fits_with(c, stk.cands) and c.name not in gone]
     while pool and len(stk.cands) < run.crit.max_effects:
         fits = [
             (c, alone[c.name][1] if not stk.cands else try_fit(run, [*stk.cands, c])) for c in pool
@@ -595,19 +617,7 @@ def stack_effects(run: Run, alone: dict[str, tuple[EffectScore, Fitted]]) -> Sta
                 )
         stk.cands.extend(added)
         stk.fit = best[1]
-        # a candidate is not stacked after one that contains it (spring ⊃ offset) nor with one
-        # the data cannot tell apart from it (asymmetric friction and an offset)
-        pool = [
-            c
-            for c in pool
-            if all(
-                c is not k
-                and c.name not in k.subsumes
-                and c.name not in k.excludes
-                and k.name not in c.excludes
-                for k in added
-            )
-        ]
+        pool = [c for c in pool if _fits_with(c, added)]
     return stk
 
 
