@@ -35,7 +35,8 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
    with the force columns masked where the axis sticks (:meth:`_Fitter.stuck`). Greedy stacking
    adds the best significant candidate until none is — or, when none is, the stand-in pair of an
    implausible candidate (asymmetric friction with F⁺ < 0 < F⁻: Coulomb friction and an offset)
-   that is significant as one step.
+   that is significant as one step. Where parsimony puts a stand-in in, stacking goes on from
+   it (what the replaced candidate excluded may join).
 5. **Verdict**: the first of the stack, provided the stack explains the residual's structure
    as well as its size (its residual's spectral peak is not sharper than the baseline's:
    ``Criteria.peak_growth``, unless it removes ``Criteria.explained_full`` of the excess) and a dead
@@ -62,7 +63,9 @@ wᵢ ∝ exp(sᵢ/2). A named verdict's confidence is its weight times min(1, ex
 being the share of the excess validation error (above the fitted floor) that the final stack
 removes, and for a stack of candidates whose models are exact (``exact_share``: the flexible mode, a
 linear resonance) times tol/rest where it leaves a rest of the excess above the tolerated tol = 1 −
-exact_share (2 %); ``none`` gets the weight of "no effect" times 1 − h, h =
+exact_share (2 %), and the same for the stack fitted with the records' roles swapped, times the odds
+of that reverse score s over the threshold t, 1/(1 + exp((t − s)/2)) (``final["reverse"]``: an exact
+model of the device holds both ways); ``none`` gets the weight of "no effect" times 1 − h, h =
 ln(D/min_size)/ln(1/min_size) the share (log scale) of the sizes worth naming below the record's
 detection limit D (``noise["detection_limit"]``: the least one-parameter effect that would have
 reached ``threshold``; for h, the largest of the candidates' limits: a flexible mode's gains count
