@@ -249,7 +249,7 @@ def diagnose(
     }
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
     stk = parsimony(run, stack_effects(run, alone))
-    if stk.stands_for and len(stk.cands) < crit.max_effects:
+    if stk.stands_for and stk.size < crit.max_effects:
         # a stand-in opens the stack to what the candidate it replaced excluded (asymmetric
         # friction excludes a spring, its stand-in Coulomb friction + offset does not)
         stk = parsimony(run, stack_effects(run, alone, stk))

@@ -51,7 +51,8 @@ class Criteria(eqx.Module):
             so).
 
     The stack:
-        max_effects: largest stack.
+        max_effects: largest stack, in effects: a candidate another stacked one contains (an
+            offset beside a spring) takes no place.
         pair_from: where no candidate is significant alone on the stack, pairs are tried as
             one step: the pair_from·(pair_from − 1)/2 compatible pairs of the highest summed
             scores among the 2·pair_from best plausible candidates (effects that hide each other:

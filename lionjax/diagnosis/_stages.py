@@ -410,6 +410,16 @@ class Stack:
     together: dict[str, tuple[float, tuple[str, ...]]] = dataclasses.field(default_factory=dict)
     laws: list[tuple[str, ...]] = dataclasses.field(default_factory=list)
 
+    @property
+    def size(self) -> int:
+        """The effects the stack holds, against ``Criteria.max_effects``: a candidate another
+        stacked one contains (an offset beside a spring, whose equilibrium holds a constant
+        force) adds no column and takes no place (a held-out open-loop triple of Stribeck
+        friction, a spring and a delay stacked Coulomb friction + offset, the stand-in of
+        asymmetric friction, then the spring, and had no room left for the delay)."""
+        inside = {n for k in self.cands for n in k.subsumes}
+        return sum(c.name not in inside for c in self.cands)
+
 
 def try_fit(run: Run, cands) -> Fitted | None:
     """The fit of ``cands``, or None when its design would be wider than P_MAX."""
@@ -428,7 +438,7 @@ def _stand_in(run: Run, trials, pool, stk: Stack):
         if t[0].plausible or len(c.simpler) < 2 or not all(n in names for n in c.simpler):
             continue
         ks = tuple(names[n] for n in c.simpler)
-        if len(stk.cands) + len(ks) > run.crit.max_effects:
+        if stk.size + len(ks) > run.crit.max_effects:
             continue
         step = _as_one_step(run, stk, ks)
         if step is not None:
@@ -475,7 +485,7 @@ def _pair(run: Run, trials, stk: Stack):
     the baseline's excess. Effects that hide each other — a spring under a 15 ms
     delay, neither significant alone, the residual of either so correlated that 12 effective
     samples remain — are found together."""
-    if len(stk.cands) + 2 > run.crit.max_effects:
+    if stk.size + 2 > run.crit.max_effects:
         return None
     # a stack that already removes explained_full of the excess needs no pair (nor does a
     # record without excess): each pair is a fit, with its profiles
@@ -514,7 +524,7 @@ def _hidden(run: Run, trials, stk: Stack):
     Stribeck friction fitted alone gave F_c < 0. An out-of-library effect fitted so leaves more
     (dead zones, backlash and cogging left 58–70 % to a named stack)."""
     crit = run.crit
-    room = crit.max_effects - len(stk.cands)
+    room = crit.max_effects - stk.size
     if not crit.pair_from or room < 2 or stk.fit.equation_gap <= crit.floor_factor * run.floor:
         return None
     # a candidate refused alone for what the record shows against it (a dead zone's look-alike
@@ -573,7 +583,7 @@ def stack_effects(
     # (a candidate a stand-in replaced does not come back: its own parameters were not needed)
     gone = set(stk.stands_for.values())
     pool = [c for c in run.candidates if _fits_with(c, stk.cands) and c.name not in gone]
-    while pool and len(stk.cands) < run.crit.max_effects:
+    while pool and stk.size < run.crit.max_effects:
         fits = [
             (c, alone[c.name][1] if not stk.cands else try_fit(run, [*stk.cands, c])) for c in pool
         ]
