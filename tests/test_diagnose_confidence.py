@@ -171,13 +171,31 @@ def test_unexplained_is_only_as_sure_as_the_record_is_sensitive():
     the record was `unexplained` at 0.97 — "no effect of the library explains it" — for a
     detection limit of 0.013. As for `none`, an effect below the limit could be what is left:
     the confidence is at most 1 − ln(D/min_size)/ln(1/min_size), D from the report."""
-    import math
-
     d, info = _diagnose("flexible_mode", 110080002, "twin")
     assert info["truth"] == ["flexible_mode"]
     if d.verdict == "unexplained":
         lo = lj.diagnosis.Criteria().min_size
         D = d.noise["detection_limit_worst"]
+        hidden = math.log(max(D, lo) / lo) / math.log(1 / lo)
+        assert d.confidence <= 1 - hidden + 1e-12, (d.confidence, D)
+    assert d.verdict == "flexible_mode" or d.confidence < 0.9, (d.verdict, d.confidence)
+
+
+def test_a_mode_too_small_to_name_bounds_the_detection_limit():
+    """A collocated mode at 54.6 Hz in closed loop at the noise floor (twin, 893 Hz, response
+    change 3.3 %): its columns score 165 alone and remove all the excess, but the fitted
+    deflection lies within twice the position noise and the fit is refused — the record cannot
+    tell it from the noise's path through the controller. It was called `none` at 0.95. The
+    refused fit's size bounds the record's detection limit (``detection_limit_worst`` in the
+    report), and `none` is at most 1 − ln(D/min_size)/ln(1/min_size)."""
+    d, info = _diagnose("flexible_mode", 140080004, "twin")
+    assert info["truth"] == ["flexible_mode"]
+    mode = next(e for e in d.effects if e.name == "flexible_mode")
+    if d.verdict in ("none", "unexplained"):
+        assert not mode.plausible and "deflection" in mode.reason  # the case is what it says
+        D = d.noise["detection_limit_worst"]
+        assert D >= mode.size > 0, (D, mode.size)
+        lo = lj.diagnosis.Criteria().min_size
         hidden = math.log(max(D, lo) / lo) / math.log(1 / lo)
         assert d.confidence <= 1 - hidden + 1e-12, (d.confidence, D)
     assert d.verdict == "flexible_mode" or d.confidence < 0.9, (d.verdict, d.confidence)

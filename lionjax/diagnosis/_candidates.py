@@ -330,6 +330,14 @@ class AbstractCandidate(eqx.Module):
         """Why the fitted parameters are not physical (``""`` when they are)."""
         return ""
 
+    def unresolved(self, phys: dict[str, float], lim: Limits) -> bool:
+        """Whether an implausible fit is refused only for lying within the record's resolution
+        (its shape is this effect's, its size within the noise or the sampling's error): the
+        effect may be there, too small for this record to name. Such a fit that beats "no
+        effect" bounds the record's detection limit (:func:`~._verdict.weigh`). False by
+        default."""
+        return False
+
     def stand_in_doubtful(self, params: dict[str, float]) -> bool:
         """Whether an implausible fit with these reported ``params`` (:meth:`report`) may
         still be this effect, its parameters biased by what the model leaves out: a stack that
@@ -718,6 +726,14 @@ class FlexibleModeCandidate(AbstractCandidate):
         return ("delay",) if heavy and params.get("input_share", 0.0) >= HOLD_KAPPA else ()
 
     def implausible(self, phys, lim):
+        return next((why for _, why in self._refusals(phys, lim)), "")
+
+    def unresolved(self, phys, lim):
+        refusals = list(self._refusals(phys, lim))
+        return bool(refusals) and all(small for small, _ in refusals)
+
+    def _refusals(self, phys, lim):
+        """(within the resolution, why) of each test the fit fails, in order."""
         r = self.report(phys)
         mu = r.get("mass_ratio", 0)
         # collocated: κ held at 0 (β ≡ 0), or fitted within HEAVY_MODE_KAPPA of it (a drawn
@@ -725,9 +741,12 @@ class FlexibleModeCandidate(AbstractCandidate):
         # variant, and refused)
         collocated = abs(r.get("input_share", 0.0)) <= HEAVY_MODE_KAPPA
         if not 0 < mu <= (MAX_HEAVY_MODE_MASS if collocated else MAX_MODE_MASS):
-            return (
-                f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}] (up to "
-                f"{MAX_HEAVY_MODE_MASS} collocated, |κ| ≤ {HEAVY_MODE_KAPPA})"
+            yield (
+                False,
+                (
+                    f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}] (up to "
+                    f"{MAX_HEAVY_MODE_MASS} collocated, |κ| ≤ {HEAVY_MODE_KAPPA})"
+                ),
             )
         # The regressors hold x first-order between samples; the equation error this leaves is
         # ≈ (h²/12)·x⁽⁴⁾, which a mode far above the excitation reproduces with
@@ -739,26 +758,28 @@ class FlexibleModeCandidate(AbstractCandidate):
         hold = (2 * math.pi * r.get("f_mode", 0.0) * lim.dt) ** 2 / 12
         through_input = abs(r.get("input_share", 0.0)) >= HOLD_KAPPA
         if r["mass_ratio"] < MODE_OVER_HOLD * hold and not through_input:
-            return (
+            why = (
                 f"no flexible mode: mass ratio {r['mass_ratio']:.3g} within {MODE_OVER_HOLD:g}× "
                 f"the sampling's hold error at f_mode ({hold:.3g})"
             )
+            yield True, why
         if not -0.5 <= r.get("input_share", 0) <= 1.5:
-            return "no flexible mode: input share outside [−0.5, 1.5]"
+            yield False, "no flexible mode: input share outside [−0.5, 1.5]"
         # on the search's first or last frequency the valley lies beyond it: no resonance was
         # located (held-out backlash records were fitted on the lowest, 1.5 Hz at 386 Hz)
         f, (f_lo, f_hi) = r.get("f_mode", 0.0), lim.mode_band
         if not f_lo * (1 + MODE_EDGE) < f < f_hi / (1 + MODE_EDGE):
-            return (
+            why = (
                 f"no flexible mode: f_mode {f:.3g} Hz on the edge of the searched band "
                 f"[{f_lo:.3g}, {f_hi:.3g}] Hz (no resonance located)"
             )
+            yield False, why
         if r.get("zeta_mode", 0.0) > MAX_MODE_ZETA:
-            return (
+            why = (
                 f"no flexible mode: its damping ratio {r['zeta_mode']:.3g} is above "
-                f"{MAX_MODE_ZETA:g} (a resonance peak below 2×: a broadband lag, not a "
-                "resonance)"
+                f"{MAX_MODE_ZETA:g} (a resonance peak below 2×: a broadband lag, not a resonance)"
             )
+            yield False, why
         # in open loop no controller feeds the quantisation into F, and the mode's score
         # already counts from the estimated floor: there a light mode must only stand above the
         # noise (a held-out open-loop mode fitted within 2 % of its μ and ω, score 452, moved
@@ -767,8 +788,10 @@ class FlexibleModeCandidate(AbstractCandidate):
         light = mu <= MAX_MODE_MASS
         over = MODE_OVER_NOISE_OPEN if light and not lim.closed_loop else MODE_OVER_NOISE
         if r.get("deflection", math.inf) < over * lim.position_noise:
-            return (
-                f"no flexible mode: its deflection μ·(s²/D)[x] (rms {r['deflection']:.3g} m) is "
-                f"within {over:g}× the position noise ({lim.position_noise:.3g} m)"
+            why = (
+                f"no flexible mode: its deflection μ·(s²/D)[x] (rms {r['deflection']:.3g} m) "
+                f"is within {over:g}× the position noise ({lim.position_noise:.3g} m)"
             )
-        return _b_positive(phys)
+            yield True, why
+        if why := _b_positive(phys):
+            yield False, why

@@ -69,25 +69,27 @@ model of the device holds both ways); ``none`` gets the weight of "no effect" ti
 ln(D/min_size)/ln(1/min_size) the share (log scale) of the sizes worth naming below the record's
 detection limit D (``noise["detection_limit"]``: the least one-parameter effect that would have
 reached ``threshold``; for h, the largest of the candidates' limits: a flexible mode's gains count
-only above the estimated floor, and a baseline below it hides a mode whole). Both are discounted by
-the odds of the ``rivals``: implausible candidates that alone score above the stack's summed steps
-(``"none"`` turns ``unexplained`` where they beat it by the tie ratio; not a mode in closed loop,
-whose columns fit the position noise's path through the controller), and a flexible mode whose
-columns leave a named stack nothing significant to add where its own gains went uncounted below the
-floor — evidence the record prefers, for no name of the library — and, at the odds of their score
-over the stack's joint score, the out-of-library look-alikes (a dead zone's input, a drag quadratic
-in the velocity) that score above the stack with fewer parameters. ``unexplained`` gets 1 − the
-largest share of a candidate that is plausible or beats "no effect", at most 1 − the largest share
-of validation samples outside train's position, velocity or force range
-(``baseline["valid_outside_train"]``: there no candidate could be fitted), times 1 − h as ``none``
-unless the periodic look-alike decided. ``ambiguous`` lists every name (``"none"`` included) within
-a weight ratio of 1/20 of the verdict, so a near-tie (an offset vs a spring with equilibrium in
-closed loop) is reported rather than decided by library order. A stack that holds the whole stand-in
-of a candidate fitted implausibly perhaps only by bias (``stand_in_doubtful``: asymmetric friction
-with one level slightly negative, against Coulomb friction plus a larger offset) is a reading of
-that candidate too: its name joins ``ambiguous`` and the verdict's confidence is shared, divided by
-the number of readings. Where the stack holds a sensor artefact (``acts_on = "measurement"``), a
-device effect it did not stack explained alone what the artefact explains, and holds no weight.
+only above the estimated floor, and a baseline below it hides a mode whole; and at least the size of
+a fit that beats "no effect" but is refused only as below the record's resolution,
+:func:`~._verdict.unresolved`). Both are discounted by the odds of the ``rivals``: implausible
+candidates that alone score above the stack's summed steps (``"none"`` turns ``unexplained`` where
+they beat it by the tie ratio; not a mode in closed loop, whose columns fit the position noise's
+path through the controller), and a flexible mode whose columns leave a named stack nothing
+significant to add where its own gains went uncounted below the floor — evidence the record prefers,
+for no name of the library — and, at the odds of their score over the stack's joint score, the
+out-of-library look-alikes (a dead zone's input, a drag quadratic in the velocity) that score above
+the stack with fewer parameters. ``unexplained`` gets 1 − the largest share of a candidate that is
+plausible or beats "no effect", at most 1 − the largest share of validation samples outside train's
+position, velocity or force range (``baseline["valid_outside_train"]``: there no candidate could be
+fitted), times 1 − h as ``none`` unless the periodic look-alike decided. ``ambiguous`` lists every
+name (``"none"`` included) within a weight ratio of 1/20 of the verdict, so a near-tie (an offset vs
+a spring with equilibrium in closed loop) is reported rather than decided by library order. A stack
+that holds the whole stand-in of a candidate fitted implausibly perhaps only by bias
+(``stand_in_doubtful``: asymmetric friction with one level slightly negative, against Coulomb
+friction plus a larger offset) is a reading of that candidate too: its name joins ``ambiguous`` and
+the verdict's confidence is shared, divided by the number of readings. Where the stack holds a
+sensor artefact (``acts_on = "measurement"``), a device effect it did not stack explained alone what
+the artefact explains, and holds no weight.
 
 **Precision.** The diagnosis computes in float64 whether or not ``jax_enable_x64`` is on (as the
 command line does), so the same records give the same verdict in either setting; a float32 record
@@ -111,7 +113,7 @@ from ._criteria import Criteria
 from ._library import DEFAULT_CANDIDATES
 from ._result import RESERVED, Diagnosis
 from ._stages import ROLES, check_candidates, fit_alone, parsimony, prepare, prune, stack_effects
-from ._verdict import judge, report, uncounted, weigh
+from ._verdict import judge, report, uncounted, unresolved, weigh
 
 
 def _in_float64(fn):
@@ -255,7 +257,9 @@ def diagnose(
         stk = parsimony(run, stack_effects(run, alone, stk))
     stk = prune(run, stk)
     verdict = judge(run, stk)
-    confidence = weigh(run, effects, stk, verdict, uncounted(run, fitted, stk))
+    confidence = weigh(
+        run, effects, stk, verdict, uncounted(run, fitted, stk), unresolved(run, fitted, effects)
+    )
     return report(run, effects, stk, verdict, confidence)
 
 

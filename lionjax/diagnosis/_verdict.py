@@ -439,19 +439,42 @@ class Confidence:
     rivals: dict[str, float]  # implausible candidates that beat the stack (:func:`_rivals`)
 
 
+def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) -> float:
+    """The largest size (rms of ε₁ removed over the input's term) of a candidate fitted alone
+    that beats "no effect" (score above ``threshold``) but is refused only for lying within the
+    record's resolution (:meth:`~._candidates.AbstractCandidate.unresolved`); 0 when none. An
+    effect that large may be there unnamed, so the record's detection limit is at least that:
+    a held-out closed-loop mode at the floor (response change 3.3 %), whose columns scored 165
+    and removed all the excess with a deflection within twice the position noise, was called
+    `none` at 0.95 for a limit of 0.0066."""
+    return max(
+        (
+            e.size
+            for e in effects
+            if not e.plausible
+            and e.score > run.crit.threshold
+            and run.by_name[e.name].unresolved(fitted[e.name].physical, run.limits)
+        ),
+        default=0.0,
+    )
+
+
 def weigh(
     run: Run,
     effects: list[EffectScore],
     stk: Stack,
     v: Verdict,
     unseen: tuple[dict[str, float], list[str]],
+    below: float = 0.0,
 ) -> Confidence:
     """The verdict's confidence (:func:`lionjax.diagnose`: "Confidence"); ``unseen``: the
-    rivals and readings of :func:`uncounted`."""
+    rivals and readings of :func:`uncounted`; ``below``: the size of an effect the record may
+    hold unnamed (:func:`unresolved`), a bound on the detection limit."""
     crit = run.crit
     blind, also = unseen
     weights = _weights(run, effects, stk)
     detection, detection_worst = _detection(run)
+    detection_worst = max(detection_worst, below)
     bar = _bar(run, stk)
     rivals = _rivals(run, effects, stk, blind, bar)
     # the rivals' odds against the verdict's evidence, as the BIC weights count them (the
