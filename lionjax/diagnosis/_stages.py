@@ -466,15 +466,21 @@ def _excludes(k: AbstractCandidate, c: AbstractCandidate) -> bool:
     return bool(set(k.excludes) & {c.name, *c.subsumes})
 
 
-def _compatible(c: AbstractCandidate, k: AbstractCandidate) -> bool:
-    """Whether ``c`` may be stacked with ``k`` (neither contains nor excludes the other)."""
-    return (
-        c is not k
-        and c.name not in k.subsumes
-        and k.name not in c.subsumes
-        and not _excludes(k, c)
-        and not _excludes(c, k)
+def _fits_with(c: AbstractCandidate, added) -> bool:
+    """Whether ``c`` may still be stacked after the candidates ``added``: not after one that
+    contains it (spring ⊃ offset) nor with one the data cannot tell apart from it or from what
+    it contains (asymmetric friction and an offset; and so a drifting offset: a held-out Dahl
+    triple stacked asymmetric friction, then the drift, which parsimony made an offset)."""
+    return all(
+        c is not k and c.name not in k.subsumes and not _excludes(k, c) and not _excludes(c, k)
+        for k in added
     )
+
+
+def _compatible(c: AbstractCandidate, k: AbstractCandidate) -> bool:
+    """Whether ``c`` and ``k`` may be added together (neither contains nor excludes the other;
+    greedy stacking, :func:`_fits_with`, lets a candidate follow one it contains)."""
+    return _fits_with(c, (k,)) and k.name not in c.subsumes
 
 
 def _pair(run: Run, trials, stk: Stack):
@@ -556,17 +562,6 @@ def _hidden(run: Run, trials, stk: Stack):
         }
         found = whole(fitted(sorted(thirds, key=lambda ks: [c.name for c in ks])))
     return max(found, key=lambda t: t[0].score, default=None)
-
-
-def _fits_with(c: AbstractCandidate, added) -> bool:
-    """Whether ``c`` may still be stacked after the candidates ``added``: not after one that
-    contains it (spring ⊃ offset) nor with one the data cannot tell apart from it or from what
-    it contains (asymmetric friction and an offset; and so a drifting offset: a held-out Dahl
-    triple stacked asymmetric friction, then the drift, which parsimony made an offset)."""
-    return all(
-        c is not k and c.name not in k.subsumes and not _excludes(k, c) and not _excludes(c, k)
-        for k in added
-    )
 
 
 def stack_effects(

@@ -180,6 +180,14 @@ def judge(run: Run, stk: Stack) -> Verdict:
     )
 
 
+def _exact_tolerance(stk: Stack) -> float | None:
+    """The rest of the excess a true instance of a stack of exact candidates leaves, 1 − the
+    least :attr:`~._candidates.AbstractCandidate.exact_share`; None where the stack is empty or
+    holds a candidate whose model is not exact."""
+    exact = [c.exact_share for c in stk.cands]
+    return None if not exact or None in exact else 1.0 - min(exact)
+
+
 def _reverse(run: Run, stk: Stack) -> tuple[float, float] | None:
     """For a stack of candidates whose models are exact
     (:attr:`~._candidates.AbstractCandidate.exact_share`): the stack fitted on the validation
@@ -190,8 +198,7 @@ def _reverse(run: Run, stk: Stack) -> tuple[float, float] | None:
     unknown). Held-out modes were named both ways at 1.00, their frequencies within 9 %;
     backlash between two masses, named `flexible_mode` at 1.00 leaving 0.0 % of the excess,
     scored −16 the other way, the training record's baseline already at the floor."""
-    exact = [c.exact_share for c in stk.cands]
-    if None in exact:
+    if _exact_tolerance(stk) is None:
         return None
     rv = prepare(
         run.valid,
@@ -391,10 +398,9 @@ def _explains(run: Run, stk: Stack, v: Verdict) -> float:
     weighed. Held-out backlash between two masses and a clean closed-loop record, each fitted by
     a flexible mode's columns, were named so at 0.98–1.00, leaving 2.7–12 % of the excess."""
     out = min(1.0, max(v.explained, 0.0) / run.crit.explained_full)
-    exact = [c.exact_share for c in stk.cands]
-    if not exact or None in exact:
+    tol = _exact_tolerance(stk)
+    if tol is None:
         return out
-    tol = 1.0 - min(exact)
     rests = [1.0 - v.explained]
     if v.reverse is not None:
         rest, score = v.reverse
