@@ -178,12 +178,8 @@ def test_mode_search_finds_a_narrow_valley(monkeypatch):
 
 
 def test_mode_plausible_only_lightly_damped_and_heavy_only_collocated():
-    from lionjax.diagnosis._candidates import (
-        MAX_HEAVY_MODE_MASS,
-        MAX_MODE_ZETA,
-        FlexibleModeCandidate,
-        Limits,
-    )
+    from lionjax.diagnosis import FlexibleModeCandidate, Limits
+    from lionjax.diagnosis._mode import MAX_HEAVY_MODE_MASS, MAX_MODE_ZETA
 
     c, lim = FlexibleModeCandidate(), Limits(F_abs_max=1.0, dt=1e-3)
     base = dict(b=2.0, f_mode=20.0, deflection=1e-3)

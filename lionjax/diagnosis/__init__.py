@@ -19,7 +19,6 @@ from ._candidates import (
     AsymmetricFrictionCandidate as AsymmetricFrictionCandidate,
     CoulombCandidate as CoulombCandidate,
     DelayCandidate as DelayCandidate,
-    FlexibleModeCandidate as FlexibleModeCandidate,
     Limits as Limits,
     OffsetCandidate as OffsetCandidate,
     PositionCandidate as PositionCandidate,
@@ -36,6 +35,7 @@ from ._many import (
     ManyDiagnoses as ManyDiagnoses,
     diagnose_many as diagnose_many,
 )
+from ._mode import FlexibleModeCandidate as FlexibleModeCandidate
 from ._plot import plot_diagnosis as plot_diagnosis
 from ._result import Diagnosis as Diagnosis, EffectScore as EffectScore
 from ._statistics import decimation_for as decimation_for

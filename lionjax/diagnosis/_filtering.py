@@ -238,7 +238,7 @@ def mode_signals(
     under a zero-order hold, through :func:`mode_bank` and
     :func:`mode_output`, on bucketed shapes: each mode's x and F
     through its own filter, modes in batches of :data:`MODE_BUCKETS`
-    (:meth:`~lionjax.diagnosis._candidates.ModeColumns.signals` calls it)."""
+    (:meth:`~lionjax.diagnosis._mode.ModeColumns.signals` calls it)."""
     T = np.asarray(record_x).size
     xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
     out = []

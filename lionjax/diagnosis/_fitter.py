@@ -23,11 +23,9 @@ from .._models import Augmented, MassDamper
 from .._record import Record
 from ..twin._windows import WINDOW_PARAMETERS
 from ._candidates import (
-    MODE_ZETA_RANGE,
     AbstractCandidate,
     Context,
     Limits,
-    mode_signal_names,
 )
 from ._criteria import DIVERGED
 from ._filtering import (
@@ -51,6 +49,7 @@ from ._fit import (
 )
 from ._force_effects import ForceEffect, signal_names, simulation_terms
 from ._lookalikes import LookAlikes
+from ._mode import MODE_ZETA_RANGE, mode_signal_names
 from ._settings import (
     LOCAL_RANGE,
     LOCAL_ROUNDS,

@@ -8,12 +8,12 @@ from ._candidates import (
     AsymmetricFrictionCandidate,
     CoulombCandidate,
     DelayCandidate,
-    FlexibleModeCandidate,
     OffsetCandidate,
     PositionCandidate,
     SaturationCandidate,
     SpringCandidate,
 )
+from ._mode import FlexibleModeCandidate
 
 #: The default library, in a fixed order (ties are broken by it: simplest first).
 DEFAULT_CANDIDATES: tuple[AbstractCandidate, ...] = (
