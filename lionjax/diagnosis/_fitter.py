@@ -626,6 +626,7 @@ class _Fitter(LookAlikes):
             # start states are least accurate at the record's edge
             gap_from=self.gap_from(sim.size),
             diverge_at=DIVERGED * max(float(np.ptp(np.asarray(self.valid.x))), 1e-300),
+            variant=self.variant,
         )
 
     def window(self, a: float) -> int:

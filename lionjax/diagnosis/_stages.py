@@ -449,7 +449,7 @@ def _stand_in(run: Run, trials, pool, stk: Stack):
 def _as_one_step(run: Run, stk: Stack, ks: tuple):
     """(score, fit, ks) of the candidates ``ks`` added to the stack together, where they are
     significant as one step; else None (also where the design would be too wide)."""
-    f = try_fit(run, [*stk.cands, *ks])
+    f = _fit_on(run, stk, ks)
     return None if f is None else _step_of(run, stk, ks, f)
 
 
@@ -544,7 +544,7 @@ def _hidden(run: Run, trials, stk: Stack):
     ]
 
     def fitted(combos) -> dict:
-        return {ks: f for ks in combos if (f := try_fit(run, [*stk.cands, *ks])) is not None}
+        return {ks: f for ks in combos if (f := _fit_on(run, stk, ks)) is not None}
 
     def whole(fits: dict) -> list:
         steps = (_step_of(run, stk, ks, f) for ks, f in fits.items())
@@ -579,9 +579,7 @@ def stack_effects(
     gone = set(stk.stands_for.values())
     pool = [c for c in run.candidates if _fits_with(c, stk.cands) and c.name not in gone]
     while pool and stk.size < run.crit.max_effects:
-        fits = [
-            (c, alone[c.name][1] if not stk.cands else try_fit(run, [*stk.cands, c])) for c in pool
-        ]
+        fits = [(c, alone[c.name][1] if not stk.cands else _fit_on(run, stk, (c,))) for c in pool]
         fits = [(c, f) for c, f in fits if f is not None]
         if not fits:
             break
@@ -622,8 +620,26 @@ def stack_effects(
                 )
         stk.cands.extend(added)
         stk.fit = best[1]
+        if best[1] is not alone[added[0].name][1]:  # a fit on the stack: its variant stays
+            run.fitter.variant = best[1].variant
         pool = [c for c in pool if _fits_with(c, added)]
     return stk
+
+
+def _fit_on(run: Run, stk: Stack, ks: tuple) -> Fitted | None:
+    """The candidates ``ks`` fitted on the stack under each combination of their
+    :meth:`~AbstractCandidate.stack_variants`: the best validated fit, which carries its
+    variant (None where the design is too wide). The fitter's variant is left as it was."""
+    now = run.fitter.variant
+    variants = [now]
+    for k in ks:
+        variants = list(dict.fromkeys(w for v in variants for w in k.stack_variants(v)))
+    fits = []
+    for var in variants:
+        run.fitter.variant = var
+        fits.append(try_fit(run, [*stk.cands, *ks]))
+    run.fitter.variant = now
+    return min((f for f in fits if f is not None), key=lambda f: f.ms_valid, default=None)
 
 
 def parsimony(run: Run, stk: Stack) -> Stack:

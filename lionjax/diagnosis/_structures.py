@@ -37,6 +37,8 @@ class Fitted:
     gap_from: int = 0  # the first sample the gap counts (the second window's)
     #: a simulated gap above this [m] is a diverging simulation (:data:`DIVERGED`)
     diverge_at: float = math.inf
+    #: the fitter's variants it was fitted under (:class:`Variant`)
+    variant: Variant | None = None
 
     @property
     def gap(self) -> float:
