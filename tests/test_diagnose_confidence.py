@@ -148,6 +148,7 @@ def test_a_true_resonance_holds_both_ways():
     assert d.verdict == "flexible_mode" and d.confidence > 0.9, (d.verdict, d.confidence)
     rev = d.final["reverse"]
     assert rev["score"] > 100 and rev["remaining_excess_share"] <= 0.02, rev
+    assert rev["refused"] == "", rev
     f = info["effects"][0]["params"]["frequency"]
     assert d.final["params"]["f_mode"] == pytest.approx(f, rel=0.05)
 
@@ -199,3 +200,18 @@ def test_a_mode_too_small_to_name_bounds_the_detection_limit():
         hidden = math.log(max(D, lo) / lo) / math.log(1 / lo)
         assert d.confidence <= 1 - hidden + 1e-12, (d.confidence, D)
     assert d.verdict == "flexible_mode" or d.confidence < 0.9, (d.verdict, d.confidence)
+
+
+def test_a_resonance_that_is_a_lag_the_other_way_is_not_named_confidently():
+    """Backlash between two masses, closed loop (scipy, 526 Hz): a flexible mode's columns
+    (ζ 0.18) leave nothing of the excess either way, but fitted on validation the "mode" is a
+    broadband lag at ζ 0.40, the search's limit (the mode refuses ζ > 0.25): not the same
+    effect, so no confidence. A true mode fitted both ways stays a resonance
+    (test_a_true_resonance_holds_both_ways)."""
+    d, info = _diagnose("backlash", 150131003, "scipy")
+    assert info["truth"] == ["backlash"]  # out of the library
+    if d.verdict == "flexible_mode":
+        rev = d.final["reverse"]
+        assert "broadband lag" in rev["refused"], rev
+        assert d.confidence == 0.0
+    assert d.verdict == "unexplained" or d.confidence < 0.9, (d.verdict, d.confidence)

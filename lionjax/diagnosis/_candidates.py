@@ -291,6 +291,12 @@ class AbstractCandidate(eqx.Module):
         default."""
         return False
 
+    def other_way(self, phys: dict[str, float], other: dict[str, float], lim: Limits) -> str:
+        """Why ``other``, this effect's parameters fitted with the records' roles swapped,
+        does not describe the effect fitted as ``phys`` ("" where it may): an exact model of
+        the device holds both ways (:func:`~._verdict._reverse`). Nothing by default."""
+        return ""
+
     def stand_in_doubtful(self, params: dict[str, float]) -> bool:
         """Whether an implausible fit with these reported ``params`` (:meth:`report`) may
         still be this effect, its parameters biased by what the model leaves out: a stack that

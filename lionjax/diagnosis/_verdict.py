@@ -36,8 +36,9 @@ class Verdict:
     periodic_share: float
     periodic_better: bool
     #: an exact stack with the records' roles swapped: (the rest of the excess it leaves, its
-    #: score); None: not an exact stack (:func:`_reverse`)
-    reverse: tuple[float, float] | None = None
+    #: score, why a stacked candidate refuses that fit or ""); None: not an exact stack
+    #: (:func:`_reverse`)
+    reverse: tuple[float, float, str] | None = None
 
 
 def _explained(run: Run, stk: Stack) -> float:
@@ -188,16 +189,20 @@ def _exact_tolerance(stk: Stack) -> float | None:
     return None if not exact or None in exact else 1.0 - min(exact)
 
 
-def _reverse(run: Run, stk: Stack) -> tuple[float, float] | None:
+def _reverse(run: Run, stk: Stack) -> tuple[float, float, str] | None:
     """For a stack of candidates whose models are exact
     (:attr:`~._candidates.AbstractCandidate.exact_share`): the stack fitted on the validation
     record and validated on the training record (the settings' filter kept), as (the share of
-    the excess above the estimated floor it leaves there, its score against that baseline). An
-    exact model of the device holds both ways; an effect it only resembles at one record's
-    amplitudes need not. None for other stacks (the rest a model that is not exact may leave is
-    unknown). Held-out modes were named both ways at 1.00, their frequencies within 9 %;
-    backlash between two masses, named `flexible_mode` at 1.00 leaving 0.0 % of the excess,
-    scored −16 the other way, the training record's baseline already at the floor."""
+    the excess above the estimated floor it leaves there, its score against that baseline, why
+    the parameters fitted that way do not describe the same effect,
+    :meth:`~._candidates.AbstractCandidate.other_way`, "" where they do). An exact model of the
+    device holds both ways, as the same effect; an effect it only resembles at one record's
+    amplitudes need not. None for other stacks (the rest a model
+    that is not exact may leave is unknown). Held-out modes were named both ways at 1.00, their
+    frequencies within 9 %; backlash between two masses, named `flexible_mode` at 1.00 leaving
+    0.0 % of the excess, scored −16 the other way, the training record's baseline already at
+    the floor. Another, named so at 1.00 (ζ 0.18), left nothing the other way too, but as a
+    "mode" at ζ 0.40, the search's limit."""
     if _exact_tolerance(stk) is None:
         return None
     rv = prepare(
@@ -211,10 +216,13 @@ def _reverse(run: Run, stk: Stack) -> tuple[float, float] | None:
     )
     f = try_fit(rv, stk.cands)
     if f is None:
-        return 1.0, -math.inf
+        return 1.0, -math.inf, "the design is too wide"
     ex0 = max(rv.base.ms_valid - rv.floor**2, 0.0)
     rest = max(f.ms_valid - rv.floor**2, 0.0) / ex0 if ex0 > 0 else 1.0
-    return rest, rv.score_of(rv.base, f, rv.params(stk.cands), rv.floor)
+    why = next(
+        (w for c in stk.cands if (w := c.other_way(stk.fit.physical, f.physical, rv.limits))), ""
+    )
+    return rest, rv.score_of(rv.base, f, rv.params(stk.cands), rv.floor), why
 
 
 def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, float]:
@@ -391,19 +399,22 @@ def _detection(run: Run) -> tuple[float, float]:
 def _explains(run: Run, stk: Stack, v: Verdict) -> float:
     """The part of a named verdict's confidence its stack's fit earns: min(1, explained /
     ``explained_full``); and where every stacked candidate's model is exact
-    (:attr:`~._candidates.AbstractCandidate.exact_share`), times tol/rest where the stack leaves
-    a rest of the excess above what a true instance leaves, tol = 1 − the least exact share, in
-    either direction; the other way (the records' roles swapped, :func:`_reverse`) also times
-    the odds of its score s over the threshold t, 1/(1 + exp((t − s)/2)), as "no effect" is
-    weighed. Held-out backlash between two masses and a clean closed-loop record, each fitted by
-    a flexible mode's columns, were named so at 0.98–1.00, leaving 2.7–12 % of the excess."""
+    (:attr:`~._candidates.AbstractCandidate.exact_share`), times tol/rest where the stack leaves a
+    rest of the excess above what a true instance leaves, tol = 1 − the least exact share, in either
+    direction; the other way (the records' roles swapped, :func:`_reverse`) also times the odds of
+    its score s over the threshold t, 1/(1 + exp((t − s)/2)), as "no effect" is weighed, and is 0
+    where the parameters fitted that way are not the same effect. Held-out backlash between two
+    masses and a clean closed-loop record, each fitted by a flexible mode's columns, were named so
+    at 0.98–1.00, leaving 2.7–12 % of the excess."""
     out = min(1.0, max(v.explained, 0.0) / run.crit.explained_full)
     tol = _exact_tolerance(stk)
     if tol is None:
         return out
     rests = [1.0 - v.explained]
     if v.reverse is not None:
-        rest, score = v.reverse
+        rest, score, refused = v.reverse
+        if refused:
+            return 0.0
         rests.append(rest)
         out /= 1.0 + math.exp(min((run.crit.threshold - score) / 2, 700.0))
     for rest in rests:
@@ -570,10 +581,11 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
         "equation_gap": cur.equation_gap,
         "equation_shrink": 1 - cur.equation_gap / base.equation_gap,
         "remaining_excess_share": run.excess(cur.ms_valid) / ex0 if ex0 > 0 else 0.0,
-        # an exact stack with the records' roles swapped (else None): its rest and score
+        # an exact stack with the records' roles swapped (else None): its rest, its score and
+        # why a stacked candidate refuses that fit ("": none does)
         "reverse": None
         if v.reverse is None
-        else {"remaining_excess_share": v.reverse[0], "score": v.reverse[1]},
+        else dict(zip(("remaining_excess_share", "score", "refused"), v.reverse, strict=True)),
     }
     final.update(params)
     final["structure"] = v.s_final
