@@ -215,3 +215,17 @@ def test_a_resonance_that_is_a_lag_the_other_way_is_not_named_confidently():
         assert "broadband lag" in rev["refused"], rev
         assert d.confidence == 0.0
     assert d.verdict == "unexplained" or d.confidence < 0.9, (d.verdict, d.confidence)
+
+
+def test_a_resonance_at_another_frequency_the_other_way_is_not_named_confidently():
+    """A 2.3 ms input delay, closed loop (scipy, 1.2 kHz): a collocated mode's columns (18 Hz,
+    ζ 0.18) remove all the excess and outscore the delay's (τ 2.1 ms, half the excess), but
+    fitted on validation the "mode" is at 11.4 Hz: not the same resonance (a device's
+    frequency does not depend on the record), so no confidence."""
+    d, info = _diagnose("delay", 160051001, "scipy")
+    assert info["truth"] == ["delay"]
+    if d.verdict == "flexible_mode":
+        rev = d.final["reverse"]
+        assert "the other way the mode is at" in rev["refused"], rev
+        assert d.confidence == 0.0
+    assert d.verdict == "delay" or d.confidence < 0.9, (d.verdict, d.confidence)
