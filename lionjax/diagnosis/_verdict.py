@@ -190,20 +190,23 @@ def _exact_tolerance(stk: Stack) -> float | None:
 
 
 def _reverse(run: Run, stk: Stack) -> tuple[float, float, str] | None:
-    """For a stack of candidates whose models are exact
+    """For a stack that holds a candidate whose model is exact
     (:attr:`~._candidates.AbstractCandidate.exact_share`): the stack fitted on the validation
     record and validated on the training record (the settings' filter kept), as (the share of
     the excess above the estimated floor it leaves there, its score against that baseline, why
     the parameters fitted that way do not describe the same effect,
     :meth:`~._candidates.AbstractCandidate.other_way`, "" where they do). An exact model of the
     device holds both ways, as the same effect; an effect it only resembles at one record's
-    amplitudes need not. None for other stacks (the rest a model
-    that is not exact may leave is unknown). Held-out modes were named both ways at 1.00, their
+    amplitudes need not (the rest and the score are read only where every stacked model is
+    exact: the rest a model that is not exact may leave is unknown; a held-out backlash named
+    `flexible_mode` at 1.00 had stacked a spring of negative stiffness beside the mode, which
+    was a lag at ζ 0.40 the other way). None for other stacks. Held-out modes were named both
+    ways at 1.00, their
     frequencies within 9 %; backlash between two masses, named `flexible_mode` at 1.00 leaving
     0.0 % of the excess, scored −16 the other way, the training record's baseline already at
     the floor. Another, named so at 1.00 (ζ 0.18), left nothing the other way too, but as a
     "mode" at ζ 0.40, the search's limit."""
-    if _exact_tolerance(stk) is None:
+    if not any(c.exact_share is not None for c in stk.cands):
         return None
     rv = prepare(
         run.valid,
@@ -402,19 +405,20 @@ def _explains(run: Run, stk: Stack, v: Verdict) -> float:
     (:attr:`~._candidates.AbstractCandidate.exact_share`), times tol/rest where the stack leaves a
     rest of the excess above what a true instance leaves, tol = 1 − the least exact share, in either
     direction; the other way (the records' roles swapped, :func:`_reverse`) also times the odds of
-    its score s over the threshold t, 1/(1 + exp((t − s)/2)), as "no effect" is weighed, and is 0
-    where the parameters fitted that way are not the same effect. Held-out backlash between two
+    its score s over the threshold t, 1/(1 + exp((t − s)/2)), as "no effect" is weighed. It is 0
+    where a stack holding an exact candidate is not the same effect fitted the other way
+    (:meth:`~._candidates.AbstractCandidate.other_way`). Held-out backlash between two
     masses and a clean closed-loop record, each fitted by a flexible mode's columns, were named so
     at 0.98–1.00, leaving 2.7–12 % of the excess."""
     out = min(1.0, max(v.explained, 0.0) / run.crit.explained_full)
+    if v.reverse is not None and v.reverse[2]:
+        return 0.0
     tol = _exact_tolerance(stk)
     if tol is None:
         return out
     rests = [1.0 - v.explained]
     if v.reverse is not None:
-        rest, score, refused = v.reverse
-        if refused:
-            return 0.0
+        rest, score, _ = v.reverse
         rests.append(rest)
         out /= 1.0 + math.exp(min((run.crit.threshold - score) / 2, 700.0))
     for rest in rests:
