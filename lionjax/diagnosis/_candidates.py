@@ -9,7 +9,7 @@ reports (:attr:`~AbstractCandidate.units`), when they are physically plausible
 (:attr:`~AbstractCandidate.subsumes`: spring ⊃ offset, asymmetric friction ⊃ Coulomb friction),
 so the stacking never adds a column twice.
 
-Two more regressor effects live here (only the diagnosis uses them; the flexible mode, its
+Three more regressor effects live here (only the diagnosis uses them; the flexible mode, its
 columns and its candidate live in :mod:`._mode`):
 
 - :class:`DirectionalFriction`: the direction-dependent part of Coulomb friction. With F⁺ for
@@ -20,6 +20,8 @@ columns and its candidate live in :mod:`._mode`):
 - :class:`ForceClip`: the dead zone's input F − clip(F, ±d) as a column −(1/Λ)[clip(F, ±d)],
   an out-of-library look-alike that friction must beat (a dead zone acts with the sign of the
   force, friction with the sign of the velocity); never a named candidate.
+- :class:`VelocityDrag`: a force quadratic in the velocity as a column +(1/Λ)[v̂|v̂|], the
+  drag look-alike a named stack must beat; never a named candidate.
 """
 
 from __future__ import annotations
@@ -572,7 +574,7 @@ class SaturationCandidate(AbstractCandidate):
         # the shape too: both fit the train record nearly alike where its forces stay low, and
         # the wrong one extrapolates badly (a hard clip at the train record's peak, 1.1 N,
         # under a tanh of 3.5 N made a validation record reaching 2.9 N 18× worse)
-        return [now._replace(fmax_shape=k) for k in (1, -1)]
+        return self.stack_variants(now)
 
     def stack_variants(self, now):
         # alone, the friction and offset beside it are unmodelled and can choose the wrong shape

@@ -35,9 +35,9 @@ class Verdict:
     periodic_score: float
     periodic_share: float
     periodic_better: bool
-    #: an exact stack with the records' roles swapped: (the rest of the excess it leaves, its
-    #: score, why a stacked candidate refuses that fit or ""); None: not an exact stack
-    #: (:func:`_reverse`)
+    #: a stack holding an exact candidate, with the records' roles swapped: (the rest of the
+    #: excess it leaves, its score, why a stacked candidate refuses that fit or ""); None: no
+    #: exact candidate stacked (:func:`_reverse`)
     reverse: tuple[float, float, str] | None = None
 
 
@@ -201,11 +201,10 @@ def _reverse(run: Run, stk: Stack) -> tuple[float, float, str] | None:
     exact: the rest a model that is not exact may leave is unknown; a held-out backlash named
     `flexible_mode` at 1.00 had stacked a spring of negative stiffness beside the mode, which
     was a lag at ζ 0.40 the other way). None for other stacks. Held-out modes were named both
-    ways at 1.00, their
-    frequencies within 9 %; backlash between two masses, named `flexible_mode` at 1.00 leaving
-    0.0 % of the excess, scored −16 the other way, the training record's baseline already at
-    the floor. Another, named so at 1.00 (ζ 0.18), left nothing the other way too, but as a
-    "mode" at ζ 0.40, the search's limit."""
+    ways at 1.00, their frequencies within 9 %; backlash between two masses, named
+    `flexible_mode` at 1.00 leaving 0.0 % of the excess, scored −16 the other way, the training
+    record's baseline already at the floor. Another, named so at 1.00 (ζ 0.18), left nothing
+    the other way too, but as a "mode" at ζ 0.40, the search's limit."""
     if not any(c.exact_share is not None for c in stk.cands):
         return None
     rv = prepare(
@@ -585,8 +584,8 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
         "equation_gap": cur.equation_gap,
         "equation_shrink": 1 - cur.equation_gap / base.equation_gap,
         "remaining_excess_share": run.excess(cur.ms_valid) / ex0 if ex0 > 0 else 0.0,
-        # an exact stack with the records' roles swapped (else None): its rest, its score and
-        # why a stacked candidate refuses that fit ("": none does)
+        # a stack holding an exact candidate, with the records' roles swapped (else None): its
+        # rest, its score and why a stacked candidate refuses that fit ("": none does)
         "reverse": None
         if v.reverse is None
         else dict(zip(("remaining_excess_share", "score", "refused"), v.reverse, strict=True)),
