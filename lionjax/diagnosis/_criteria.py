@@ -89,6 +89,12 @@ class Criteria(eqx.Module):
             ``min_share`` of the excess the stack leaves): it is searched over a family of some
             1000 periods, not one shape, and on a closed-loop Coulomb record at 10 kHz one at 67
             cycles scored 15; the drawn cogging records of development scored 175–1950.
+        periodic_over_stack: ... and when its score is at least this share of the evidence
+            the stack holds over the baseline (its steps' scores): a force periodic in position
+            small beside a dominant named effect is a remainder, not a rival (held-out
+            dominant springs and stiction were ``unexplained`` at 0.63–0.94 for a periodic
+            remainder scoring 0.12–0.23 of the stack's; cogging and dead zones that a library
+            effect took in part scored 0.99–4.0 of it).
         feedback_share: share of the force's innovation explained by the position just
             measured above which a record is taken as closed loop (held-out records: ≤ 0.17 on
             63 open loops, ≥ 0.33 on the 61 of 73 closed loops whose controller's answer shows).
@@ -117,6 +123,7 @@ class Criteria(eqx.Module):
     dead_zone_lookalike_share: float = 0.8
     drag_lookalike_share: float = 0.8
     periodic_score_factor: float = 4.0
+    periodic_over_stack: float = 0.5
     feedback_share: float = 0.3
     tie_ratio: float = 20.0
 
@@ -141,6 +148,10 @@ class Criteria(eqx.Module):
             raise InputError(
                 "diagnose: expected dead_zone_lookalike_gain > 0, got "
                 f"{self.dead_zone_lookalike_gain!r}."
+            )
+        if not self.periodic_over_stack >= 0:
+            raise InputError(
+                f"diagnose: expected periodic_over_stack ≥ 0, got {self.periodic_over_stack!r}."
             )
         if not (isinstance(self.pair_from, int) and self.pair_from >= 0):
             raise InputError(f"diagnose: expected pair_from ≥ 0, got {self.pair_from!r}.")
