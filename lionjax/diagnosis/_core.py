@@ -11,8 +11,9 @@ Works on recorded data alone (no twin: layer 3 of the package). Outline:
 2. **Baseline**: ẍ + aẋ = bF by least squares on the filtered equation error ε₁ of the training
    record (:mod:`._fit`).
 3. **Gap**, on the validation record: the windowed simulation error (restart every H seconds from
-   the estimated state; default H = 1/a clipped to [20·dt, 2 s], the mechanical time constant;
-   the state is x and its derivative in the widest band the position noise allows,
+   the estimated state; default H = 1/a, the mechanical time constant, clipped to [20·dt, 2 s]
+   and to an eighth of the validation record; the state is x and its derivative in the widest
+   band the position noise allows,
    :func:`_start_states`; the first window is not scored
    where a second follows), the filtered equation error ε₁
    with θ fixed from training, and the noise floor of ε₁ from the position/force noise estimated
@@ -206,7 +207,7 @@ def diagnose(
             :class:`~lionjax.diagnosis.ForceEffect` (docs/effects.md).
         filter_hz: corner λ/2π [Hz] of the filter (s + λ)³ (default min(f_s/25, 40 Hz)).
         window_s: restart interval H [s] of the windowed simulation error (default 1/a clipped
-            to [20·dt, 2 s]).
+            to [20·dt, 2 s] and to an eighth of the validation record).
         threshold, min_share, min_size, floor_factor, max_effects: the most used thresholds
             (:class:`~lionjax.diagnosis.Criteria`: significance score, least share of the excess
             gap, least size against the input's term b·F/Λ, the noise floor's factor, the

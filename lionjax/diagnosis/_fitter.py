@@ -63,6 +63,7 @@ from ._settings import (
     PRESLIDING_PER_DECADE,
     PRESLIDING_RANGE,
     STICK_MIN_S,
+    WINDOWS_LEAST,
     Settings,
 )
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
@@ -634,8 +635,13 @@ class _Fitter(LookAlikes):
             dt = self.st.dt
             Hs = self.st.window_s
             if Hs is None:
+                # the baseline's time constant, within [20 dt, 2 s], and short enough that the
+                # validation record holds WINDOWS_LEAST windows: the gap's evidence counts
+                # windows (a dominant spring's baseline, a = 0.18 1/s and b < 0, set 2 s on a
+                # 5.3 s record: one scored window, no evidence, and the spring that removed
+                # 99.8 % of the simulated gap went unnamed)
                 Hs = 1.0 / a if a > 0 else 0.1
-                Hs = min(max(Hs, 20 * dt), 2.0)
+                Hs = min(max(Hs, 20 * dt), 2.0, self.valid.n_samples * dt / WINDOWS_LEAST)
             n = int(round(Hs / dt))
             if n < 2 or n > self.valid.n_samples:
                 raise InputError(

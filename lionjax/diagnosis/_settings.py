@@ -97,6 +97,12 @@ PERIOD_OVERSAMPLE = 8
 PERIOD_PEAKS = 6
 
 
+#: Least number of windows the validation record holds for the windowed simulation (the
+#: window is the baseline's time constant 1/a unless that is longer): the gap's evidence
+#: counts windows (:meth:`~._stages.Run.sim_score`).
+WINDOWS_LEAST = 8
+
+
 def settings(
     train: Record, *, filter_hz: float | None = None, window_s: float | None = None
 ) -> Settings:
