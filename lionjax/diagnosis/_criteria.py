@@ -93,7 +93,7 @@ class Criteria(eqx.Module):
             the stack holds over the baseline (its steps' scores): a force periodic in position
             small beside a dominant named effect is a remainder, not a rival (held-out
             dominant springs and stiction were ``unexplained`` at 0.63–0.94 for a periodic
-            remainder scoring 0.12–0.23 of the stack's; cogging and dead zones that a library
+            remainder scoring 0.02–0.23 of the stack's; cogging and dead zones that a library
             effect took in part scored 0.99–4.0 of it).
         feedback_share: share of the force's innovation explained by the position just
             measured above which a record is taken as closed loop (held-out records: ≤ 0.17 on
