@@ -42,8 +42,9 @@ class QuadraticDrag(lj.diagnosis.ForceEffect):
 
 class Cogging(lj.diagnosis.ForceEffect):
     """A force periodic in position, A·sin(2πx/p + φ) = A_s·sin(2πx/p) + A_c·cos(2πx/p) [N];
-    p [m] is profiled on 0.5 … 64 cycles over the covered range, every quarter cycle (a
-    sinusoid off by half a cycle over train's range loses its fit), then refined."""
+    p [m] is profiled on 0.5 … 64 cycles over the range both records cover, a quarter cycle
+    apart over train's range, where it is fitted (a sinusoid off by half a cycle there loses
+    its fit), then refined."""
 
     name: ClassVar[str] = "cogging"
     parameters: ClassVar[tuple[str, ...]] = ("A_sin", "A_cos")
@@ -57,4 +58,6 @@ class Cogging(lj.diagnosis.ForceEffect):
 
     def grid(self, limits):
         span = limits.x_range[1] - limits.x_range[0]
-        return [Cogging(float(span / k)) for k in np.arange(0.5, 64.0, 0.25)]
+        fit = max(limits.train_range[1] - limits.train_range[0], span)
+        r = fit / span  # cycles over train's range per cycle over the common one
+        return [Cogging(float(fit / k)) for k in np.arange(0.5 * r, 64.0 * r, 0.25)]

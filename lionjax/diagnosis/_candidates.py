@@ -84,7 +84,9 @@ class Limits(eqx.Module):
     third differences, encoder quantisation included), ``closed_loop``: F answers the position
     (and so its noise), ``loop_noise``: closed loop with the baseline's error at or below the
     estimated noise floor, ``mode_band``: the first and last frequency [Hz] the flexible
-    mode's profile searches, and ``x_range``: the positions [m] both records cover."""
+    mode's profile searches, ``x_range``: the positions [m] both records cover, and
+    ``train_range``: the training record's positions [m], over which a candidate is fitted (a
+    grid in cycles of position must step finely over this range, not only over ``x_range``)."""
 
     F_abs_max: float
     dt: float
@@ -95,6 +97,8 @@ class Limits(eqx.Module):
     #: the positions [m] both records cover (the overlap of their ranges; train's where they
     #: do not overlap): where a force depending on position can be fitted and validated
     x_range: tuple[float, float] = (-math.inf, math.inf)
+    #: the training record's positions [m], [min, max]: where the candidates are fitted
+    train_range: tuple[float, float] = (-math.inf, math.inf)
 
 
 class DirectionalFriction(AbstractEffect):
