@@ -57,8 +57,8 @@ def _periodic(run: Run, stk: Stack) -> tuple[float, float, float, float, bool]:
     profiled on train, scored on validation as a candidate would be (2 coefficients and the
     period). ``better``: it overrules the stack, scoring above ``periodic_score_factor`` times
     the threshold, removing ``min_share`` of what the stack leaves, and holding at least
-    ``periodic_over_stack`` of the stack's own evidence. Not tried on a stack with an input
-    map (τ, F_max)."""
+    ``periodic_over_stack`` of the stack's own evidence (:func:`_bar`). Not tried on a stack
+    with an input map (τ, F_max)."""
     cur, crit = stk.fit, run.crit
     if any(c.input_parameter for c in stk.cands):
         ms, period = math.inf, math.nan
@@ -71,11 +71,10 @@ def _periodic(run: Run, stk: Stack) -> tuple[float, float, float, float, bool]:
     lo2 = min(run.fit_floor**2, ms)
     ex_cur = max(cur.ms_valid - lo2, 0.0)
     share = 1 - max(ms - lo2, 0.0) / ex_cur if ex_cur > 0 and math.isfinite(ms) else 0.0
-    held = sum(s.score for s in stk.steps)  # the stack's evidence over the baseline
     better = (
         score > crit.periodic_score_factor * crit.threshold
         and share >= crit.min_share
-        and score >= crit.periodic_over_stack * held
+        and score >= crit.periodic_over_stack * _bar(run, stk)
     )
     return ms, period, score, share, bool(better)
 
