@@ -210,6 +210,12 @@ def test_new_class_makes_a_case(cls, source):
         assert len(set(names)) == 3 and "+".join(names) in blind.TRIPLES
         if "+".join(names) in blind.OPEN_LOOP_TRIPLES:
             assert not info["closed_loop"]
+        if "saturation" in names:  # the command leaves saturation on each record, or flagged
+            f_max = next(e for e in eff if e["name"] == "saturation")["params"]["f_max"]
+            share = [float(np.mean(np.abs(np.asarray(r.F)) > f_max)) for r in (tr, va)]
+            assert info["saturated_share"] == share
+            held = max(share) <= blind.SATURATED_MOST
+            assert held or info["setup_draws"] == blind.SETUP_DRAWS
     elif cls == "quadratic_drag":
         assert eff[0]["params"]["c2"] > 0
     else:  # artefacts: sized by A/F_rms; the device is the clean run
@@ -341,3 +347,16 @@ def test_no_candidates_never_needs_load_candidates(monkeypatch):
         progress=False,
     )
     assert out["records"][0]["correct"] and out["config"]["candidates"] is None
+
+
+def test_a_saturation_triple_saturated_throughout_is_drawn_again():
+    """Seed 190160006's first setup (closed loop, soft saturation at 1.16 N beside an offset of
+    −1.70 N and friction) kept the command above F_max on 88 % and 99 % of the records: F_max
+    and the offset are then one constant. The case is drawn on a second setup, whose command
+    stays within F_max on most samples."""
+    tr, va, info = blind.make_case("triple", 190160006, source="twin")
+    assert info["truth"] == ["saturation", "coulomb_friction", "offset"]
+    assert info["setup_draws"] == 2
+    f_max = info["effects"][0]["params"]["f_max"]
+    share = [float(np.mean(np.abs(np.asarray(r.F)) > f_max)) for r in (tr, va)]
+    assert max(share) <= blind.SATURATED_MOST
