@@ -24,7 +24,10 @@ they share one length bucket. It reports
   ``lionjax diagnose --pairs DIR`` process and by M separate ``lionjax diagnose TRAIN --validate
   VALID`` processes (wall time of each arm, one run, each with a fresh compilation cache
   folder, as a user's first run sees it), and whether the verdicts match; ``--no-cache-arm``
-  adds the separate processes without the cache (``LIONJAX_NO_COMPILE_CACHE=1``).
+  adds the separate processes without the cache (``LIONJAX_NO_COMPILE_CACHE=1``);
+- with ``--blas``: the same loop of ``lj.diagnose`` with the host BLAS on one thread (what the
+  diagnosis sets) and on the host's default threads, alternated ``--repeats`` times (the least
+  of each), and whether the verdicts match.
 
     PYTHONPATH=<checkout> python benchmarks/diagnosis_speed.py --many [--pairs N] [--cli M]
 
@@ -89,6 +92,11 @@ def main(argv=None) -> dict:
         "--no-cache-arm",
         action="store_true",
         help="also time the separate processes without the compilation cache",
+    )
+    g.add_argument(
+        "--blas",
+        action="store_true",
+        help="also time the loop with the host's BLAS threads against one thread",
     )
     p.add_argument(
         "--lengths", help="time and peak RSS against training samples N1,N2,… (see above)"
@@ -203,11 +211,45 @@ def many(args) -> dict:
         f"{args.pairs} pairs after a warm-up: loop of lj.diagnose {t_loop:.2f} s, diagnose_many "
         f"{t_many:.2f} s (loop/many {out['loop_over_many']:.2f}), same verdicts: {same}"
     )
+    if args.blas:
+        out["blas"] = _blas_threads(pairs, lj, args.repeats)
     if args.cli:
         out["cli"] = _cli(_pairs(args.cli, args.duration, args.rate), lj, args.no_cache_arm)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)
+    return out
+
+
+def _blas_threads(pairs: list, lj, repeats: int) -> dict:
+    """The compiled loop of ``lj.diagnose`` over ``pairs`` with the host BLAS on one thread (the
+    diagnosis' setting, ``lionjax.diagnosis._core.BLAS_THREADS``) and on the host's default,
+    alternated ``repeats`` times: the least of each, and whether the verdicts match."""
+    from lionjax.diagnosis import _core
+
+    times: dict = {1: [], None: []}
+    keys: dict = {}
+    for _ in range(repeats):
+        for n in (1, None):
+            _core.BLAS_THREADS = n
+            try:
+                t0 = time.perf_counter()
+                ds = [lj.diagnose(tr, va) for _, tr, va in pairs]
+                times[n].append(time.perf_counter() - t0)
+            finally:
+                _core.BLAS_THREADS = 1
+            keys[n] = [_key(d.verdict, d.confidence, d.stack) for d in ds]
+    out = {
+        "one_thread_s": min(times[1]),
+        "default_threads_s": min(times[None]),
+        "same_verdicts": keys[1] == keys[None],
+    }
+    out["default_over_one"] = out["default_threads_s"] / out["one_thread_s"]
+    print(
+        f"{len(pairs)} pairs, BLAS on one thread {out['one_thread_s']:.2f} s, on the host's "
+        f"default {out['default_threads_s']:.2f} s (default/one {out['default_over_one']:.2f}), "
+        f"same verdicts: {out['same_verdicts']}"
+    )
     return out
 
 

@@ -189,3 +189,29 @@ def test_criteria_are_read_unless_an_argument_overrides_them(drag):
     assert d.settings["threshold"] == 1e9 and d.stack == []
     d = lj.diagnose(*drag, candidates=CUSTOM, criteria=strict, threshold=10.0)
     assert d.verdict == "quadratic_drag"
+
+
+def test_the_host_blas_runs_on_one_thread_during_a_diagnosis_and_is_restored():
+    """The diagnosis' host products are thin and run beside XLA's threads: it holds the host BLAS
+    to one thread while it runs (seen from a candidate's grid, called inside the diagnosis)
+    and gives the caller's setting back after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads():
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    if not blas_threads():
+        pytest.skip("threadpoolctl sees no BLAS library in this numpy")
+    seen = []
+
+    class Watched(Cogging):
+        def grid(self, limits):
+            seen.append(blas_threads())
+            return super().grid(limits)
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        d = lj.diagnose(*records(seed=4), candidates=(*lj.diagnosis.DEFAULT_CANDIDATES, Watched()))
+        after = blas_threads()
+    assert d.verdict == "none"
+    assert seen and all(s == {1} for s in seen)
+    assert after == {2}

@@ -105,6 +105,7 @@ from collections.abc import Sequence
 
 import jax
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .._errors import InputError
 from .._record import Record
@@ -116,13 +117,25 @@ from ._result import RESERVED, Diagnosis
 from ._stages import ROLES, check_candidates, fit_alone, parsimony, prepare, prune, stack_effects
 from ._verdict import judge, report, uncounted, unresolved, weigh
 
+#: BLAS threads while a diagnosis runs (:func:`_in_float64`); None leaves the host's setting.
+BLAS_THREADS: int | None = 1
+
 
 def _in_float64(fn):
-    """``fn`` run with ``jax_enable_x64`` switched on (and restored after)."""
+    """``fn`` run with ``jax_enable_x64`` switched on and the host BLAS on one thread (both
+    restored after).
+
+    The diagnosis' host products are thin (T × at most P_MAX + 1 columns) and run beside XLA's
+    own threads, which compute the filters and simulations: more BLAS threads gain nothing
+    there and contend with XLA's. On an idle two-core machine four compiled diagnoses of 8-s
+    pairs at 5 kHz took 20.9 s with one BLAS thread and 25.1 s with the default two, with the
+    same verdicts (``benchmarks/diagnosis_speed.py --many --blas``); with another job on the
+    cores, one thread took 6.0 s and 10.8 s for pairs that took 14.3 s and 17.8 s.
+    :data:`BLAS_THREADS` sets the count."""
 
     @functools.wraps(fn)
     def run(*args, **kwargs):
-        with jax.enable_x64(True):
+        with jax.enable_x64(True), threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
             return fn(*args, **kwargs)
 
     return run
