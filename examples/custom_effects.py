@@ -42,9 +42,9 @@ class QuadraticDrag(lj.diagnosis.ForceEffect):
 
 class Cogging(lj.diagnosis.ForceEffect):
     """A force periodic in position, A·sin(2πx/p + φ) = A_s·sin(2πx/p) + A_c·cos(2πx/p) [N];
-    p [m] is profiled on 0.5 … 64 cycles over the range both records cover, a quarter cycle
-    apart over train's range, where it is fitted (a sinusoid off by half a cycle there loses
-    its fit), then refined."""
+    p [m] is profiled from 0.5 cycles over train's range, where it is fitted, to 64 over the
+    range both records cover (at most 256 over train's), a quarter cycle apart over train's
+    range (a sinusoid off by half a cycle there loses its fit), then refined."""
 
     name: ClassVar[str] = "cogging"
     parameters: ClassVar[tuple[str, ...]] = ("A_sin", "A_cos")
@@ -57,7 +57,7 @@ class Cogging(lj.diagnosis.ForceEffect):
         return (jnp.sin(phase), jnp.cos(phase))
 
     def grid(self, limits):
-        span = limits.x_range[1] - limits.x_range[0]
-        fit = max(limits.train_range[1] - limits.train_range[0], span)
-        r = fit / span  # cycles over train's range per cycle over the common one
-        return [Cogging(float(fit / k)) for k in np.arange(0.5 * r, 64.0 * r, 0.25)]
+        span = limits.x_range[1] - limits.x_range[0]  # where both records go
+        fit = max(limits.train_range[1] - limits.train_range[0], span)  # where it is fitted
+        k_hi = min(64.0 * fit / span, 256.0)  # cycles over train's range (records may barely meet)
+        return [Cogging(float(fit / k)) for k in np.arange(0.5, k_hi, 0.25)]

@@ -136,18 +136,21 @@ class _Fitter(LookAlikes):
         if cand.name not in self._profiled:
             if self.limits is None:
                 raise RuntimeError("_Fitter.limits must be set before a ForceEffect is fitted")
-            tried: list[ForceEffect] = []
-
             base = self._model([])
 
             def rss(e: ForceEffect) -> float:
-                # the baseline's Gram is shared; only the effect's columns are new
-                tried.append(e)
+                # the baseline's Gram is shared; only the effect's columns are new. Each grid
+                # point's signals are dropped once scored, so that memory does not grow with the
+                # grid (a user's grid of 5.8·10⁵ periods held 21 GB); the profiled point's are
+                # filtered again when it is fitted
                 model = self._model([e])
-                cols = self.rtr.added_columns(model, base)
-                if cols is None:
-                    return float(fit_batch(self.rtr, model, [(0.0, math.inf)])[1][0])
-                return float(rss_with_columns(self.rtr, base, cols[None])[0])
+                try:
+                    cols = self.rtr.added_columns(model, base)
+                    if cols is None:
+                        return float(fit_batch(self.rtr, model, [(0.0, math.inf)])[1][0])
+                    return float(rss_with_columns(self.rtr, base, cols[None])[0])
+                finally:
+                    self.rtr.drop(signal_names(e))
 
             best = cand.profile(rss, self.limits)
             if not isinstance(best, ForceEffect) or best.name != cand.name:
@@ -155,8 +158,6 @@ class _Fitter(LookAlikes):
                     f"{type(cand).__name__}.profile must return a {type(cand).__name__} "
                     f"(name {cand.name!r}), got {best!r}."
                 )
-            # the grid's other columns are not needed again
-            self.rtr.drop([n for e in tried if e.key() != best.key() for n in signal_names(e)])
             self._profiled[cand.name] = best
         return self._profiled[cand.name]
 
