@@ -969,22 +969,15 @@ def _draw_effects(cls, names, rng, source, rate, duration, durations, setup_kw):
     return st, stats, v0, train0, draws
 
 
-def _saturated_share(F, f_max: float) -> float:
-    """The share of samples on which the command ``F`` lies beyond F_max on its more frequent
-    side (F > F_max or F < −F_max): there the actuator gives one constant force."""
-    F = np.asarray(F)
-    return max(float(np.mean(F > f_max)), float(np.mean(F < -f_max)))
-
-
-def _saturation_held(draws, runs) -> bool:
-    """Whether a saturation beside other effects leaves the applied force varying: the logged
-    command beyond F_max on one side on at most :data:`SATURATED_MOST` of each record's samples
-    (True without a saturation, or with it alone: its size band bounds it)."""
+def _saturated_shares(draws, Fs) -> list[float] | None:
+    """Per record (its logged command F), the share of samples on which F lies beyond F_max on
+    its more frequent side (F > F_max or F < −F_max: there the actuator gives one constant
+    force); None without a saturation, or with it alone (its size band bounds it)."""
     sat = [d for d in draws if d.name == "saturation"]
     if not sat or len(draws) == 1:
-        return True
+        return None
     f_max = sat[0].params(sat[0].strength)["f_max"]
-    return all(_saturated_share(F, f_max) <= SATURATED_MOST for _, F, _, _ in runs)
+    return [max(float(np.mean(F > f_max)), float(np.mean(F < -f_max))) for F in map(np.asarray, Fs)]
 
 
 def make_case(
@@ -1027,7 +1020,9 @@ def make_case(
         )
         setups += 1
         runs = [simulate(st, draws, j) for j in range(2)]
-        held = _saturation_held(draws, runs)
+        # a saturation beside other effects must leave the applied force varying
+        shares = _saturated_shares(draws, [F for _, F, _, _ in runs])
+        held = shares is None or max(shares) <= SATURATED_MOST
         if (all(d.in_aim() for d in draws) and held) or setups >= SETUP_DRAWS:
             break
     recs, changes, v_eff = [], [], []
@@ -1092,10 +1087,8 @@ def make_case(
     }
     if cls == "triple":
         info["shape"] = "+".join(names) + " / " + info["shape"]
-        sat = [d for d in draws if d.name == "saturation"]
-        if sat:  # the share of each record's samples whose command is beyond F_max, one side
-            f_max = sat[0].params(sat[0].strength)["f_max"]
-            info["saturated_share"] = [_saturated_share(r.F, f_max) for r in recs]
+        if shares is not None:  # each record's share of samples beyond F_max, on one side
+            info["saturated_share"] = shares
     aims = [d for d in draws if d.aim is not None]
     if aims:  # the stuck share of both records (as the aim measures it)
         info["stick_share"] = aims[0].aim[2](v_eff[1])

@@ -229,6 +229,7 @@ def _blas_threads(pairs: list, lj, repeats: int) -> dict:
 
     times: dict = {1: [], None: []}
     keys: dict = {}
+    kept = _core.BLAS_THREADS
     for _ in range(repeats):
         for n in (1, None):
             _core.BLAS_THREADS = n
@@ -237,7 +238,7 @@ def _blas_threads(pairs: list, lj, repeats: int) -> dict:
                 ds = [lj.diagnose(tr, va) for _, tr, va in pairs]
                 times[n].append(time.perf_counter() - t0)
             finally:
-                _core.BLAS_THREADS = 1
+                _core.BLAS_THREADS = kept
             keys[n] = [_key(d.verdict, d.confidence, d.stack) for d in ds]
     out = {
         "one_thread_s": min(times[1]),

@@ -117,11 +117,11 @@ from ._result import RESERVED, Diagnosis
 from ._stages import ROLES, check_candidates, fit_alone, parsimony, prepare, prune, stack_effects
 from ._verdict import judge, report, uncounted, unresolved, weigh
 
-#: BLAS threads while a diagnosis runs (:func:`_in_float64`); None leaves the host's setting.
+#: BLAS threads while a diagnosis runs (:func:`_diagnosis_context`); None leaves the host's setting.
 BLAS_THREADS: int | None = 1
 
 
-def _in_float64(fn):
+def _diagnosis_context(fn):
     """``fn`` run with ``jax_enable_x64`` switched on and the host BLAS on one thread (both
     restored after).
 
@@ -190,7 +190,7 @@ def _check_records(train: Record, valid: Record | None) -> Record:
     return valid
 
 
-@_in_float64
+@_diagnosis_context
 def diagnose(
     train: Record,
     valid: Record | None = None,
