@@ -42,9 +42,9 @@ class QuadraticDrag(lj.diagnosis.ForceEffect):
 
 class Cogging(lj.diagnosis.ForceEffect):
     """A force periodic in position, A·sin(2πx/p + φ) = A_s·sin(2πx/p) + A_c·cos(2πx/p) [N];
-    p [m] is profiled from 0.5 cycles over train's range, where it is fitted, to 64 over the
-    range both records cover (at most 256 over train's), a quarter cycle apart over train's
-    range (a sinusoid off by half a cycle there loses its fit), then refined."""
+    p [m] is profiled from one cycle over train's range, where it is fitted (less is a slope
+    or a bump, which a spring or an offset explains), to 64 over the range both records cover
+    (at most 256 over train's), a quarter cycle apart over train's range, then refined."""
 
     name: ClassVar[str] = "cogging"
     parameters: ClassVar[tuple[str, ...]] = ("A_sin", "A_cos")
@@ -60,4 +60,4 @@ class Cogging(lj.diagnosis.ForceEffect):
         span = limits.x_range[1] - limits.x_range[0]  # where both records go
         fit = max(limits.train_range[1] - limits.train_range[0], span)  # where it is fitted
         k_hi = min(64.0 * fit / span, 256.0)  # cycles over train's range (records may barely meet)
-        return [Cogging(float(fit / k)) for k in np.arange(0.5, k_hi, 0.25)]
+        return [Cogging(float(fit / k)) for k in np.arange(1.0, k_hi, 0.25)]
