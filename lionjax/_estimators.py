@@ -30,9 +30,8 @@ by one per-interval :meth:`~AbstractSampleStepper.increment`, which the streamin
 # No ``from __future__ import annotations``: equinox reads AbstractVar annotations at runtime.
 import abc
 import dataclasses
-from typing import ClassVar, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -43,6 +42,9 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from ._errors import RESULTS, InputError
 from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
+
+if TYPE_CHECKING:  # imported where an ODE is solved: `import lionjax` stays light
+    import diffrax
 from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2, step_products
 from ._record import Record
 from ._solution_tools import by_name, convergence_time, finish, transient_mask
@@ -407,7 +409,7 @@ class DiffraxStep(AbstractStepper):
         normalisation: μ of the normalised law, or None (plain law).
     """
 
-    solver: diffrax.AbstractSolver = diffrax.Kvaerno5()
+    solver: "diffrax.AbstractSolver" = eqx.field(default_factory=lambda: _diffrax().Kvaerno5())
     rtol: float = 1e-8
     atol: float = 1e-10
     max_steps_per_sample: int = eqx.field(static=True, default=64)
@@ -472,6 +474,12 @@ class LionSolution(eqx.Module):
         return convergence_time(self.theta, ref, lambda i: self.t[i] - self.t[0], tolerance)
 
 
+def _diffrax():
+    import diffrax
+
+    return diffrax
+
+
 def _diffrax_theta(model, bank, record, G, mu, theta0, stepper: DiffraxStep):
     """θ at every sample from the joint continuous-time ODE (see :class:`DiffraxStep`)."""
     sigs = model.signals(record)
@@ -511,6 +519,7 @@ def _diffrax_theta(model, bank, record, G, mu, theta0, stepper: DiffraxStep):
         return dz, dtheta
 
     z0 = bank.steady_state(U[:, 0])
+    diffrax = _diffrax()
     controller = diffrax.ClipStepSizeController(
         diffrax.PIDController(rtol=stepper.rtol, atol=stepper.atol), jump_ts=ts
     )

@@ -35,13 +35,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
 from .._batched import DEFAULT_EXECUTION, Execution, lion_batched
@@ -52,6 +51,9 @@ from .._models import AbstractModel
 from .._outputs import ConvergenceTime, LSStatistics, TailStatistics
 from .._record import Record
 from ._study import StudyRecords, StudyResult, _as_batch, gain_class, refuse_gain_type
+
+if TYPE_CHECKING:  # imported where a tuning starts: `import lionjax` stays light
+    import optimistix as optx
 
 
 class TuneObjective(eqx.Module):
@@ -306,6 +308,8 @@ def _point_jit(z, setup):
 
 @eqx.filter_jit
 def _solve(z0, setup, solver, max_steps):
+    import optimistix as optx
+
     return optx.minimise(
         _objective, solver, z0, setup, has_aux=True, max_steps=max_steps, throw=False
     )
@@ -494,6 +498,8 @@ def tune(
     p0 = float(_positive(init_pole, "init_pole", what).reshape(-1)[0])
     if not (isinstance(max_steps, int) and max_steps >= 1):
         raise InputError(f"{what}: max_steps must be a positive int, got {max_steps!r}.")
+    import optimistix as optx
+
     solver = optx.BFGS(rtol=1e-3, atol=1e-3) if solver is None else solver
     if not isinstance(solver, optx.AbstractMinimiser):
         raise InputError(

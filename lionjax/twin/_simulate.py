@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -24,6 +24,9 @@ from ._effects import (
 )
 from ._excitation import AbstractExcitation
 from ._plant import CentringPD, Plant
+
+if TYPE_CHECKING:  # imported where a simulation starts: `import lionjax` stays light
+    import diffrax
 
 
 class _Axis(eqx.Module):
@@ -124,6 +127,8 @@ def _substep(axis, solver, y, s, r, h, F, max_events, n_bisect):
     negative, the first event instant is located by bisection on the solver's dense output, the
     step is redone up to that instant, the mode is switched and the pass repeats from there.
     """
+    import diffrax
+
     term = diffrax.ODETerm(axis.rhs)
 
     def step(y, s, r, t1):
@@ -415,6 +420,8 @@ def simulate(
             f"simulate: argument 'closed_loop' must be a CentringPD or None, got "
             f"{type(closed_loop).__name__}."
         )
+    import diffrax
+
     solver = diffrax.Tsit5() if solver is None else solver
     if not isinstance(solver, diffrax.AbstractERK):
         raise InputError(
