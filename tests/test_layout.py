@@ -96,3 +96,20 @@ def test_no_import_cycle():
     for m in sorted(graph):
         if m not in state:
             visit(m)
+
+
+def test_import_leaves_the_ode_and_optimisation_libraries_unloaded():
+    # every `lionjax` process pays its import (a cold `lionjax diagnose` too): diffrax and
+    # optimistix (~0.4 s) load where an ODE is solved or a tuning starts
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, lionjax, lionjax.cli; "
+        "print(sorted(m for m in ('diffrax', 'optimistix', 'lineax') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+    # and they still load where they are used
+    step = lj.DiffraxStep()
+    assert type(step.solver).__name__ == "Kvaerno5"
