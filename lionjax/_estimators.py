@@ -42,9 +42,6 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from ._errors import RESULTS, InputError
 from ._filters import FilterBank
 from ._models import AbstractModel, Regressors
-
-if TYPE_CHECKING:  # imported where an ODE is solved: `import lionjax` stays light
-    import diffrax
 from ._phi import SERIES_BOUND, _phi_series, exact_step, materialise, phi_sym2, step_products
 from ._record import Record
 from ._solution_tools import by_name, convergence_time, finish, transient_mask
@@ -61,6 +58,9 @@ from ._validity import (
     unexcited,
     well_conditioned,
 )
+
+if TYPE_CHECKING:  # imported where an ODE is solved: `import lionjax` stays light
+    import diffrax
 
 # ----------------------------------------------------------------------------------------------
 # Gains
@@ -409,7 +409,7 @@ class DiffraxStep(AbstractStepper):
         normalisation: μ of the normalised law, or None (plain law).
     """
 
-    solver: "diffrax.AbstractSolver" = eqx.field(default_factory=lambda: _diffrax().Kvaerno5())
+    solver: "diffrax.AbstractSolver" = eqx.field(default_factory=lambda: _kvaerno5())
     rtol: float = 1e-8
     atol: float = 1e-10
     max_steps_per_sample: int = eqx.field(static=True, default=64)
@@ -474,10 +474,10 @@ class LionSolution(eqx.Module):
         return convergence_time(self.theta, ref, lambda i: self.t[i] - self.t[0], tolerance)
 
 
-def _diffrax():
+def _kvaerno5():
     import diffrax
 
-    return diffrax
+    return diffrax.Kvaerno5()
 
 
 def _diffrax_theta(model, bank, record, G, mu, theta0, stepper: DiffraxStep):
@@ -519,7 +519,8 @@ def _diffrax_theta(model, bank, record, G, mu, theta0, stepper: DiffraxStep):
         return dz, dtheta
 
     z0 = bank.steady_state(U[:, 0])
-    diffrax = _diffrax()
+    import diffrax
+
     controller = diffrax.ClipStepSizeController(
         diffrax.PIDController(rtol=stepper.rtol, atol=stepper.atol), jump_ts=ts
     )

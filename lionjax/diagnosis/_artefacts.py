@@ -51,11 +51,11 @@ def line_in(F: np.ndarray, t: np.ndarray, f0: float, dt: float) -> np.ndarray:
     ks = [k for k in range(1, MAX_HARMONIC + 1) if k * f0 < 0.45 / dt]
     if not ks:
         return np.zeros_like(F)
-    # cos and sin of kw from powers of e^{iw}: one complex exponential, not 2K trig calls (a
-    # profile over the mains frequencies builds ~60 of these per record)
+    # cos and sin of kw (k = 1 … K, as ks) from the powers of e^{iw}: one complex exponential,
+    # not 2K trig calls (a profile over the mains frequencies builds ~60 of these per record)
     z = np.exp(2j * np.pi * f0 * (t - t[0]))
     A = np.empty((F.size, 2 * len(ks)))
-    zk = z ** ks[0]
+    zk = z
     for i in range(len(ks)):
         if i:
             zk = zk * z
