@@ -7,6 +7,7 @@ import json
 import logging
 import os
 import pathlib
+import platform
 import subprocess
 import sys
 
@@ -200,3 +201,32 @@ def test_compile_cache_is_kept_unless_turned_off(pairs, tmp_path):
     assert len(kept) > 3  # the identification's programs, each a file
     for name in ("env_off", "flag_off"):
         assert not (tmp_path / name).exists(), name
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="glibc's mallopt only")
+def test_the_command_line_keeps_freed_memory_for_reuse():
+    # arrays of 8 MiB and growing, allocated and freed 20 times: with glibc's default each
+    # takes fresh pages (and faults them in); with the command line's heap they reuse freed
+    # memory. In a subprocess: the setting is the process' own
+    code = (
+        "import resource, sys, numpy as np\n"
+        "from lionjax.cli._heap import keep_freed_memory\n"
+        "def faults():\n"
+        "    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+        "    for k in range(20):\n"
+        "        a = np.ones((1 << 20) + 4096 * k); del a\n"
+        "    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0\n"
+        "on = sys.argv[1] == 'on' and keep_freed_memory()\n"
+        "print(on, faults(), keep_freed_memory({'MALLOC_TOP_PAD_': '0'}))\n"
+    )
+    out = {}
+    for arm in ("off", "on"):
+        p = subprocess.run([sys.executable, "-c", code, arm], capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        out[arm] = p.stdout.split()
+    assert out["off"][0] == "False" and out["on"][0] == "True"
+    assert out["on"][2] == "False"  # the user's own tunable wins
+    # fresh pages for most of the 20 arrays of 2048 pages and more (glibc's dynamic threshold
+    # catches some: 11840 faults on the development machine) against the first array's
+    off, on = int(out["off"][1]), int(out["on"][1])
+    assert off > 5_000 and on < 3_500 and off > 3 * on, out
