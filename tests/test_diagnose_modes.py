@@ -281,3 +281,57 @@ def test_validation_rss_of_a_training_fit_against_numpy():
         B = np.concatenate([N, cols[1][i, 2:].T], 1)
         eta = np.linalg.lstsq(B, -held, rcond=None)[0]
         np.testing.assert_allclose(got[i], np.sum((held + B @ eta) ** 2), rtol=1e-9)
+
+
+def test_fits_hold_only_small_arrays_per_structure(monkeypatch):
+    """ε₁'s least squares of a structure with an F-dependent column (b(x) = b + b₁ξ: the
+    column ξ·u) under input maps u = sat_Fmax(F(t − τ)) — the profile grid's path — and for
+    u = F, against numpy's lstsq on the explicit design [V₂(x), −Q₁(u), V₂(g), −Q₁(ξu), N]
+    (N the filter's free response), to 1e-9 relative. With the design cached (short record)
+    and rebuilt (``BIG`` lowered: a long record), bit for bit the same; and on the long record
+    nothing of the record's length is held per structure, only its plan and its Gram."""
+    from lionjax._model_effects import PolynomialPosition
+    from lionjax._models import Augmented, MassDamper
+    from lionjax.diagnosis import _fit
+    from lionjax.diagnosis._fit import Regressors, apply_input, fit_batch
+
+    dt, T, lam = 1 / 997.3, 3000, 2 * np.pi * 30.0
+    bank = lj.FilterBank.from_poles(np.full(3, -lam), unit_dc_gain=True)
+    rng = np.random.default_rng(5)
+    F = np.repeat(rng.standard_normal(T // 20), 20)
+    x = 0.01 * np.sin(np.arange(T) * dt * 2.1) + 1e-4 * np.cumsum(rng.standard_normal(T)) * dt
+    c, ell = float(np.mean(x)), float(np.std(x))
+    model = Augmented(MassDamper(), (PolynomialPosition(c, ell, 1),))
+    inputs = [(0.0, np.inf), (0.0031, np.inf), (0.0, 0.8), (0.0017, -1.2)]
+
+    def fits(big):
+        monkeypatch.setattr(_fit, "BIG", big)
+        regs = Regressors(lj.Record(x, F, dt), bank)
+        out = [fit_batch(regs, model, [inp])[:2] for inp in inputs[:1]]
+        out.append(fit_batch(regs, model, inputs[1:])[:2])
+        return regs, out
+
+    regs, cached = fits(1 << 18)
+    long_regs, rebuilt = fits(1 << 10)
+    for a, b in zip(cached, rebuilt, strict=True):
+        assert all(np.array_equal(u, v) for u, v in zip(a, b, strict=True))
+    kinds = {k[0] for k in long_regs.cache if isinstance(k, tuple)}
+    assert "design" not in kinds and {"plan", "gram"} <= kinds
+    for k, v in long_regs.cache.items():
+        if isinstance(k, tuple) and k[0] in ("plan", "gram"):
+            arrays = [a for a in (v if isinstance(v, tuple) else (v,)) if isinstance(a, np.ndarray)]
+            assert arrays and all(a.size <= (_fit.P_MAX + 1) ** 2 for a in arrays), k
+    theta = np.concatenate([cached[0][0], cached[1][0]])
+    rss = np.concatenate([cached[0][1], cached[1][1]])
+    xi = (x - c) / ell
+    g = ell * xi**2 / 2
+    V = regs.filtered({"x": (x, "foh"), "g": (g, "foh")})
+    N = np.asarray(regs.N)[:T]
+    for i, (tau, fmax) in enumerate(inputs):
+        u = apply_input(F, dt, tau, fmax)
+        Q = regs.filtered({f"u{i}": (u, "zoh"), f"xiu{i}": (xi * u, "zoh")})
+        D = np.stack([V["x"][:T, 1], -Q[f"u{i}"][:T, 0], V["g"][:T, 1], -Q[f"xiu{i}"][:T, 0]], 1)
+        D = np.concatenate([D, N], 1)
+        ref, res = np.linalg.lstsq(D, -V["x"][:T, 2], rcond=None)[:2]
+        np.testing.assert_allclose(theta[i], ref[:4], rtol=1e-9, atol=1e-9 * np.abs(ref[:4]).max())
+        np.testing.assert_allclose(rss[i], res[0], rtol=1e-9)

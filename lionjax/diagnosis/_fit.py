@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -77,7 +78,8 @@ GRID = 32
 #: grid length and a grid of 8 or 15 points filters 8 or 16, not 32.
 GRID_BATCH = 8
 #: Padded lengths above this filter a profile grid 4 points at a time and rebuild each
-#: structure's dense (Tp, ·) design and Gram instead of caching them (memory). A 10-minute
+#: structure's dense (T, ·) design from the cached signals instead of caching it (memory; its
+#: small Gram is kept at every length). A 10-minute
 #: record at 1 kHz (padded to 2²⁰) took 243 s and 17.9 GB with them cached, 245 s and 5.8 GB
 #: without (the same diagnosis to six digits): above a few 10⁵ samples the cache buys no time.
 BIG = 1 << 18
@@ -325,9 +327,9 @@ class Regressors:
         return {n: self.cache[n] for n in raw}
 
     def drop(self, names) -> None:
-        """Forget raw and filtered signals ``names`` and every cached layout and nuisance that
-        uses them (profiled columns: one structure per grid point would otherwise stay in
-        memory)."""
+        """Forget raw and filtered signals ``names`` and every cached plan, design, Gram and
+        nuisance that uses them (profiled columns: one structure per grid point would otherwise
+        stay in memory)."""
         names = set(names)
         for n in names:
             self.known.pop(n, None)
@@ -364,53 +366,78 @@ class Regressors:
                     self.known[n] = (np.asarray(u, np.float64), hold)
         return {n: self.known.get(n, (None, None)) for n in names}
 
-    def layout(self, model: AbstractModel):
-        """(Wfix (Tp, P), mult (K, Tp), onehot (K, P), unused, p, Wdef (Tp, P)) of a
-        structure: fixed columns, F-dependent signals' multipliers and slots, the indices of
-        the unused slots (each a unit column outside the record in the solver's fixed-size
-        system: :meth:`gram`), the column count and the design for u = F."""
-        cols = _columns(model)
-        p = len(cols)
-        nuis = self.nuisance(model)
-        n_nuis = nuis.shape[1]
-        if p + n_nuis > P_MAX:
-            raise TooWide(
-                f"structure with {p} columns and {n_nuis} initial-state columns exceeds "
-                f"P_MAX = {P_MAX}"
-            )
-        fixed = self.fixed_columns(model, cols)
-        m = self.force_mask
-        Wfix = np.zeros((self.Tp, P_MAX))
-        n_dep = sum(f_dependent(c.signal) for c in cols)
-        K = next((k for k in K_BUCKETS if k >= n_dep), n_dep)
-        mult = np.zeros((K, self.Tp))
-        onehot = np.zeros((K, P_MAX))
-        kk = 0
-        fdep: list[str] = []
-        for j, c in enumerate(cols):
-            if f_dependent(c.signal):
-                if c.order != 0 or kk >= K_MAX:
+    def plan(self, model: AbstractModel) -> _Plan:
+        """The structure's slots in the design (:class:`_Plan`; small, cached per structure):
+        which filtered signal each column reads, the F-dependent columns' multipliers and the
+        initial-state columns. No (Tp, ·) array is held per structure: the design is built
+        from the cached signals when a product needs it (:meth:`design`), and the fits read
+        the structure's Gram (:meth:`gram`)."""
+        key = ("plan", _model_key(model))
+        if key not in self.cache:
+            cols = _columns(model)
+            p = len(cols)
+            n_nuis = self.nuisance(model).shape[1]
+            if p + n_nuis > P_MAX:
+                raise TooWide(
+                    f"structure with {p} columns and {n_nuis} initial-state columns exceeds "
+                    f"P_MAX = {P_MAX}"
+                )
+            fdep = [(j, c) for j, c in enumerate(cols) if f_dependent(c.signal)]
+            for _, c in fdep:
+                if c.order != 0:
                     raise ValueError(f"unsupported F-dependent column {c}")
-                if f_multiplier(c.signal) is None:
-                    g = np.ones(self.T)
-                else:
-                    g = self._multiplier(model, c.signal)
-                if m is not None:
-                    g = g * m
-                mult[kk] = edge_pad(g, self.Tp)
-                fdep.append(c.signal)
+            if len(fdep) > K_MAX:
+                raise ValueError(f"unsupported F-dependent column {fdep[K_MAX][1]}")
+            K = next(k for k in K_BUCKETS if k >= len(fdep))
+            onehot = np.zeros((K, P_MAX))
+            for kk, (j, c) in enumerate(fdep):
                 onehot[kk, j] = c.sign
-                kk += 1
-            else:
-                Wfix[:, j] = fixed[j]
-        Wfix[:, p : p + n_nuis] = nuis
-        unused = np.arange(p + n_nuis, P_MAX)
-        # the design with the identity input map u = F (τ = 0, F_max = ∞): every column fixed
-        names = [f"{n}·F" for n in fdep] + [f"_zero{k}" for k in range(len(fdep), K)]
-        raw = {nm: (mult[k, : self.T] * self.F, "zoh") for k, nm in enumerate(names)}
-        filt = self.filtered(raw)
-        Wdef = Wfix + np.stack([filt[nm][:, 0] for nm in names], 1) @ onehot
-        return Wfix, mult, onehot, unused, p, Wdef
+            self.cache[key] = _Plan(
+                p=p,
+                width=p + n_nuis,
+                fdep=tuple(c.signal for _, c in fdep),
+                onehot=onehot,
+            )
+        return self.cache[key]
+
+    def multipliers(self, model: AbstractModel) -> np.ndarray:
+        """(K, Tp) multipliers g(x) of the structure's F-dependent columns g(x)·u (1 for u
+        itself; times the force mask where there is one), edge-padded; rows beyond the
+        structure's columns are 0."""
+        plan = self.plan(model)
+        mult = np.zeros((plan.onehot.shape[0], self.Tp))
+        for kk, signal in enumerate(plan.fdep):
+            g = np.ones(self.T) if f_multiplier(signal) is None else self._multiplier(model, signal)
+            if self.force_mask is not None:
+                g = g * self.force_mask
+            mult[kk] = edge_pad(g, self.Tp)
+        return mult
+
+    def columns_padded(self, model: AbstractModel, *, grid: bool = False) -> np.ndarray:
+        """(Tp, P_MAX) design of the structure on the padded record: its columns (the
+        F-dependent ones for u = F, or 0 with ``grid``), its initial-state columns, then 0 in
+        the unused slots."""
+        plan = self.plan(model)
+        cols = _columns(model)
+        fixed = self.fixed_columns(model, cols)
+        W = np.zeros((self.Tp, P_MAX))
+        for j, v in fixed.items():
+            W[:, j] = v
+        if plan.fdep and not grid:
+            # the design for u = F: each F-dependent signal g·F filtered (cached by name), in
+            # one batch with the K slots' unused rows as zero signals: the batched filter may
+            # round a signal's last bit differently in a batch of another size, and this one
+            # keeps the structure's columns those its benchmarks were measured with
+            mult = self.multipliers(model)
+            K = plan.onehot.shape[0]
+            names = [f"{n}·F" for n in plan.fdep] + [f"_zero{k}" for k in range(len(plan.fdep), K)]
+            raw = {nm: (mult[k, : self.T] * self.F, "zoh") for k, nm in enumerate(names)}
+            filt = self.filtered(raw)
+            for k, nm in enumerate(names[: len(plan.fdep)]):
+                j = int(np.flatnonzero(plan.onehot[k])[0])
+                W[:, j] = plan.onehot[k, j] * filt[nm][:, 0]
+        W[:, plan.p : plan.width] = self.nuisance(model)
+        return W
 
     def fixed_columns(self, model: AbstractModel, cols: Sequence) -> dict[int, np.ndarray]:
         """{j: (Tp,) filtered column} of the columns ``cols`` of ``model`` that do not depend on
@@ -455,7 +482,7 @@ class Regressors:
     def _multiplier(self, model, signal: str) -> np.ndarray:
         """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the signals of the
         effect that owns it on a record with F = 1 (then kept in ``known``: a long record
-        rebuilds its layouts)."""
+        rebuilds its designs)."""
         name = f_multiplier(signal)
         if name not in self.known:
             ones = Record(self.record.x, np.ones(np.shape(self.record.x)), self.record.dt)
@@ -470,50 +497,65 @@ class Regressors:
             self.known[name] = np.asarray(owner.signals(ones)[signal][0], np.float64)
         return self.known[name]
 
-    def _args(self, model):
-        return self._cached(("layout", _model_key(model)), lambda: self.layout(model))
-
-    def _cached(self, key, make):
+    def _cached(self, key, make, big: bool = False):
         """``make()`` cached under ``key`` (a per-structure key, see :meth:`drop`), except on a
-        long record: there it is rebuilt rather than held as a dense (Tp, ·) array."""
-        if self.Tp > BIG:
+        long record (unless ``big``: small results): there it is rebuilt rather than held as a
+        dense (T, ·) array."""
+        if self.Tp > BIG and not big:
             return make()
         if key not in self.cache:
             self.cache[key] = make()
         return self.cache[key]
 
-    def gram(self, model, *, grid: bool = False, n_free: int = 0, args=None):
-        """(A, G) of a structure, cached per structure: A = [W | ε₁'s x column] on the record's
-        T samples (T, P_MAX + 1), G = AᵀA plus a unit diagonal in the unused slots (the Gram
-        of unit columns outside the record: the solver's system keeps one size, and the unused
-        coefficients come out 0). W is the design
-        with u = F, or with ``grid`` its fixed columns only (the F-dependent slots zero, filled
-        per input map by :func:`_solve_grid`); the ``n_free`` slots after the structure's columns
-        are zero (:func:`rss_with_columns` fills them). The τ and F_max profiles and the flexible
-        mode's (ω, ζ) profile reuse it at every point. ``args``: the structure's :meth:`layout`
-        where the caller holds it (on a long record, where nothing is cached, it is not built
-        twice)."""
+    def design(self, model, *, grid: bool = False) -> np.ndarray:
+        """A = [W | ε₁'s x column] on the record's T samples (T, P_MAX + 1), the unused slots
+        0: W is the design with u = F, or with ``grid`` its fixed columns only (the
+        F-dependent slots 0, filled per input map by :func:`_solve_grid`). Cached per
+        structure up to :data:`BIG` padded samples, rebuilt from the cached signals above."""
 
         def make():
-            Wfix, mult, onehot, unused, p, Wdef = self._args(model) if args is None else args
-            n = self.width(model)
-            A = _augmented_design((Wfix if grid else Wdef)[: self.T], self.W0[: self.T])
-            A[:, n : n + n_free] = 0.0
-            G = A.T @ A
-            pads = unused[(unused < n) | (unused >= n + n_free)]
-            G[pads, pads] += 1.0
-            return A, G
+            W = self.columns_padded(model, grid=grid)
+            return _augmented_design(W[: self.T], self.W0[: self.T])
 
-        return self._cached(("gram", _model_key(model), grid, n_free), make)
+        return self._cached(("design", _model_key(model), grid), make)
+
+    def gram(self, model, *, grid: bool = False, n_free: int = 0) -> np.ndarray:
+        """G = AᵀA of :meth:`design` (P_MAX + 1)² plus a unit diagonal in the unused slots (the
+        Gram of unit columns outside the record: the solver's system keeps one size, and the
+        unused coefficients come out 0), except the ``n_free`` slots after the structure's
+        columns, left 0 for :func:`rss_with_columns` to fill. Cached per structure at every
+        length (it is small): the τ and F_max profiles and the flexible mode's (ω, ζ) profile
+        reuse it at every point."""
+
+        def make():
+            A = self.design(model, grid=grid)
+            return A.T @ A
+
+        G = self._cached(("gram", _model_key(model), grid), make, big=True).copy()
+        n = self.plan(model).width
+        unused = np.arange(n, P_MAX)
+        pads = unused[unused >= n + n_free]
+        G[pads, pads] += 1.0
+        return G
+
+
+class _Plan(NamedTuple):
+    """A structure's slots in the design (:meth:`Regressors.plan`)."""
+
+    p: int  # its columns
+    width: int  # its columns and its initial-state columns
+    fdep: tuple[str, ...]  # the signals of its F-dependent columns, in slot order
+    onehot: np.ndarray  # (K, P_MAX): the F-dependent columns' slots and signs
 
 
 #: Cache keys held per structure (dropped with the signals they use).
-_PER_STRUCTURE = ("layout", "nuisance", "gram")
+_PER_STRUCTURE = ("plan", "nuisance", "gram", "design")
 
 
 #: (model, its columns, its key) by id(model): the fits ask a structure for its columns many
-#: times (a profile grid, a layout, a Gram, a nuisance), and building them costs ~0.5 ms (each
-#: column an equinox Module). Holding the model keeps its id from being reused; bounded.
+#: times (a profile grid, a plan, a design, a Gram, a nuisance), and building them costs
+#: ~0.5 ms (each column an equinox Module). Holding the model keeps its id from being reused;
+#: bounded.
 _COLUMNS: dict[int, tuple] = {}
 
 
@@ -533,23 +575,23 @@ def _columns(model) -> tuple:
 
 
 def _model_key(model) -> tuple:
-    """The structure's columns as (signal, order, sign) tuples: the cache key of its layout,
-    Gram and nuisance."""
+    """The structure's columns as (signal, order, sign) tuples: the cache key of its plan,
+    design, Gram and nuisance."""
     return _columns_and_key(model)[1]
 
 
 def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
     """coef, RSS, Gram inverse, condition (each leading G) of the masked LS of ``model`` on
     ``regs`` (y = ε₁'s x column) per input map (τ, F_max) in ``inputs``."""
-    args = regs._args(model)
-    Wfix, mult, onehot, unused, p, Wdef = args
     taus = np.array([float(t) for t, _ in inputs], np.float64)
     fmaxs = np.array([float(f) for _, f in inputs], np.float64)
+    onehot = regs.plan(model).onehot
     if len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
-        Gs = [regs.gram(model, args=args)[1][None]]
+        Gs = [regs.gram(model)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
-        A, G0 = regs.gram(model, grid=True, args=args)
+        A, G0 = regs.design(model, grid=True), regs.gram(model, grid=True)
+        mult = regs.multipliers(model)
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
         gb = GRID_BATCH if regs.Tp <= BIG else 4  # long records: bounded memory
@@ -605,12 +647,11 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray, c
     Gram blocks are new. With ``coef``: (the fitted coefficients (m, n + K), the RSS, n), n the
     structure's columns and initial-state nuisance (the new columns' first slot), for
     :func:`rss_fixed_with_columns` on another record."""
-    args = regs._args(model)
     n = regs.width(model)
     m, K, _ = cols.shape
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
-    A, G0 = regs.gram(model, n_free=K, args=args)
+    A, G0 = regs.design(model), regs.gram(model, n_free=K)
     V = np.asarray(cols, np.float64)
     O = np.zeros((K, P_MAX + 1))
     O[np.arange(K), n + np.arange(K)] = 1.0
@@ -629,9 +670,8 @@ def rss_fixed_with_columns(
     refitted on this record, as :func:`residual` does. The held part of the residual is formed
     directly (one product with the structure's design); only the refitted columns' small
     augmented Gram is built."""
-    args = regs._args(model)
-    p, n = args[4], regs.width(model)
-    A, _ = regs.gram(model, args=args)
+    p, n = regs.plan(model).p, regs.width(model)
+    A = regs.design(model)
     T = regs.T
     coef = np.asarray(coef, np.float64)
     # r = W·c + y with the held columns; the refitted ones B = [N | g] (nuisance, free
@@ -656,10 +696,12 @@ def rss_fixed_with_columns(
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     """ε₁ on ``regs.record`` for fixed θ (validation): only the filter's initial-state
     nuisance coefficients are refitted on this record."""
-    Wfix, mult, onehot, unused, p, Wdef = regs._args(model)
-    W = Wdef[:, :p].copy()
-    if np.any(onehot) and (inp[0] != 0 or inp[1] != np.inf):
-        W = Wfix[:, :p].copy()
+    plan = regs.plan(model)
+    p, onehot = plan.p, plan.onehot
+    mapped = np.any(onehot) and (inp[0] != 0 or inp[1] != np.inf)
+    W = np.ascontiguousarray(regs.columns_padded(model, grid=mapped)[:, :p])
+    if mapped:
+        mult = regs.multipliers(model)
         u = edge_pad(apply_input(regs.F, regs.dt, inp[0], inp[1]), regs.Tp)
         V = filter_signals(regs.dsc, mult * u[None, :], np.zeros(mult.shape[0]))[:, :, 0]
         W += (V.T @ onehot)[:, :p]
