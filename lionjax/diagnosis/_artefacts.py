@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-import jax.numpy as jnp
 import numpy as np
 
 from .._model_effects import Offset
@@ -134,4 +133,4 @@ class ForceSensorDrift(ForceEffect):
 
     def record_basis(self, record: Record, v):
         n = record.n_samples
-        return (-float(record.dt) * (jnp.arange(n, dtype=jnp.float64) - 0.5 * (n - 1)),)
+        return (-float(record.dt) * (np.arange(n, dtype=np.float64) - 0.5 * (n - 1)),)

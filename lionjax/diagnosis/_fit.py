@@ -313,7 +313,7 @@ class Regressors:
         self.mask[: self.T] = 1.0
         self.known = dict(known or {})
         self.cache: dict = {}
-        self.N = np.asarray(_free(self.dsc, jnp.zeros(self.Tp)))  # (Tp, n)
+        self.N = np.asarray(_free(self.dsc, np.zeros(self.Tp)))  # (Tp, n)
         self.W0 = self.filtered({"x": (self.x, "foh")})["x"][:, 2]
 
     def filtered(self, raw: dict) -> dict:

@@ -7,7 +7,6 @@ import functools
 import math
 from collections.abc import Sequence
 
-import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
@@ -258,7 +257,7 @@ class _Fitter(LookAlikes):
             chunk = zs[i : i + DAHL_BATCH]
             zp = np.full(DAHL_BATCH, chunk[-1])
             zp[: len(chunk)] = chunk
-            Z = np.asarray(dahl_states(jnp.asarray(vp), self.st.dt, jnp.asarray(zp)))
+            Z = np.asarray(dahl_states(vp, self.st.dt, zp))
             out |= {presliding_signal(z): (Z[j, :T], "foh") for j, z in enumerate(chunk)}
         return out
 
@@ -581,7 +580,7 @@ class _Fitter(LookAlikes):
         std = np.sqrt(np.maximum(np.diag(cov[0]), 0))
         u_va = apply_input(self.valid.F, dt, tau, fmax)
         r = residual(rva, model, theta, (tau, fmax))
-        phys = {k: float(v) for k, v in model.physical(jnp.asarray(theta)).items()}
+        phys = {k: float(v) for k, v in model.physical(np.asarray(theta, np.float64)).items()}
         names = tuple(c.name for c in cands)
         if tau > 0:
             phys["tau"] = tau
@@ -671,11 +670,11 @@ class _Fitter(LookAlikes):
 
     def _simulate(self, phys, u, cands):
         keys = tuple(k for k in WINDOW_PARAMETERS if k != "xc")
-        p = {k: jnp.asarray(float(phys.get(k, 0.0))) for k in keys}
-        p["xc"] = jnp.asarray(self.st.x_center)
+        p = {k: float(phys.get(k, 0.0)) for k in keys}
+        p["xc"] = float(self.st.x_center)
         # always passed (±∞ when not held): one compiled program either way
         rng = self.st.x_range if self.position_clamp else (-math.inf, math.inf)
-        p["x_lo"], p["x_hi"] = (jnp.asarray(r) for r in rng)
+        p["x_lo"], p["x_hi"] = (float(r) for r in rng)
         H = self.window(float(phys["a"]))
         own = [c for c in cands if isinstance(c, ForceEffect)]
         extra, du = simulation_terms(own, phys, self.valid, self.v_valid)

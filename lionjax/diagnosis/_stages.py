@@ -327,7 +327,7 @@ def prepare(
         loop_noise=closed_loop and base.ms_valid <= floor**2,
         mode_band=(st.mode_grid[0], st.mode_grid[-1]),
         x_range=_common_range(np.asarray(train.x), np.asarray(valid.x)),
-        train_range=(float(np.min(train.x)), float(np.max(train.x))),
+        train_range=(float(np.min(np.asarray(train.x))), float(np.max(np.asarray(train.x)))),
     )
     fitter.limits = limits
     return Run(
