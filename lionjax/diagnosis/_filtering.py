@@ -171,7 +171,7 @@ def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
     out = []
     for (u, m), (f, _) in zip(_batches(U, S_BUCKETS), _batches(foh, S_BUCKETS), strict=True):
         out.append(np.asarray(_filter_many(dsc, u, f))[:m])
-    return np.concatenate(out)
+    return out[0] if len(out) == 1 else np.concatenate(out)  # one batch: no copy
 
 
 @jax.jit
@@ -222,7 +222,7 @@ def mode_bank(omega: float, zeta: float) -> FilterBank:
     """Λ'(s) = (s + ω)(s² + 2ζωs + ω²): h = (s²/D)[u] = V₄ + ωV₃ of this bank, exactly."""
     w, z = float(omega), float(zeta)
     wd = w * math.sqrt(max(1.0 - z * z, 0.0))
-    return FilterBank.from_poles(jnp.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
+    return FilterBank.from_poles(np.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
 
 
 def mode_output(V, omega):
@@ -244,7 +244,7 @@ def mode_signals(
     out = []
     for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), MODE_BUCKETS):
         ds = [Discrete.of(mode_bank(w, z), dt) for w, z in chunk for _ in (0, 1)]
-        dsc = jax.tree.map(lambda *a: jnp.stack(a), *ds)  # (x's, F's) of each mode
+        dsc = jax.tree.map(lambda *a: np.stack(a), *ds)  # (x's, F's) of each mode
         U = np.stack([u for _ in chunk for u in (xp, Fp)])
         foh = np.tile([1.0, 0.0], len(chunk))
         V = np.asarray(_filter_systems(dsc, U, foh), np.float64)
@@ -429,7 +429,8 @@ def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
     ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F] (unit-DC-gain bank), so a noise σ_x on x and σ_F on F add
     σ_x²·Σh_x² + b²σ_F²·Σh_F² to the variance of ε₁ (the noise floor).
     """
-    T = int(round(float(20 * bank.coeffs[-2] / bank.coeffs[-1] / dt))) + 64
+    c = np.asarray(bank.coeffs)
+    T = int(round(float(20 * c[-2] / c[-1] / dt))) + 64
     Tp = padded_length(T)
     d = np.zeros((2, Tp))
     d[:, 1] = 1.0
