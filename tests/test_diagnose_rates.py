@@ -119,7 +119,7 @@ def test_settings_finite_over_rates_and_lengths(fs, duration):
 
 
 def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, capsys):
-    """The diagnosis's peak host memory grows with the padded length (measured: 9.7 kB per
+    """The diagnosis's peak host memory grows with the padded length (measured: 6.5 kB per
     padded sample of each record with the designs cached, up to 2¹⁸; 4.3 kB above): records
     that would need more than ``max_memory_gb`` (default: the machine's memory) get an
     InputError naming the need, the limit, the least decimation that fits (``decimation_for``)
@@ -128,26 +128,27 @@ def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, 
     from lionjax.diagnosis._fit import longest_records, memory_estimate
 
     assert memory_estimate(6_000_000, 6_000_000) == 4300 * 2 * 2**23
-    assert memory_estimate(20_000, 20_000) == 9700 * 2 * 2**15
+    assert memory_estimate(20_000, 20_000) == 6500 * 2 * 2**15
     t = np.arange(20_000) / 1000.0
     rec = lj.Record(0.01 * np.sin(2 * np.pi * 0.7 * t), np.cos(2 * np.pi * 0.7 * t), 1e-3)
-    # 0.3 GB: the longest padded length that fits is 2¹³ (9700·2·2¹³ = 0.16 GB; 2¹⁴: 0.32 GB),
-    # which holds 2¹³ − 20 samples (padded_length pads n + 20)
+    # 0.3 GB: the longest padded length that fits is 2¹⁴ (6500·2·2¹⁴ = 0.21 GB; 2¹⁵: 0.43 GB),
+    # which holds 2¹⁴ − 20 samples (padded_length pads n + 20)
     with pytest.raises(
         lj.InputError,
-        match=r"0\.636 GB .* max_memory_gb \(0\.3 GB\)\. Decimate both records by 3 .* 8172 ",
+        match=r"0\.426 GB .* max_memory_gb \(0\.3 GB\)\. Decimate both records by 2 .* 16364 ",
     ):
         lj.diagnose(rec, rec, max_memory_gb=0.3)
-    # by 3: 6666 samples each, padded to 2¹³ (0.16 GB); by 2 (10 000, 2¹⁴: 0.32 GB) too much
-    assert lj.diagnosis.decimation_for(rec, rec, max_memory_gb=0.3) == 3
-    assert lj.diagnosis.decimation_for(rec, max_memory_gb=0.7) == 1
+    # by 2: 10 000 samples each, padded to 2¹⁴ (0.21 GB)
+    assert lj.diagnosis.decimation_for(rec, rec, max_memory_gb=0.3) == 2
+    assert lj.diagnosis.decimation_for(rec, max_memory_gb=0.5) == 1
     assert lj.diagnosis.decimation_for(rec, rec, max_memory_gb=0.01) == 0
-    # 0.01 GB: not even one bucket of 2¹² (9700·2·2¹² = 0.08 GB)
+    # 0.01 GB: not even one bucket of 2¹² (6500·2·2¹² = 0.05 GB)
     with pytest.raises(lj.InputError, match="Even the shortest records do not fit"):
         lj.diagnose(rec, rec, max_memory_gb=0.01)
-    # the estimate drops where the caches stop (above 2¹⁸): at 4.6 GB two records of 2¹⁹
-    # (4300·2·2¹⁹ = 4.51 GB) fit though two of 2¹⁸ (9700·2·2¹⁸ = 5.09 GB) do not
+    # the estimate is per padded sample, cached up to 2¹⁸ and not above: at 4.6 GB two records
+    # of 2¹⁹ (4300·2·2¹⁹ = 4.51 GB) fit, at 3.5 GB two of 2¹⁸ (6500·2·2¹⁸ = 3.41 GB)
     assert longest_records(4.6e9) == 2**19 - 20 and longest_records(0.01e9) == 0
+    assert longest_records(3.5e9) == 2**18 - 20
     for bad in (-1.0, 0, "8", True, float("nan")):
         with pytest.raises(lj.InputError, match="max_memory_gb must be a number > 0"):
             lj.diagnose(rec, rec, max_memory_gb=bad)
@@ -157,7 +158,7 @@ def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, 
     path = tmp_path / "rec.npz"
     lj.save_record(path, rec)
     assert main(["diagnose", str(path), "--max-memory-gb", "0.3"]) == 2
-    assert "need about 0.636 GB" in capsys.readouterr().err
+    assert "need about 0.426 GB" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
