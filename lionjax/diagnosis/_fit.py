@@ -372,10 +372,10 @@ class Regressors:
 
     def plan(self, model: AbstractModel) -> _Plan:
         """The structure's slots in the design (:class:`_Plan`; small, cached per structure):
-        which filtered signal each column reads, the F-dependent columns' multipliers and the
-        initial-state columns. No (Tp, ·) array is held per structure: the design is built
-        from the cached signals when a product needs it (:meth:`design`), and the fits read
-        the structure's Gram (:meth:`gram`)."""
+        its column count, its width with the initial-state columns, and its F-dependent
+        columns' signals, slots and signs. No (Tp, ·) array is held per structure: the design
+        is built from the cached signals when a product needs it (:meth:`design`), and the fits
+        read the structure's Gram (:meth:`gram`)."""
         key = ("plan", _model_key(model))
         if key not in self.cache:
             cols = _columns(model)
@@ -430,8 +430,8 @@ class Regressors:
         if plan.fdep and not grid:
             # the design for u = F: each F-dependent signal g·F filtered (cached by name), in
             # one batch with the K slots' unused rows as zero signals: the batched filter may
-            # round a signal's last bit differently in a batch of another size, and this one
-            # keeps the structure's columns those its benchmarks were measured with
+            # round a signal's last bit differently in a batch of another size, and this batch
+            # gives the columns the benchmarks were measured with
             mult = self.multipliers(model)
             K = plan.onehot.shape[0]
             names = [f"{n}·F" for n in plan.fdep] + [f"_zero{k}" for k in range(len(plan.fdep), K)]
