@@ -85,11 +85,12 @@ GRID_BATCH = 8
 BIG = 1 << 18
 #: Host memory a diagnosis holds at its peak per padded sample of each record [bytes], with and
 #: without the per-structure designs cached (peak RSS less the process' own 0.8 GB, over
-#: train's + valid's padded length: 5.1 and 5.7 kB with train at 2¹⁷ and 2¹⁸ and valid at 2¹⁵
-#: and 2¹⁶, cached; 5.8 GB at 2 × 2²⁰ and 17.8 GB at 2 × 2²¹ not cached, before the designs'
-#: layouts stopped being held: 3.1–3.3 kB since, at 2¹⁹ and 2²⁰ beside a cached validation
-#: record). The cached figure keeps 14 % over the larger measurement (the command line's heap
-#: holds about 5 % more).
+#: train's + valid's padded length, 2026-11-28: 5.1 and 5.7 kB with train at 2¹⁷ and 2¹⁸ and
+#: valid at 2¹⁵ and 2¹⁶, cached; 3.1–3.3 kB per training sample at 2¹⁹ and 2²⁰ beside a cached
+#: validation record. Measured with padded layouts held as well, 2026-11-25: 5.8 GB at
+#: 2 × 2²⁰ and 17.8 GB at 2 × 2²¹, not cached, whence 4.3 kB, kept until both records above
+#: 2¹⁸ are measured again). The cached figure keeps 14 % over the larger measurement (the
+#: command line's heap holds about 5 % more).
 BYTES_PER_SAMPLE_CACHED = 6_500
 BYTES_PER_SAMPLE = 4_300
 
