@@ -84,13 +84,13 @@ GRID_BATCH = 8
 #: without (the same diagnosis to six digits): above a few 10⁵ samples the cache buys no time.
 BIG = 1 << 18
 #: Host memory a diagnosis holds at its peak per padded sample of each record [bytes], with and
-#: without the per-structure designs cached (peak RSS less the process' own 0.8 GB, over
-#: train's + valid's padded length, 2026-11-28: 5.1 and 5.7 kB with train at 2¹⁷ and 2¹⁸ and
-#: valid at 2¹⁵ and 2¹⁶, cached; 3.1–3.3 kB per training sample at 2¹⁹ and 2²⁰ beside a cached
-#: validation record. Measured with padded layouts held as well, 2026-11-25: 5.8 GB at
-#: 2 × 2²⁰ and 17.8 GB at 2 × 2²¹, not cached, whence 4.3 kB, kept until both records above
-#: 2¹⁸ are measured again). The cached figure keeps 14 % over the larger measurement (the
-#: command line's heap holds about 5 % more).
+#: without the per-structure designs cached: peak RSS less the process' own 0.8 GB, over train's
+#: + valid's padded length (2026-11-28, benchmarks/results/2026-11-28_diagnosis_lengths.md).
+#: Cached (up to 2¹⁸): 5.1–5.7 kB on offset records, 3.5–5.35 kB on flexible-mode, triple and
+#: friction records (friction's stick-masked signals the most); 6.5 kB keeps 21 % over the
+#: heaviest (the command line's heap holds about 5 % more). Not cached: 2.5–3.5 kB on two
+#: records at 2¹⁹ or 2²⁰ (friction the most); 4.3 kB, measured on 2026-11-25 at 2 × 2²¹ when
+#: padded layouts were held as well, keeps 25 % over it.
 BYTES_PER_SAMPLE_CACHED = 6_500
 BYTES_PER_SAMPLE = 4_300
 
