@@ -167,7 +167,8 @@ def _batches(a: np.ndarray, buckets: Sequence[int]):
 
 
 def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
-    """(S, Tp, 4) filtered signals, in batches of :data:`S_BUCKETS`."""
+    """(S, Tp, 4) filtered signals, in batches of :data:`S_BUCKETS`; read-only where one batch
+    holds them (the compiled filter's own buffer, not copied)."""
     out = []
     for (u, m), (f, _) in zip(_batches(U, S_BUCKETS), _batches(foh, S_BUCKETS), strict=True):
         out.append(np.asarray(_filter_many(dsc, u, f))[:m])

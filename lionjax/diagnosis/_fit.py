@@ -373,15 +373,15 @@ class Regressors:
 
     def plan(self, model: AbstractModel) -> _Plan:
         """The structure's slots in the design (:class:`_Plan`; small, cached per structure):
-        its column count, its width with the initial-state columns, and its F-dependent
-        columns' signals, slots and signs. No (Tp, ·) array is held per structure: the design
-        is built from the cached signals when a product needs it (:meth:`design`), and the fits
-        read the structure's Gram (:meth:`gram`)."""
+        its column count and its F-dependent columns' signals, slots and signs (its width with
+        the initial-state columns is :meth:`width`). No (Tp, ·) array is held per structure:
+        the design is built from the cached signals when a product needs it (:meth:`design`),
+        and the fits read the structure's Gram (:meth:`gram`)."""
         key = ("plan", _model_key(model))
         if key not in self.cache:
             cols = _columns(model)
             p = len(cols)
-            n_nuis = self.nuisance(model).shape[1]
+            n_nuis = self.width(model) - p
             if p + n_nuis > P_MAX:
                 raise TooWide(
                     f"structure with {p} columns and {n_nuis} initial-state columns exceeds "
@@ -397,12 +397,7 @@ class Regressors:
             onehot = np.zeros((K, P_MAX))
             for kk, (j, c) in enumerate(fdep):
                 onehot[kk, j] = c.sign
-            self.cache[key] = _Plan(
-                p=p,
-                width=p + n_nuis,
-                fdep=tuple(c.signal for _, c in fdep),
-                onehot=onehot,
-            )
+            self.cache[key] = _Plan(p=p, fdep=tuple(c.signal for _, c in fdep), onehot=onehot)
         return self.cache[key]
 
     def multipliers(self, model: AbstractModel) -> np.ndarray:
@@ -441,7 +436,7 @@ class Regressors:
             for k, nm in enumerate(names[: len(plan.fdep)]):
                 j = int(np.flatnonzero(plan.onehot[k])[0])
                 W[:, j] = plan.onehot[k, j] * filt[nm][:, 0]
-        W[:, plan.p : plan.width] = self.nuisance(model)
+        W[:, plan.p : self.width(model)] = self.nuisance(model)
         return W
 
     def fixed_columns(self, model: AbstractModel, cols: Sequence) -> dict[int, np.ndarray]:
@@ -502,11 +497,11 @@ class Regressors:
             self.known[name] = np.asarray(owner.signals(ones)[signal][0], np.float64)
         return self.known[name]
 
-    def _cached(self, key, make, big: bool = False):
+    def _cached(self, key, make, small: bool = False):
         """``make()`` cached under ``key`` (a per-structure key, see :meth:`drop`), except on a
-        long record (unless ``big``: small results): there it is rebuilt rather than held as a
-        dense (T, ·) array."""
-        if self.Tp > BIG and not big:
+        long record where it is a dense (T, ·) array: there it is rebuilt rather than held.
+        ``small`` results (independent of the length) are cached at every length."""
+        if self.Tp > BIG and not small:
             return make()
         if key not in self.cache:
             self.cache[key] = make()
@@ -531,24 +526,32 @@ class Regressors:
         columns, left 0 for :func:`rss_with_columns` to fill. Cached per structure at every
         length (it is small): the τ and F_max profiles and the flexible mode's (ω, ζ) profile
         reuse it at every point."""
+        return self.design_gram(model, grid=grid, n_free=n_free, need_design=False)[1]
+
+    def design_gram(
+        self, model, *, grid: bool = False, n_free: int = 0, need_design: bool = True
+    ) -> tuple[np.ndarray | None, np.ndarray]:
+        """(:meth:`design`, :meth:`gram`) of a structure, the design built once where both are
+        new (a long record rebuilds it); the design None without ``need_design`` where the
+        Gram is cached."""
+        A = self.design(model, grid=grid) if need_design else None
 
         def make():
-            A = self.design(model, grid=grid)
-            return A.T @ A
+            D = self.design(model, grid=grid) if A is None else A
+            return D.T @ D
 
-        G = self._cached(("gram", _model_key(model), grid), make, big=True).copy()
-        n = self.plan(model).width
+        G = self._cached(("gram", _model_key(model), grid), make, small=True).copy()
+        n = self.width(model)
         unused = np.arange(n, P_MAX)
         pads = unused[unused >= n + n_free]
         G[pads, pads] += 1.0
-        return G
+        return A, G
 
 
 class _Plan(NamedTuple):
     """A structure's slots in the design (:meth:`Regressors.plan`)."""
 
     p: int  # its columns
-    width: int  # its columns and its initial-state columns
     fdep: tuple[str, ...]  # the signals of its F-dependent columns, in slot order
     onehot: np.ndarray  # (K, P_MAX): the F-dependent columns' slots and signs
 
@@ -595,7 +598,7 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
         Gs = [regs.gram(model)[None]]
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
-        A, G0 = regs.design(model, grid=True), regs.gram(model, grid=True)
+        A, G0 = regs.design_gram(model, grid=True)
         mult = regs.multipliers(model)
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
@@ -656,7 +659,7 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray, c
     m, K, _ = cols.shape
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
-    A, G0 = regs.design(model), regs.gram(model, n_free=K)
+    A, G0 = regs.design_gram(model, n_free=K)
     V = np.asarray(cols, np.float64)
     O = np.zeros((K, P_MAX + 1))
     O[np.arange(K), n + np.arange(K)] = 1.0

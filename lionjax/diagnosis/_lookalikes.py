@@ -156,7 +156,7 @@ class LookAlikes:
         loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm² (the sinusoid's frequency at speed v̂ is κ|v̂|/R;
         within a few % of the exact diagonal on moving records). The estimate only ranks κ:
         the chosen ones are fitted exactly. Empty where every force is masked."""
-        A, G = regs.design(model), regs.gram(model)
+        A, G = regs.design_gram(model)
         T = regs.T
         n = regs.width(model)
         c = solve_grams(G[None], T)[0][0]
