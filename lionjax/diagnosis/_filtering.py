@@ -166,13 +166,33 @@ def _batches(a: np.ndarray, buckets: Sequence[int]):
         yield np.concatenate([chunk, np.repeat(chunk[-1:], b - m, axis=0)]), m
 
 
+def _filtered_batches(dsc: Discrete, U: np.ndarray, foh: np.ndarray):
+    """The (m, Tp, 4) filtered signals of each batch of :data:`S_BUCKETS` (the compiled
+    filter's own buffer, read-only), in order."""
+    for (u, m), (f, _) in zip(_batches(U, S_BUCKETS), _batches(foh, S_BUCKETS), strict=True):
+        yield np.asarray(_filter_many(dsc, u, f))[:m]
+
+
 def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
     """(S, Tp, 4) filtered signals, in batches of :data:`S_BUCKETS`; read-only where one batch
     holds them (the compiled filter's own buffer, not copied)."""
-    out = []
-    for (u, m), (f, _) in zip(_batches(U, S_BUCKETS), _batches(foh, S_BUCKETS), strict=True):
-        out.append(np.asarray(_filter_many(dsc, u, f))[:m])
+    out = list(_filtered_batches(dsc, U, foh))
     return out[0] if len(out) == 1 else np.concatenate(out)  # one batch: no copy
+
+
+def filter_columns(dsc: Discrete, U: np.ndarray, foh: np.ndarray, orders, n: int) -> np.ndarray:
+    """(S, n) output ``orders[i]`` (0…3: V₁…V₄) of each signal of :func:`filter_signals`, its
+    first ``n`` samples: the same numbers, without holding every output of every signal (a
+    profile that reads one output of each of 64 signals keeps 1/4 of the (64, Tp, 4) outputs,
+    batch by batch, and copies no whole batch)."""
+    orders = np.asarray(orders, np.int64)
+    out = np.empty((len(U), n))
+    i = 0
+    for V in _filtered_batches(dsc, U, foh):
+        for v in V:
+            out[i] = v[:n, orders[i]]
+            i += 1
+    return out
 
 
 @jax.jit

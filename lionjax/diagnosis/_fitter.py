@@ -29,7 +29,7 @@ from ._candidates import (
 from ._criteria import DIVERGED
 from ._filtering import (
     edge_pad,
-    filter_signals,
+    filter_columns,
     mode_columns,
     mode_free_responses,
     mode_seed,
@@ -390,9 +390,9 @@ class _Fitter(LookAlikes):
                     U += [vs, ms * F, vb, mb * F]
                 U = np.stack([edge_pad(u, regs.Tp) for u in U])
                 foh = np.tile([1.0, 0.0, 1.0, 0.0], len(chunk))
-                V = filter_signals(regs.dsc, U, foh)[:, : regs.T]
-                V = V.reshape(len(chunk), 4, regs.T, 4)
-                cols = np.stack([V[:, 0, :, 1], -V[:, 1, :, 0], V[:, 2, :, 1], -V[:, 3, :, 0]], 1)
+                # the step's and the bump's first derivatives and their forces, signed
+                V = filter_columns(regs.dsc, U, foh, np.tile([1, 0, 1, 0], len(chunk)), regs.T)
+                cols = V.reshape(len(chunk), 4, regs.T) * np.array([1.0, -1.0, 1.0, -1.0])[:, None]
                 out.append(rss_with_columns(regs, base, cols))
             return np.concatenate(out)
 
