@@ -68,13 +68,6 @@ class Discrete(eqx.Module):
         return cls(*_discrete(bank, _f(dt)))
 
 
-def _filt(dsc: Discrete, u, foh):
-    """:func:`_filt_chunked` with its products at full precision: a float32 dot runs at TF32 by
-    default on a GPU, and the recursion accumulates over the whole record."""
-    with jax.default_matmul_precision("highest"):
-        return _filt_chunked(dsc, u, foh)
-
-
 def hold_corrected(u, foh):
     """Samples uₖ − foh·Δ²uₖ/12 (Δ²uₖ = uₖ₊₁ − 2uₖ + uₖ₋₁, repeated at both ends), whose
     first-order hold a low-pass filter sees as the smooth signal itself.
@@ -92,6 +85,25 @@ def hold_corrected(u, foh):
     return u - foh * d2 / 12.0
 
 
+def _matvec(z, A):
+    """z·Aᵀ for a small static state size n: z (…, n), A (…, k, n) → (…, k), broadcast over
+    the leading axes, as n elementwise multiply-adds (z₀A[…, :, 0] + z₁A[…, :, 1] + …, in that
+    order). A dot of n = 2…5 terms per row costs a call into the host's matrix product per scan
+    step; the elementwise form fuses with the terms around it: the diagnosis' filters ran 1.5×
+    faster (``benchmarks/results/2026-11-28_filter_kernel.md``), and no TF32 rounding of a GPU's
+    default float32 dot can enter."""
+    return sum(z[..., b : b + 1] * A[..., :, b] for b in range(A.shape[-1]))
+
+
+def _powers(Phi, L: int):
+    """Φʲ (L, n, n) for j = 0 … L − 1, by a scan of :func:`_matvec` products."""
+
+    def step(Z, _):
+        return _matvec(Z.T, Phi).T, Z  # Φ·Z
+
+    return jax.lax.scan(step, jnp.eye(Phi.shape[-1], dtype=Phi.dtype), None, length=L)[1]
+
+
 def _recursion(Phi, inputs, drive, z0):
     """States z[k] (T, n) of z[k + 1] = Φz[k] + drive(inputs[k]), z[0] = ``z0``: every linear
     filter of the diagnosis runs through it. ``inputs`` is a tuple of arrays with leading axis
@@ -100,33 +112,31 @@ def _recursion(Phi, inputs, drive, z0):
     In M chunks of L samples (L·M = T, L ≈ √T): the zero-state response of every chunk in
     parallel (L sequential steps), the chunks' start states by z_{m+1} = Φᴸz_m + (chunk m's end
     state) (M steps), then Φʲ·z_m added back. Linear and exact; ~2√T sequential steps instead of
-    T (a scan step costs microseconds on CPU). Products at full precision: a float32 dot runs at
-    TF32 by default on a GPU, and the recursion accumulates over the whole record."""
+    T (a scan step costs microseconds on CPU). Products elementwise (:func:`_matvec`), in
+    full precision on any backend."""
     n = Phi.shape[0]
     T = inputs[0].shape[0]
     L = 1 << (T.bit_length() // 2) if T & (T - 1) == 0 else T  # T a power of two: L ≈ √T
     M = T // L
-    Phi_T = Phi.T
 
     def step(z, inp):
-        return z @ Phi_T + drive(*inp), z
+        return _matvec(z, Phi) + drive(*inp), z
 
     # (L, M, …): the chunks side by side
     chunks = tuple(jnp.swapaxes(a.reshape((M, L) + a.shape[1:]), 0, 1) for a in inputs)
-    with jax.default_matmul_precision("highest"):
-        zL, zs = jax.lax.scan(step, jnp.zeros((M, n), Phi.dtype), chunks)
-        Pw = powers(Phi, L)  # Φʲ, j < L
-        PL = Phi @ Pw[-1]  # Φᴸ
+    zL, zs = jax.lax.scan(step, jnp.zeros((M, n), Phi.dtype), chunks)
+    Pw = _powers(Phi, L)  # Φʲ, j < L
+    PL = _matvec(Pw[-1].T, Phi).T  # Φᴸ = Φ·Φᴸ⁻¹
 
-        def bstep(z, zl):
-            return PL @ z + zl, z
+    def bstep(z, zl):
+        return _matvec(z, PL) + zl, z
 
-        _, S = jax.lax.scan(bstep, z0, zL)  # (M, n) chunk start states
-        z = zs + jnp.einsum("jab,mb->jma", Pw, S)  # (L, M, n)
+    _, S = jax.lax.scan(bstep, z0, zL)  # (M, n) chunk start states
+    z = zs + _matvec(S[None], Pw[:, None])  # (L, M, n): + Φʲ·S_m
     return jnp.swapaxes(z, 0, 1).reshape(T, n)
 
 
-def _filt_chunked(dsc: Discrete, u, foh):
+def _filt(dsc: Discrete, u, foh):
     """(V₁…V₄) of one signal, as :meth:`FilterBank.__call__` with ``init="steady"``; ``foh`` is
     1.0 for a first-order hold of the :func:`hold_corrected` samples, 0.0 for a zero-order hold
     (traced): z[k+1] = Φz[k] + Γ₀u[k] + Γ₁Δu[k] by :func:`_recursion`."""
@@ -137,7 +147,7 @@ def _filt_chunked(dsc: Discrete, u, foh):
     z = _recursion(
         dsc.Phi, (u, du), lambda uk, duk: uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1, z0
     )
-    return z @ dsc.C.T + u_at[:, None] * dsc.D
+    return _matvec(z, dsc.C) + u_at[:, None] * dsc.D
 
 
 @jax.jit
@@ -394,11 +404,11 @@ def _mode_cascade(stages, zeta, lam, Vx, x, VF, F):
     # x (first-order hold) is steady before the record: v̂₂ = 0 there and p = 0; F (zero-order
     # hold) is steady at F[0]: v̂₀ = F[0] and p = (F[0], 0)
     bx = (
-        jnp.einsum("ti,mji->mtj", vx, Ppv[:, 0])
+        _matvec(vx[None], Ppv[:, 0, None])  # (m, T, 2)
         + u[:, None] * G0[:, 0, None]
         + du[:, None] * G1[:, 0, None]
     )
-    bF = jnp.einsum("ti,mji->mtj", vF, Ppv[:, 1]) + F[:, None] * G0[:, 1, None]
+    bF = _matvec(vF[None], Ppv[:, 1, None]) + F[:, None] * G0[:, 1, None]
     m = zeta.shape[0]
     p0 = jnp.concatenate(
         [jnp.zeros((m, 2), F.dtype), jnp.tile(jnp.stack([F[0], 0.0 * F[0]]), (m, 1))]
@@ -437,7 +447,12 @@ def mode_columns(regs, modes, lam: float) -> tuple[np.ndarray, np.ndarray]:
     args = (filt["x"], edge_pad(regs.x, regs.Tp), filt["F"], regs.Fp)
     xs, Fs = [], []
     for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), MODE_BUCKETS):
-        stages = _mode_stages(chunk[:, 0], chunk[:, 1], _f(lam), _f(regs.dt))
+        # the stages (a few small matrix exponentials) of the largest batch, cut to this one:
+        # one compiled program instead of one per batch size (each costs a process ~0.1 s)
+        b = len(chunk)
+        (whole, _), *_ = _batches(chunk, MODE_BUCKETS[-1:])
+        stages = _mode_stages(whole[:, 0], whole[:, 1], _f(lam), _f(regs.dt))
+        stages = jax.tree.map(lambda a: np.asarray(a)[:b], stages)
         cx, cF = _mode_cascade(stages, chunk[:, 1], _f(lam), *args)
         xs.append(np.asarray(cx, np.float64)[:m])
         Fs.append(np.asarray(cF, np.float64)[:m])
