@@ -89,8 +89,9 @@ def _matvec(z, A):
     """z·Aᵀ for a small static state size n: z (…, n), A (…, k, n) → (…, k), broadcast over
     the leading axes, as n elementwise multiply-adds (z₀A[…, :, 0] + z₁A[…, :, 1] + …, in that
     order). A dot of n = 2…5 terms per row costs a call into the host's matrix product per scan
-    step; the elementwise form fuses with the terms around it: the diagnosis' filters ran 1.5×
-    faster (``benchmarks/results/2026-11-28_filter_kernel.md``), and no TF32 rounding of a GPU's
+    step; the elementwise form fuses with the terms around it (the ten records of
+    ``benchmarks/diagnosis_speed.py``: 14.0 s compiled instead of 16.0 s, the same verdicts,
+    ``benchmarks/results/2026-11-28_cold_start_filters.md``), and no TF32 rounding of a GPU's
     default float32 dot can enter."""
     return sum(z[..., b : b + 1] * A[..., :, b] for b in range(A.shape[-1]))
 
@@ -162,6 +163,15 @@ def _filter_many(dsc: Discrete, U, foh):
 S_BUCKETS = (1, 2, 8)
 #: Modes filtered per call of :func:`mode_columns` and :func:`mode_signals`, by the same rule.
 MODE_BUCKETS = (1, 2, 4)
+#: Padded lengths above this filter at most two signals (or modes) per call: a call's
+#: intermediates grow with its batch (eight signals of 2²⁰ samples held about 1 GB at once), and
+#: on a long record a batch buys no speed.
+LONG_BATCH = 1 << 18
+
+
+def _buckets(buckets: Sequence[int], Tp: int) -> Sequence[int]:
+    """``buckets``, or their two smallest above :data:`LONG_BATCH` padded samples."""
+    return buckets if Tp <= LONG_BATCH else buckets[:2]
 
 
 def _batches(a: np.ndarray, buckets: Sequence[int]):
@@ -179,7 +189,8 @@ def _batches(a: np.ndarray, buckets: Sequence[int]):
 def _filtered_batches(dsc: Discrete, U: np.ndarray, foh: np.ndarray):
     """The (m, Tp, 4) filtered signals of each batch of :data:`S_BUCKETS` (the compiled
     filter's own buffer, read-only), in order."""
-    for (u, m), (f, _) in zip(_batches(U, S_BUCKETS), _batches(foh, S_BUCKETS), strict=True):
+    buckets = _buckets(S_BUCKETS, U.shape[-1])
+    for (u, m), (f, _) in zip(_batches(U, buckets), _batches(foh, buckets), strict=True):
         yield np.asarray(_filter_many(dsc, u, f))[:m]
 
 
@@ -446,13 +457,14 @@ def mode_columns(regs, modes, lam: float) -> tuple[np.ndarray, np.ndarray]:
     filt = regs.filtered({"x": (regs.x, "foh"), "F": (regs.F, "zoh")})
     args = (filt["x"], edge_pad(regs.x, regs.Tp), filt["F"], regs.Fp)
     xs, Fs = [], []
-    for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), MODE_BUCKETS):
+    buckets = _buckets(MODE_BUCKETS, regs.Tp)
+    for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), buckets):
         # the stages (a few small matrix exponentials) of the largest batch, cut to this one:
         # one compiled program instead of one per batch size (each costs a process ~0.1 s)
         b = len(chunk)
         (whole, _), *_ = _batches(chunk, MODE_BUCKETS[-1:])
         stages = _mode_stages(whole[:, 0], whole[:, 1], _f(lam), _f(regs.dt))
-        stages = jax.tree.map(lambda a: np.asarray(a)[:b], stages)
+        stages = tuple(np.asarray(a)[:b] for a in stages)
         cx, cF = _mode_cascade(stages, chunk[:, 1], _f(lam), *args)
         xs.append(np.asarray(cx, np.float64)[:m])
         Fs.append(np.asarray(cF, np.float64)[:m])

@@ -77,7 +77,7 @@ GRID = 32
 #: profile grid runs in batches of this size (the last one padded), so one program serves every
 #: grid length and a grid of 8 or 15 points filters 8 or 16, not 32.
 GRID_BATCH = 8
-#: Padded lengths above this filter a profile grid 4 points at a time and rebuild each
+#: Padded lengths above this filter a profile grid 2 points at a time and rebuild each
 #: structure's dense (T, ·) design from the cached signals instead of caching it (memory; its
 #: small Gram is kept at every length). A 10-minute
 #: record at 1 kHz (padded to 2²⁰) took 243 s and 17.9 GB with them cached, 245 s and 5.8 GB
@@ -602,7 +602,7 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
         mult = regs.multipliers(model)
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
-        gb = GRID_BATCH if regs.Tp <= BIG else 4  # long records: bounded memory
+        gb = GRID_BATCH if regs.Tp <= BIG else 2  # long records: bounded memory
         for i in range(0, len(inputs), gb):
             t, f = taus[i : i + gb], fmaxs[i : i + gb]
             m = t.size

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._models import Augmented, MassDamper
 from ._candidates import ForceClip, VelocityDrag
-from ._filtering import edge_pad, filter_signals
+from ._filtering import S_BUCKETS, _buckets, edge_pad, filter_columns
 from ._fit import (
     Regressors,
     TooWide,
@@ -111,19 +111,17 @@ class LookAlikes:
                 # held at 0 where the structure's force columns are masked
                 xi = (regs.x - x_lo) / R
                 m = 1.0 if regs.force_mask is None else regs.force_mask
-                raw = {}
-                for k in ks:
-                    ph = 2 * math.pi * float(k) * xi
-                    raw[f"per_sin@{k:.9g}"] = (m * np.sin(ph), "foh")
-                    raw[f"per_cos@{k:.9g}"] = (m * np.cos(ph), "foh")
-                V = regs.filtered(raw)
-                regs.drop(list(raw))
-                return np.stack(
-                    [
-                        [V[f"per_sin@{k:.9g}"][: regs.T, 0], V[f"per_cos@{k:.9g}"][: regs.T, 0]]
-                        for k in ks
-                    ]
-                )
+                out = np.empty((len(ks), 2, regs.T))
+                # κ per filter batch: its signals built batch by batch
+                per = _buckets(S_BUCKETS, regs.Tp)[-1] // 2 or 1
+                for i in range(0, len(ks), per):
+                    U = []
+                    for k in ks[i : i + per]:
+                        ph = 2 * math.pi * float(k) * xi
+                        U += [edge_pad(m * np.sin(ph), regs.Tp), edge_pad(m * np.cos(ph), regs.Tp)]
+                    V = filter_columns(regs.dsc, np.stack(U), np.ones(len(U)), [0] * len(U), regs.T)
+                    out[i : i + per] = V.reshape(-1, 2, regs.T)
+                return out
 
             # each peak and its neighbours 1/16 cycle off, then 9 points 1/64 cycle apart
             # around the best: two batched fits (a call costs more than its columns here)
@@ -164,9 +162,13 @@ class LookAlikes:
         r = W @ c[:n] + A[:T, -1]
         # the adjoint of the causal filter: filter the time-reversed signals, reverse back
         U = np.concatenate([r[:, None], W], 1)[::-1].T
-        back = filter_signals(
-            regs.dsc, np.stack([edge_pad(u, regs.Tp) for u in U]), np.zeros(U.shape[0])
-        )[:, :T, 0][:, ::-1]
+        back = filter_columns(
+            regs.dsc,
+            np.stack([edge_pad(u, regs.Tp) for u in U]),
+            np.zeros(U.shape[0]),
+            np.zeros(U.shape[0], np.int64),
+            T,
+        )[:, ::-1]
         m = np.ones(T) if regs.force_mask is None else regs.force_mask[:T]
         h0 = float(np.sum(m * m))
         if h0 <= 0:
