@@ -227,7 +227,7 @@ def diagnose(
             largest stack; defaults 10, 0.3, 0.005, 1.5, 3); where given, they replace those
             fields of ``criteria``.
         max_memory_gb: host memory [GB] the diagnosis may take (default: this machine's
-            physical memory). Its peak grows with the records' padded lengths (about 4.3 kB per
+            physical memory). Its peak grows with the records' padded lengths (about 3.6 kB per
             padded sample of each record above 2¹⁸, 6.5 kB below, where designs are cached:
             :func:`~lionjax.diagnosis._fit.memory_estimate`); records that would need more get
             an :class:`~lionjax.InputError` before anything is computed, not an out-of-memory

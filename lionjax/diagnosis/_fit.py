@@ -88,11 +88,12 @@ BIG = 1 << 18
 #: + valid's padded length (2026-11-28, benchmarks/results/2026-11-28_diagnosis_lengths.md).
 #: Cached (up to 2¹⁸): 5.1–5.7 kB on offset records, 3.5–5.35 kB on flexible-mode, triple and
 #: friction records (friction's stick-masked signals the most); 6.5 kB keeps 21 % over the
-#: heaviest (the command line's heap holds about 5 % more). Not cached: 2.5–3.5 kB on two
-#: records at 2¹⁹ or 2²⁰ (friction the most); 4.3 kB, measured on 2026-11-25 at 2 × 2²¹ when
-#: padded layouts were held as well, keeps 25 % over it.
+#: heaviest (the command line's heap holds about 5 % more). Not cached (2026-11-28, after the
+#: long records' filter calls took two signals, benchmarks/results/2026-11-28_long_records.md):
+#: 1.4–1.7 kB on offset records from 2¹⁹ to 2²¹, 2.7–2.9 kB on friction, triple and
+#: flexible-mode records at 2 × 2¹⁹ (friction the most); 3.6 kB keeps 24 % over the heaviest.
 BYTES_PER_SAMPLE_CACHED = 6_500
-BYTES_PER_SAMPLE = 4_300
+BYTES_PER_SAMPLE = 3_600
 
 
 def _record_bytes(Tp: int) -> int:
