@@ -33,6 +33,20 @@ def matvec(A: Array, v: Array) -> Array:
     return jnp.sum(A * v[..., None, :], axis=-1)
 
 
+def matvec_unrolled(A: Array, v: Array) -> Array:
+    """A @ v over the last axes (batch axes broadcast), as n multiply-adds unrolled over the
+    static last axis of A (v₀A[…, :, 0] + v₁A[…, :, 1] + …, in that order): v (…, n),
+    A (…, k, n) → (…, k).
+
+    The same product as :func:`matvec`, for the long recursions of the diagnosis' filters, which
+    run it on (chunks × n) states at every scan step: unrolled, it fuses with the terms around
+    it, where :func:`matvec`'s broadcast and sum made a batch of eight filtered signals 4×
+    slower and a ``dot_general`` calls the host's matrix product per step (the ten records of
+    ``benchmarks/diagnosis_speed.py``: 14.0 s compiled against 16.0 s with a dot, the same
+    verdicts, ``benchmarks/results/2026-11-28_cold_start_filters.md``)."""
+    return sum(v[..., b : b + 1] * A[..., :, b] for b in range(A.shape[-1]))
+
+
 def expm(M: Float[Array, "n n"]) -> Float[Array, "n n"]:
     """e^M of one small square matrix by scaling and squaring: s = ⌈log₂(2‖M‖₁)⌉ (0 at least),
     the Taylor polynomial of M/2ˢ to order :data:`EXPM_ORDER` by Horner's rule, then s

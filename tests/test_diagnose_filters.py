@@ -1,15 +1,16 @@
 """The diagnosis' filter kernel (:mod:`lionjax.diagnosis._filtering`): the batched filter bank
 λ³sᵏ/(s + λ)³ against scipy's zero-order-hold discretisation, the one-output reader
-:func:`filter_columns` against the whole outputs, and the elementwise products against numpy."""
+:func:`filter_columns` against the whole outputs, the unrolled products against numpy, and the
+two-signal calls of long records."""
 
 import numpy as np
 import pytest
 
 
-def test_matvec_against_numpy():
-    """z·Aᵀ of the recursions' elementwise products against numpy's matmul, broadcast over
+def test_matvec_unrolled_against_numpy():
+    """A·z of the recursions' unrolled elementwise products against numpy, broadcast over
     leading axes as the recursion uses it (Φʲ·S_m: A (L, 1, n, n), z (1, M, n)), 1e-15."""
-    from lionjax.diagnosis._filtering import _matvec
+    from lionjax._linalg import matvec_unrolled
 
     rng = np.random.default_rng(0)
     for n in (2, 3, 5):
@@ -18,7 +19,7 @@ def test_matvec_against_numpy():
         ref = np.einsum(
             "lmab,lmb->lma", np.broadcast_to(A, (4, 7, n, n)), np.broadcast_to(z, (4, 7, n))
         )
-        got = np.asarray(_matvec(z, A))
+        got = np.asarray(matvec_unrolled(A, z))
         assert got.shape == (4, 7, n)
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15 * np.max(np.abs(ref)) * n)
 

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._filters import FilterBank, powers, sample_hold
+from .._linalg import matvec_unrolled
 
 if TYPE_CHECKING:
     pass
@@ -85,22 +86,11 @@ def hold_corrected(u, foh):
     return u - foh * d2 / 12.0
 
 
-def _matvec(z, A):
-    """z·Aᵀ for a small static state size n: z (…, n), A (…, k, n) → (…, k), broadcast over
-    the leading axes, as n elementwise multiply-adds (z₀A[…, :, 0] + z₁A[…, :, 1] + …, in that
-    order). A dot of n = 2…5 terms per row costs a call into the host's matrix product per scan
-    step; the elementwise form fuses with the terms around it (the ten records of
-    ``benchmarks/diagnosis_speed.py``: 14.0 s compiled instead of 16.0 s, the same verdicts,
-    ``benchmarks/results/2026-11-28_cold_start_filters.md``), and no TF32 rounding of a GPU's
-    default float32 dot can enter."""
-    return sum(z[..., b : b + 1] * A[..., :, b] for b in range(A.shape[-1]))
-
-
 def _powers(Phi, L: int):
-    """Φʲ (L, n, n) for j = 0 … L − 1, by a scan of :func:`_matvec` products."""
+    """Φʲ (L, n, n) for j = 0 … L − 1, by a scan of elementwise products."""
 
     def step(Z, _):
-        return _matvec(Z.T, Phi).T, Z  # Φ·Z
+        return matvec_unrolled(Phi, Z.T).T, Z  # Φ·Z
 
     return jax.lax.scan(step, jnp.eye(Phi.shape[-1], dtype=Phi.dtype), None, length=L)[1]
 
@@ -113,27 +103,27 @@ def _recursion(Phi, inputs, drive, z0):
     In M chunks of L samples (L·M = T, L ≈ √T): the zero-state response of every chunk in
     parallel (L sequential steps), the chunks' start states by z_{m+1} = Φᴸz_m + (chunk m's end
     state) (M steps), then Φʲ·z_m added back. Linear and exact; ~2√T sequential steps instead of
-    T (a scan step costs microseconds on CPU). Products elementwise (:func:`_matvec`), in
-    full precision on any backend."""
+    T (a scan step costs microseconds on CPU). Products elementwise
+    (:func:`~lionjax._linalg.matvec_unrolled`: fused, and no TF32 dot on a GPU)."""
     n = Phi.shape[0]
     T = inputs[0].shape[0]
     L = 1 << (T.bit_length() // 2) if T & (T - 1) == 0 else T  # T a power of two: L ≈ √T
     M = T // L
 
     def step(z, inp):
-        return _matvec(z, Phi) + drive(*inp), z
+        return matvec_unrolled(Phi, z) + drive(*inp), z
 
     # (L, M, …): the chunks side by side
     chunks = tuple(jnp.swapaxes(a.reshape((M, L) + a.shape[1:]), 0, 1) for a in inputs)
     zL, zs = jax.lax.scan(step, jnp.zeros((M, n), Phi.dtype), chunks)
     Pw = _powers(Phi, L)  # Φʲ, j < L
-    PL = _matvec(Pw[-1].T, Phi).T  # Φᴸ = Φ·Φᴸ⁻¹
+    PL = matvec_unrolled(Phi, Pw[-1].T).T  # Φᴸ = Φ·Φᴸ⁻¹
 
     def bstep(z, zl):
-        return _matvec(z, PL) + zl, z
+        return matvec_unrolled(PL, z) + zl, z
 
     _, S = jax.lax.scan(bstep, z0, zL)  # (M, n) chunk start states
-    z = zs + _matvec(S[None], Pw[:, None])  # (L, M, n): + Φʲ·S_m
+    z = zs + matvec_unrolled(Pw[:, None], S[None])  # (L, M, n): + Φʲ·S_m
     return jnp.swapaxes(z, 0, 1).reshape(T, n)
 
 
@@ -148,7 +138,7 @@ def _filt(dsc: Discrete, u, foh):
     z = _recursion(
         dsc.Phi, (u, du), lambda uk, duk: uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1, z0
     )
-    return _matvec(z, dsc.C) + u_at[:, None] * dsc.D
+    return matvec_unrolled(dsc.C, z) + u_at[:, None] * dsc.D
 
 
 @jax.jit
@@ -415,11 +405,11 @@ def _mode_cascade(stages, zeta, lam, Vx, x, VF, F):
     # x (first-order hold) is steady before the record: v̂₂ = 0 there and p = 0; F (zero-order
     # hold) is steady at F[0]: v̂₀ = F[0] and p = (F[0], 0)
     bx = (
-        _matvec(vx[None], Ppv[:, 0, None])  # (m, T, 2)
+        matvec_unrolled(Ppv[:, 0, None], vx[None])  # (m, T, 2)
         + u[:, None] * G0[:, 0, None]
         + du[:, None] * G1[:, 0, None]
     )
-    bF = _matvec(vF[None], Ppv[:, 1, None]) + F[:, None] * G0[:, 1, None]
+    bF = matvec_unrolled(Ppv[:, 1, None], vF[None]) + F[:, None] * G0[:, 1, None]
     m = zeta.shape[0]
     p0 = jnp.concatenate(
         [jnp.zeros((m, 2), F.dtype), jnp.tile(jnp.stack([F[0], 0.0 * F[0]]), (m, 1))]
