@@ -40,10 +40,10 @@ def matvec_unrolled(A: Array, v: Array) -> Array:
 
     The same product as :func:`matvec`, for the long recursions of the diagnosis' filters, which
     run it on (chunks × n) states at every scan step: unrolled, it fuses with the terms around
-    it, where :func:`matvec`'s broadcast and sum made a batch of eight filtered signals 4×
-    slower and a ``dot_general`` calls the host's matrix product per step (the ten records of
-    ``benchmarks/diagnosis_speed.py``: 14.0 s compiled against 16.0 s with a dot, the same
-    verdicts, ``benchmarks/results/2026-11-28_cold_start_filters.md``)."""
+    it (no broadcast (…, k, n) intermediate and reduction), where a ``dot_general`` calls the
+    host's matrix product per step (the ten records of ``benchmarks/diagnosis_speed.py``:
+    14.0 s compiled against 16.0 s with a dot, the same verdicts,
+    ``benchmarks/results/2026-11-28_cold_start_filters.md``)."""
     return sum(v[..., b : b + 1] * A[..., :, b] for b in range(A.shape[-1]))
 
 
