@@ -177,16 +177,17 @@ def _batches(a: np.ndarray, buckets: Sequence[int]):
 
 
 def _filtered_batches(dsc: Discrete, U: np.ndarray, foh: np.ndarray):
-    """The (m, Tp, 4) filtered signals of each batch of :data:`S_BUCKETS` (the compiled
-    filter's own buffer, read-only), in order."""
+    """The (m, Tp, 4) filtered signals of each batch of :data:`S_BUCKETS` (of two signals at
+    most above :data:`LONG_BATCH` padded samples, :func:`_buckets`; the compiled filter's own
+    buffer, read-only), in order."""
     buckets = _buckets(S_BUCKETS, U.shape[-1])
     for (u, m), (f, _) in zip(_batches(U, buckets), _batches(foh, buckets), strict=True):
         yield np.asarray(_filter_many(dsc, u, f))[:m]
 
 
 def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
-    """(S, Tp, 4) filtered signals, in batches of :data:`S_BUCKETS`; read-only where one batch
-    holds them (the compiled filter's own buffer, not copied)."""
+    """(S, Tp, 4) filtered signals, in the batches of :func:`_filtered_batches`; read-only where
+    one batch holds them (the compiled filter's own buffer, not copied)."""
     out = list(_filtered_batches(dsc, U, foh))
     return out[0] if len(out) == 1 else np.concatenate(out)  # one batch: no copy
 
