@@ -205,6 +205,7 @@ def diagnose(
     max_effects: int | None = None,
     max_memory_gb: float | None = None,
     criteria: Criteria | None = None,
+    streamed: bool | None = None,
 ) -> Diagnosis:
     """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record (module docstring: the method,
     the confidence, the precision).
@@ -257,7 +258,7 @@ def diagnose(
         criteria or Criteria(), **{k: v for k, v in given.items() if v is not None}
     )
     library = check_candidates(candidates, RESERVED)
-    run = prepare(train, valid, library, crit, filter_hz, window_s, max_memory_gb)
+    run = prepare(train, valid, library, crit, filter_hz, window_s, max_memory_gb, streamed)
     fitted = fit_alone(run)
     alone = {
         c.name: (run.assess(run.base, fitted[c.name], c, run.floor_of([c])), fitted[c.name])

@@ -135,10 +135,21 @@ def _filt(dsc: Discrete, u, foh):
     u_at, u = u, hold_corrected(u, foh)  # the feedthrough D·u reads the samples themselves
     z0 = jnp.zeros((n,), u.dtype).at[0].set(u[0] / dsc.c_last)
     du = foh * (jnp.concatenate([u[1:], u[-1:]]) - u)
-    z = _recursion(
-        dsc.Phi, (u, du), lambda uk, duk: uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1, z0
-    )
-    return matvec_unrolled(dsc.C, z) + u_at[:, None] * dsc.D
+    return filter_from(dsc, u_at, u, du, z0)[0]
+
+
+def filter_from(dsc: Discrete, u_at, u, du, z0):
+    """((V₁…V₄) (T, 4), the state after the last sample (n,)) of the filter from the state
+    ``z0``, driven by the held samples ``u`` and their steps ``du`` (z[k+1] = Φz[k] + Γ₀u[k] +
+    Γ₁du[k]), the feedthrough reading ``u_at``: :func:`_filt` on a whole record, and on each
+    chunk of a streamed one (:mod:`._streaming`) with the state carried between chunks."""
+
+    def drive(uk, duk):
+        return uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1
+
+    z = _recursion(dsc.Phi, (u, du), drive, z0)
+    end = matvec_unrolled(dsc.Phi, z[-1]) + drive(u[-1:], du[-1:])[0]
+    return matvec_unrolled(dsc.C, z) + u_at[:, None] * dsc.D, end
 
 
 @jax.jit
@@ -345,10 +356,21 @@ def mode_seed(record_x, record_F, dt: float, lam: float, Tp: int) -> tuple[float
         np.float64,
     )
     n0 = min(int(math.ceil(10.0 / (lam * dt))), T // 4)
-    X, Fv = V[0, n0:T], V[1, n0:T]  # s¹…s⁴ of x, s⁰…s³ of F
-    A = np.stack([-X[:, 2], -X[:, 1], -X[:, 0], Fv[:, 2], Fv[:, 1], Fv[:, 0]], 1)
+    A, y = seed_design(V[0, n0:T], V[1, n0:T])
     scale = np.maximum(np.sqrt(np.mean(A * A, 0)), 1e-300)
-    c = np.linalg.lstsq(A / scale, X[:, 3], rcond=None)[0] / scale
+    c = np.linalg.lstsq(A / scale, y, rcond=None)[0] / scale
+    return seed_mode(c)
+
+
+def seed_design(X, Fv):
+    """(A (T, 6), y (T,)) of :func:`mode_seed`'s fit from the filtered x (s¹…s⁴) and F
+    (s⁰…s³), (T, 4) each."""
+    A = np.stack([-X[:, 2], -X[:, 1], -X[:, 0], Fv[:, 2], Fv[:, 1], Fv[:, 0]], 1)
+    return A, X[:, 3]
+
+
+def seed_mode(c) -> tuple[float, float] | None:
+    """(ω, ζ) of :func:`mode_seed`'s coefficients ``c`` (6,), or None."""
     c1, c2, c3, _, c5, c6 = (float(v) for v in c)
     with np.errstate(all="ignore"):
         r = c5 / c6
@@ -397,14 +419,27 @@ def _mode_stages(omega, zeta, lam, dt):
 def _mode_cascade(stages, zeta, lam, Vx, x, VF, F):
     """The columns of :func:`mode_columns` ((m, Tp) each) for the modes of ``stages``
     (:func:`_mode_stages`) and their ``zeta`` (m,): one batched recursion of order 2 per mode
-    and signal."""
-    Ppp, Ppv, G0, G1 = stages
-    scale = jnp.stack([jnp.ones_like(lam), lam, lam * lam])
-    vx, vF = Vx[:, :3] / scale, VF[:, :3] / scale
+    and signal (:func:`mode_cascade_from` from the steady state before the record)."""
     u = hold_corrected(x, 1.0)
     du = jnp.concatenate([u[1:], u[-1:]]) - u
     # x (first-order hold) is steady before the record: v̂₂ = 0 there and p = 0; F (zero-order
     # hold) is steady at F[0]: v̂₀ = F[0] and p = (F[0], 0)
+    m = zeta.shape[0]
+    p0 = jnp.concatenate(
+        [jnp.zeros((m, 2), F.dtype), jnp.tile(jnp.stack([F[0], 0.0 * F[0]]), (m, 1))]
+    )
+    return mode_cascade_from(stages, zeta, lam, Vx, u, du, VF, F, p0)[:2]
+
+
+def mode_cascade_from(stages, zeta, lam, Vx, u, du, VF, F, p0):
+    """(x's columns (m, T), F's columns (m, T), the stages' states after the last sample
+    (2m, 2)) of the mode stages from the states ``p0`` (2m, 2: x's of each mode, then F's),
+    given the diagnosis filter's outputs ``Vx``, ``VF`` (T, 4), x's held samples ``u`` and
+    steps ``du``, and F's samples: :func:`_mode_cascade` on a whole record, and on each chunk
+    of a streamed one (:mod:`._streaming`) with the states carried between chunks."""
+    Ppp, Ppv, G0, G1 = stages
+    scale = jnp.stack([jnp.ones_like(lam), lam, lam * lam])
+    vx, vF = Vx[:, :3] / scale, VF[:, :3] / scale
     bx = (
         matvec_unrolled(Ppv[:, 0, None], vx[None])  # (m, T, 2)
         + u[:, None] * G0[:, 0, None]
@@ -412,19 +447,17 @@ def _mode_cascade(stages, zeta, lam, Vx, x, VF, F):
     )
     bF = matvec_unrolled(Ppv[:, 1, None], vF[None]) + F[:, None] * G0[:, 1, None]
     m = zeta.shape[0]
-    p0 = jnp.concatenate(
-        [jnp.zeros((m, 2), F.dtype), jnp.tile(jnp.stack([F[0], 0.0 * F[0]]), (m, 1))]
-    )
     Phis = jnp.concatenate([Ppp[:, 0], Ppp[:, 1]])
-    P = jax.vmap(lambda Phi, b, z0: _recursion(Phi, (b,), lambda bk: bk, z0))(
-        Phis, jnp.concatenate([bx, bF]), p0
-    )
+    b = jnp.concatenate([bx, bF])
+    P = jax.vmap(lambda Phi, b, z0: _recursion(Phi, (b,), lambda bk: bk, z0))(Phis, b, p0)
+    end = jax.vmap(lambda Phi, p, bk: matvec_unrolled(Phi, p) + bk)(Phis, P[:, -1], b[:, -1])
     px, pF = P[:m], P[m:]
     z = zeta[:, None]
     # (s²/D)[V₃] = λ²(s²/D)[v̂₂] = λ²(v̂₂ − p₀ − 2ζp₁), and (s²/D)[V₁] = V₁ − p₀ − 2ζp₁
     return (
         Vx[None, :, 2] - lam * lam * (px[:, :, 0] + 2 * z * px[:, :, 1]),
         VF[None, :, 0] - (pF[:, :, 0] + 2 * z * pF[:, :, 1]),
+        end,
     )
 
 

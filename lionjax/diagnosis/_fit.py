@@ -62,6 +62,7 @@ from ._filtering import (
     filter_signals,
     padded_length,
 )
+from ._streaming import as_source
 
 
 class TooWide(ValueError):
@@ -94,6 +95,28 @@ BIG = 1 << 18
 #: flexible-mode records at 2 × 2¹⁹ (friction the most); 3.6 kB keeps 24 % over the heaviest.
 BYTES_PER_SAMPLE_CACHED = 6_500
 BYTES_PER_SAMPLE = 3_600
+
+
+#: Padded lengths above this are diagnosed streamed (:class:`~._streamed.Streamed`) unless the
+#: caller says otherwise.
+STREAM_ABOVE = BIG
+#: Host memory a streamed diagnosis holds per sample of each record [bytes], over
+#: :data:`STREAM_FIXED`: its raw per-sample signals.
+BYTES_PER_SAMPLE_STREAMED = 400
+#: Host memory a streamed diagnosis holds whatever the length [bytes]: the process, its compiled
+#: programs and a chunk's intermediates.
+STREAM_FIXED = 1_500_000_000
+
+
+def streamed_by_default(*n_samples: int) -> bool:
+    """Whether records of ``n_samples`` samples are diagnosed streamed by default: where one's
+    padded length exceeds :data:`STREAM_ABOVE`."""
+    return max(padded_length(int(n)) for n in n_samples) > STREAM_ABOVE
+
+
+def memory_estimate_streamed(*n_samples: int) -> int:
+    """Peak host memory [bytes] of a streamed diagnosis of records of ``n_samples`` samples."""
+    return STREAM_FIXED + BYTES_PER_SAMPLE_STREAMED * sum(int(n) for n in n_samples)
 
 
 def _record_bytes(Tp: int) -> int:
@@ -299,6 +322,9 @@ class Regressors:
     The columns of x's derivatives and the nuisance are unchanged.
     """
 
+    #: Whether the regressors are streamed (:class:`~._streamed.Streamed`): no design held.
+    streamed = False
+
     def __init__(
         self,
         record: Record,
@@ -331,6 +357,14 @@ class Regressors:
             for n, v in zip(todo, filter_signals(self.dsc, U, foh), strict=True):
                 self.cache[n] = v
         return {n: self.cache[n] for n in raw}
+
+    def mean_square(self, u, hold: str, order: int) -> float:
+        """The mean over the record of the square of output ``order`` (V₁…V₄) of the raw
+        signal ``u`` (T,) under ``hold`` (not cached)."""
+        V = filter_signals(
+            self.dsc, edge_pad(u, self.Tp)[None], np.array([1.0 if hold == "foh" else 0.0])
+        )[0]
+        return float(np.mean(V[: self.T, order] ** 2))
 
     def drop(self, names) -> None:
         """Forget raw and filtered signals ``names`` and every cached plan, design, Gram and
@@ -597,6 +631,15 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
     onehot = regs.plan(model).onehot
     if len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
         Gs = [regs.gram(model)[None]]
+    elif regs.streamed:
+        from ._streamed import GridColumns
+
+        G0 = regs.design_gram(model, grid=True, need_design=False)[1]
+        O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
+        Gs = []
+        for i in range(0, len(inputs), GRID_BATCH):
+            C, D = regs.cross(model, GridColumns(model, inputs[i : i + GRID_BATCH]), grid=True)
+            Gs.append(_gram_from_blocks(G0, C, D, O))
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64
         A, G0 = regs.design_gram(model, grid=True)
@@ -628,10 +671,21 @@ def _gram_with_columns(G0: np.ndarray, A: np.ndarray, V: np.ndarray, O: np.ndarr
     """Augmented Grams (m, P + 1, P + 1) of [A + VᵀO]: the fixed design A = [W | y] (T, P + 1)
     whose Gram is G0, plus K columns V (m, K, T) placed by the one-hot O (K, P + 1). Only the
     new blocks AᵀV and VᵀV are computed (float64): a profile grid shares the fixed columns."""
+    return _gram_from_blocks(G0, *_cross_blocks(A, V), O)
+
+
+def _cross_blocks(A: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(VᵀA (m, K, P + 1), VᵀV (m, K, K)) of a design A (T, P + 1) and columns V (m, K, T)."""
     m, K, T = V.shape
     # one product for the whole batch (A read once; a batched V @ A multiplies m thin blocks)
     C = (V.reshape(m * K, T) @ A).reshape(m, K, -1)  # (m, K, P + 1)
     D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
+    return C, D
+
+
+def _gram_from_blocks(G0: np.ndarray, C: np.ndarray, D: np.ndarray, O: np.ndarray) -> np.ndarray:
+    """Augmented Grams (m, P + 1, P + 1) of a fixed design's Gram G0 with K columns placed by
+    the one-hot O (K, P + 1), from their blocks C = VᵀA and D = VᵀV (:func:`_cross_blocks`)."""
     OC = np.einsum("kp,mkq->mpq", O, C)
     return G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
 
@@ -657,14 +711,19 @@ def rss_with_columns(regs: Regressors, model: AbstractModel, cols: np.ndarray, c
     structure's columns and initial-state nuisance (the new columns' first slot), for
     :func:`rss_fixed_with_columns` on another record."""
     n = regs.width(model)
-    m, K, _ = cols.shape
+    src = as_source(cols)
+    m, K = src.shape(regs)
     if n + K > P_MAX:
         raise TooWide(f"structure with {n + K} columns exceeds P_MAX = {P_MAX}")
-    A, G0 = regs.design_gram(model, n_free=K)
-    V = np.asarray(cols, np.float64)
     O = np.zeros((K, P_MAX + 1))
     O[np.arange(K), n + np.arange(K)] = 1.0
-    c, rss = solve_grams(_gram_with_columns(G0, A, V, O), regs.T)[:2]
+    if regs.streamed:
+        G0 = regs.design_gram(model, n_free=K, need_design=False)[1]
+        G = _gram_from_blocks(G0, *regs.cross(model, src), O)
+    else:
+        A, G0 = regs.design_gram(model, n_free=K)
+        G = _gram_with_columns(G0, A, np.asarray(src.full(regs), np.float64), O)
+    c, rss = solve_grams(G, regs.T)[:2]
     return (c[:, : n + K], rss, n) if coef else rss
 
 
@@ -680,15 +739,29 @@ def rss_fixed_with_columns(
     directly (one product with the structure's design); only the refitted columns' small
     augmented Gram is built."""
     p, n = regs.plan(model).p, regs.width(model)
-    A = regs.design(model)
     T = regs.T
     coef = np.asarray(coef, np.float64)
+    src = as_source(cols)
+    if regs.streamed:
+        Gb = None
+        for A, V in zip(regs.design_blocks(model), src.blocks(regs), strict=True):
+            g = _refit_gram(A, V, coef, p, n, n_fixed)
+            Gb = g if Gb is None else Gb + g
+    else:
+        Gb = _refit_gram(regs.design(model)[:T], src.full(regs), coef, p, n, n_fixed)
+    return _solve_small_grams(Gb, T)[1]
+
+
+def _refit_gram(A, cols, coef, p: int, n: int, n_fixed: int) -> np.ndarray:
+    """The augmented Grams (m, q + k + 1, q + k + 1) of :func:`rss_fixed_with_columns`' refitted
+    columns B = [N | g] and residual r on the rows of the design A (·, P + 1) and columns
+    ``cols`` (m, K, ·): a sum over rows, so a streamed record adds its chunks'."""
     # r = W·c + y with the held columns; the refitted ones B = [N | g] (nuisance, free
     # response) by least squares on each set's augmented Gram [B | r]ᵀ[B | r], built by blocks
     # (N is shared: a batched product of [B | r] with itself made the diagnosis measurably slower)
-    r = A[:T, :p] @ coef[:, :p].T + A[:T, P_MAX][:, None]  # (T, m)
+    r = A[:, :p] @ coef[:, :p].T + A[:, P_MAX][:, None]  # (T, m)
     r += np.sum(coef[:, n : n + n_fixed, None] * cols[:, :n_fixed], 1).T
-    N, g = A[:T, p:n], np.ascontiguousarray(cols[:, n_fixed:])  # (T, q), (m, k, T)
+    N, g = A[:, p:n], np.ascontiguousarray(cols[:, n_fixed:])  # (T, q), (m, k, T)
     m, q, k = g.shape[0], n - p, g.shape[1]
     Gb = np.empty((m, q + k + 1, q + k + 1))
     Gb[:, :q, :q] = N.T @ N
@@ -699,7 +772,7 @@ def rss_fixed_with_columns(
         [(N.T @ r).T, (g @ r.T[:, :, None])[..., 0]], 1
     )
     Gb[:, -1, -1] = np.sum(r * r, 0)
-    return _solve_small_grams(Gb, T)[1]
+    return Gb
 
 
 def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
@@ -708,6 +781,8 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     plan = regs.plan(model)
     p, onehot = plan.p, plan.onehot
     mapped = np.any(onehot) and (inp[0] != 0 or inp[1] != np.inf)
+    if regs.streamed:
+        return _residual_streamed(regs, model, theta, inp, mapped)
     W = np.ascontiguousarray(regs.columns_padded(model, grid=mapped)[:, :p])
     if mapped:
         mult = regs.multipliers(model)
@@ -721,6 +796,31 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     g = _augmented_gram(nuis[: regs.T], r0[: regs.T])
     eta = _solve_small_grams(g[None], regs.T)[0][0, :n]
     return (r0 + nuis @ eta)[: regs.T]
+
+
+def _residual_streamed(regs, model, theta, inp, mapped: bool) -> np.ndarray:
+    """:func:`residual` of streamed regressors: r₀ = Wθ + y chunk by chunk, with the Gram of
+    [N | r₀] for the nuisance's least squares, then r₀ + Nη."""
+    from ._streamed import GridColumns
+
+    plan = regs.plan(model)
+    p, n, onehot = plan.p, regs.width(model), plan.onehot
+    theta = np.asarray(theta, np.float64)
+    r0 = np.empty(regs.T)
+    g = np.zeros((n - p + 1, n - p + 1))
+    mapped_cols = GridColumns(model, [inp]).blocks(regs) if mapped else None
+    for (k0, k1), A in zip(regs.spans, regs.design_blocks(model, grid=mapped), strict=True):
+        W = A[:, :p]
+        if mapped_cols is not None:
+            W = W + (next(mapped_cols)[0].T @ onehot)[:, :p]
+        r = W @ theta + A[:, P_MAX]
+        B = np.concatenate([A[:, p:n], r[:, None]], 1)
+        g += B.T @ B
+        r0[k0:k1] = r
+    eta = _solve_small_grams(g[None], regs.T)[0][0, : n - p]
+    for k0, k1 in regs.spans:
+        r0[k0:k1] += regs.nuisance_rows(model, k0, k1) @ eta
+    return r0
 
 
 # ----------------------------------------------------------------------------- simulation

@@ -28,10 +28,7 @@ from ._candidates import (
 )
 from ._criteria import DIVERGED
 from ._filtering import (
-    edge_pad,
-    filter_columns,
     mode_columns,
-    mode_free_responses,
     mode_seed,
     mode_signals,
     padded_length,
@@ -66,6 +63,8 @@ from ._settings import (
     Settings,
 )
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
+from ._streamed import ModeProfileColumns, Streamed
+from ._streaming import FilteredColumns, chunk_length, dahl_chunked, mode_seed_streamed
 from ._structures import (
     Fitted,
     Variant,
@@ -83,11 +82,29 @@ DAHL_BATCH = 16
 CLIP_REFINE = 8
 
 
+def _local_raw(x, F, c: float, w: float, j: int):
+    """Raw signal ``j`` of the localized step and bump at (x₀ = ``c``, ``w``): w·log cosh ξ,
+    tanh ξ·F, w·tanh ξ, sech²ξ·F (:func:`~lionjax._model_effects.local_values`), per rows."""
+    i = (0, 2, 1, 3)[j]
+    if j % 2:
+        return lambda k0, k1: local_values(x[k0:k1], c, w)[i] * F[k0:k1]
+    return lambda k0, k1: local_values(x[k0:k1], c, w)[i]
+
+
 class _Fitter(LookAlikes):
     """Fits structures (lists of candidates) on the train record and scores them on validation."""
 
-    def __init__(self, train: Record, valid: Record, st: Settings):
+    def __init__(
+        self,
+        train: Record,
+        valid: Record,
+        st: Settings,
+        streamed: bool = False,
+        chunk: int | None = None,
+    ):
         self.train, self.valid, self.st = train, valid, st
+        # long records: regressors streamed in chunks (:class:`~._streamed.Streamed`)
+        self.streamed, self.chunk = streamed, chunk
         self.bank = st.bank()
         self.ctx = st.context()
         self.H = None
@@ -105,8 +122,8 @@ class _Fitter(LookAlikes):
         # stick variant on the first structure that holds it: chosen like ``stick``
         self.presliding = False
         self._z: dict[bool, float] = {}
-        self.rtr = Regressors(train, self.bank, self._known(train, v_train))
-        self.rva = Regressors(valid, self.bank, self._known(valid, self.v_valid))
+        self.rtr = self._new_regs(train, self._known(train, v_train))
+        self.rva = self._new_regs(valid, self._known(valid, self.v_valid))
         self.mode_input = True  # the flexible mode's κ column: chosen in diagnose(), then fixed
         self._modes: dict[bool, tuple[float, float]] = {}  # (ω, ζ) profiled per variant
         self._coarse: tuple | None = None  # the coarse mode grid and its RSS per variant
@@ -126,6 +143,14 @@ class _Fitter(LookAlikes):
         # once the baseline is fitted
         self.limits: Limits | None = None
         self._profiled: dict[str, ForceEffect] = {}  # each ForceEffect once profiled
+
+    def _new_regs(self, rec: Record, known: dict, force_mask=None) -> Regressors:
+        """The regressors of ``rec``: streamed (sharing ``known``, the raw signals, with the
+        record's other regressors) or in memory."""
+        if self.streamed:
+            lam = 2 * math.pi * self.st.filter_hz
+            return Streamed(rec, self.bank, known, force_mask, chunk=self.chunk, lam=lam)
+        return Regressors(rec, self.bank, known, force_mask)
 
     def resolve(self, cand: AbstractCandidate) -> AbstractCandidate:
         """``cand`` with its nonlinear parameters profiled (a :class:`ForceEffect`'s, on the
@@ -147,7 +172,8 @@ class _Fitter(LookAlikes):
                     cols = self.rtr.added_columns(model, base)
                     if cols is None:
                         return float(fit_batch(self.rtr, model, [(0.0, math.inf)])[1][0])
-                    return float(rss_with_columns(self.rtr, base, cols[None])[0])
+                    cols = cols if self.streamed else cols[None]
+                    return float(rss_with_columns(self.rtr, base, cols)[0])
                 finally:
                     self.rtr.drop(signal_names(e))
 
@@ -222,8 +248,10 @@ class _Fitter(LookAlikes):
             return self.rtr, self.rva
         if self._stick_regs is None:
             rtr, rva = (
-                Regressors(rec, self.bank, self._known(rec, v), force_mask=1.0 - m)
-                for (rec, v), m in zip(self.records(), self.stuck_masks, strict=True)
+                self._new_regs(rec, regs.known if self.streamed else self._known(rec, v), 1.0 - m)
+                for (rec, v), m, regs in zip(
+                    self.records(), self.stuck_masks, (self.rtr, self.rva), strict=True
+                )
             )
             self._stick_regs = (rtr, rva)
         return self._stick_regs
@@ -250,6 +278,9 @@ class _Fitter(LookAlikes):
         # one compiled program per length bucket: v̂ padded with zeros (ζ then holds), the
         # distances padded to DAHL_BATCH
         T, zs = len(v), [float(z) for z in zs]
+        if self.streamed:  # chunk by chunk, the states carried
+            Z = dahl_chunked(v, self.st.dt, zs, self.chunk or chunk_length(T))
+            return {presliding_signal(z): (Z[j], "foh") for j, z in enumerate(zs)}
         vp = np.zeros(padded_length(T))
         vp[:T] = v
         out = {}
@@ -282,14 +313,16 @@ class _Fitter(LookAlikes):
                 chunk = grid[i : i + per]
                 raw = self._dahl(self.train, self.v_train, chunk)
                 regs.known.update(raw)
-                regs.filtered(raw)
+                if not regs.streamed:
+                    regs.filtered(raw)
                 for z in chunk:
                     model = self._model(cands, presliding=z)
                     cols = regs.added_columns(model, base)
                     if cols is None:
                         out.append(float(fit_batch(regs, model, [(0.0, math.inf)])[1][0]))
                     else:
-                        out.append(float(rss_with_columns(regs, base, cols[None])[0]))
+                        cols = cols if regs.streamed else cols[None]
+                        out.append(float(rss_with_columns(regs, base, cols)[0]))
                 regs.drop(list(raw))
             return np.asarray(out)
 
@@ -350,6 +383,8 @@ class _Fitter(LookAlikes):
         :func:`mode_columns`); their names."""
         names = []
         lam = 2 * math.pi * self.st.filter_hz
+        if regs.streamed:
+            return regs.add_mode(modes, lam)
         for (w, z), cx, cF in zip(modes, *mode_columns(regs, modes, lam), strict=True):
             nx, nF = mode_signal_names(w, z)
             # the filtered cache holds (Tp, 4) per signal; the mode's columns read x's order 2
@@ -372,6 +407,7 @@ class _Fitter(LookAlikes):
         F = np.asarray(self.train.F, np.float64)
         if regs.force_mask is not None:
             F = F * regs.force_mask
+        signs = (1.0, -1.0, 1.0, -1.0)  # the step's and the bump's first derivatives, forces
         lo, hi = (float(q) for q in np.quantile(x, LOCAL_RANGE))
         R = hi - lo
         if not R > 0:  # the axis does not move: nothing to localise (the fit says so)
@@ -384,15 +420,15 @@ class _Fitter(LookAlikes):
             out = []
             for i in range(0, len(points), per):
                 chunk = points[i : i + per]
-                U = []
-                for c, w in chunk:
-                    vs, vb, ms, mb = local_values(x, c, w)
-                    U += [vs, ms * F, vb, mb * F]
-                U = np.stack([edge_pad(u, regs.Tp) for u in U])
-                foh = np.tile([1.0, 0.0, 1.0, 0.0], len(chunk))
-                # the step's and the bump's first derivatives and their forces, signed
-                V = filter_columns(regs.dsc, U, foh, np.tile([1, 0, 1, 0], len(chunk)), regs.T)
-                cols = V.reshape(len(chunk), 4, regs.T) * np.array([1.0, -1.0, 1.0, -1.0])[:, None]
+                cols = FilteredColumns(
+                    [
+                        [
+                            (_local_raw(x, F, c, w, j), (1.0, 0.0)[j % 2], 1 - j % 2, signs[j])
+                            for j in range(4)
+                        ]
+                        for c, w in chunk
+                    ]
+                )
                 out.append(rss_with_columns(regs, base, cols))
             return np.concatenate(out)
 
@@ -439,28 +475,19 @@ class _Fitter(LookAlikes):
         regs, va = self.rtr, self.rva
         lam = 2 * math.pi * self.st.filter_hz
 
-        def columns(r: Regressors, chunk, free) -> np.ndarray:
-            # the mode's columns (h_x, h_F) and its free response ``free`` (refitted, not
-            # counted) on one record, (m, 4, T)
-            cx, cF = mode_columns(r, chunk, lam)
-            out = np.empty((len(chunk), 4, r.T))
-            out[:, 0], out[:, 1] = -cx[:, : r.T], cF[:, : r.T]
-            out[:, 2:] = free[:, :, : r.T]
-            return out
-
         def rss_of(modes, variants) -> dict[bool, np.ndarray]:
             # validation RSS of the training fit at each mode, with (True) and/or without
             # (False) the κ column
             rss: dict[bool, list] = {v: [] for v in variants}
             for i in range(0, len(modes), 8):
                 chunk = modes[i : i + 8]
-                # the free response depends on the record's length only: computed once
-                free = mode_free_responses(chunk, self.st.dt, max(regs.T, va.T))
-                cols, cols_v = columns(regs, chunk, free), columns(va, chunk, free)
+                # the mode's columns (h_x, h_F) and its free response (refitted, not counted)
+                # on each record, (m, 4, T); whole, they are computed once for both variants
+                cols = ModeProfileColumns(chunk, lam, self.st.dt, T_free=max(regs.T, va.T))
                 for v in variants:
-                    keep = slice(None) if v else [0, 2, 3]
-                    c, _, n = rss_with_columns(regs, base, cols[:, keep], coef=True)
-                    r = rss_fixed_with_columns(va, base, cols_v[:, keep], c, 2 if v else 1)
+                    sel = cols.select(slice(None) if v else [0, 2, 3])
+                    c, _, n = rss_with_columns(regs, base, sel, coef=True)
+                    r = rss_fixed_with_columns(va, base, sel, c, 2 if v else 1)
                     # a negative mass ratio is no mode: the search stays where μ > 0
                     rss[v].append(np.where(c[:, n] > 0, r, np.inf))
             return {k: np.concatenate(v) for k, v in rss.items()}
@@ -475,7 +502,11 @@ class _Fitter(LookAlikes):
         # the equation-error guess of the mode (mode_seed) starts a second search: the valley
         # of a lightly damped mode is narrower than the coarse grid's step
         if self._seed is None:
-            self._seed = (mode_seed(self.train.x, self.train.F, self.st.dt, lam, regs.Tp),)
+            self._seed = (
+                mode_seed_streamed(self.train.x, self.train.F, self.st.dt, lam, regs.chunk)
+                if regs.streamed
+                else mode_seed(self.train.x, self.train.F, self.st.dt, lam, regs.Tp),
+            )
         (seed,) = self._seed
         lo, hi = MODE_ZETA_RANGE
         if seed is not None and ws[0] <= seed[0] <= ws[-1]:
@@ -565,7 +596,8 @@ class _Fitter(LookAlikes):
         if self.degree == 0 and self._local is None and _has_position(cands):
             self._local = self._profile_local(cands)
         rtr, rva = self._regs(cands)
-        if _has_mode(cands) and mode_signal_names(*self.mode)[0] not in rtr.cache:
+        added = rtr.derived if rtr.streamed else rtr.cache
+        if _has_mode(cands) and mode_signal_names(*self.mode)[0] not in added:
             for regs, rec in ((rtr, self.train), (rva, self.valid)):
                 self._add_mode(regs, rec, [self.mode])
         model = self._model(cands)

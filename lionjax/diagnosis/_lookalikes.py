@@ -10,7 +10,7 @@ import numpy as np
 
 from .._models import Augmented, MassDamper
 from ._candidates import ForceClip, VelocityDrag
-from ._filtering import S_BUCKETS, _buckets, edge_pad, filter_columns
+from ._filtering import edge_pad, filter_columns
 from ._fit import (
     Regressors,
     TooWide,
@@ -29,7 +29,58 @@ from ._settings import (
     PERIOD_PEAKS,
 )
 from ._statistics import _position_noise
+from ._streaming import FilteredColumns, Filters
 from ._structures import _effects_of
+
+
+def _sinusoid(regs: Regressors, x_lo: float, R: float, k: float, f):
+    """The raw signal m·f(2πκξ), ξ = (x − x_lo)/R (m the force mask), per rows."""
+    x, m = regs.x, regs.force_mask
+
+    def raw(k0, k1):
+        v = f(2 * math.pi * k * ((x[k0:k1] - x_lo) / R))
+        return v if m is None else m[k0:k1] * v
+
+    return raw
+
+
+def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) -> np.ndarray:
+    """(n + 2, nb) position histograms (``bins`` of each sample) of Λ*[g]·m for g the
+    structure's training residual r = Wc + y and each of its n columns, then of m itself:
+    Λ* the filter's adjoint (the causal filter run on the time-reversed signal, reversed back).
+    Streamed regressors visit the chunks backwards, each chunk's design recomputed from the
+    filter states a forward pass left at its start."""
+    T = regs.T
+    if not regs.streamed:
+        A = regs.design(model)
+        W = A[:T, :n]
+        r = W @ c[:n] + A[:T, -1]
+        U = np.concatenate([r[:, None], W], 1)[::-1].T
+        back = filter_columns(
+            regs.dsc,
+            np.stack([edge_pad(u, regs.Tp) for u in U]),
+            np.zeros(U.shape[0]),
+            np.zeros(U.shape[0], np.int64),
+            T,
+        )[:, ::-1]
+        return np.stack([np.bincount(bins, weights=g * m, minlength=nb) for g in [*back, m]])
+    d = regs.design_pass(model)
+    states = []
+    for k0, k1 in regs.spans:  # the filters' states at each chunk's start
+        states.append(d.state())
+        d.block(k0, k1)
+    back = Filters(regs.dsc, T, regs.chunk, {i: (None, 0.0) for i in range(n + 1)})
+    H = np.zeros((n + 2, nb))
+    for (k0, k1), st in reversed(list(zip(regs.spans, states, strict=True))):
+        d.restore(st)
+        A = d.block(k0, k1)
+        W = A[:, :n]
+        U = np.concatenate([(W @ c[:n] + A[:, -1])[:, None], W], 1)[::-1].T
+        g = back.step_held(U, U, np.zeros_like(U), last=k0 == 0)[:, ::-1, 0]
+        for i in range(n + 1):
+            H[i] += np.bincount(bins[k0:k1], weights=g[i] * m[k0:k1], minlength=nb)
+    H[-1] = np.bincount(bins, weights=m, minlength=nb)
+    return H
 
 
 class LookAlikes:
@@ -106,22 +157,19 @@ class LookAlikes:
         out = (math.inf, math.nan)
         if k_hi > PERIOD_CYCLES[0]:
 
-            def columns(regs: Regressors, ks) -> np.ndarray:
-                # (m, 2, T) filtered sine and cosine of each κ (not kept in the cache); forces:
-                # held at 0 where the structure's force columns are masked
-                xi = (regs.x - x_lo) / R
-                m = 1.0 if regs.force_mask is None else regs.force_mask
-                out = np.empty((len(ks), 2, regs.T))
-                # κ per filter batch: its signals built batch by batch
-                per = _buckets(S_BUCKETS, regs.Tp)[-1] // 2 or 1
-                for i in range(0, len(ks), per):
-                    U = []
-                    for k in ks[i : i + per]:
-                        ph = 2 * math.pi * float(k) * xi
-                        U += [edge_pad(m * np.sin(ph), regs.Tp), edge_pad(m * np.cos(ph), regs.Tp)]
-                    V = filter_columns(regs.dsc, np.stack(U), np.ones(len(U)), [0] * len(U), regs.T)
-                    out[i : i + per] = V.reshape(-1, 2, regs.T)
-                return out
+            def columns(regs: Regressors, ks) -> FilteredColumns:
+                # (m, 2, T) filtered sine and cosine of each κ (not kept in the cache; built a
+                # filter batch or a chunk at a time); forces held at 0 where the structure's
+                # force columns are masked
+                return FilteredColumns(
+                    [
+                        [
+                            (_sinusoid(regs, x_lo, R, float(k), f), 1.0, 0, 1.0)
+                            for f in (np.sin, np.cos)
+                        ]
+                        for k in ks
+                    ]
+                )
 
             # each peak and its neighbours 1/16 cycle off, then 9 points 1/64 cycle apart
             # around the best: two batched fits (a call costs more than its columns here)
@@ -154,28 +202,17 @@ class LookAlikes:
         loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm² (the sinusoid's frequency at speed v̂ is κ|v̂|/R;
         within a few % of the exact diagonal on moving records). The estimate only ranks κ:
         the chosen ones are fitted exactly. Empty where every force is masked."""
-        A, G = regs.design_gram(model)
         T = regs.T
         n = regs.width(model)
-        c = solve_grams(G[None], T)[0][0]
-        W = A[:T, :n]
-        r = W @ c[:n] + A[:T, -1]
-        # the adjoint of the causal filter: filter the time-reversed signals, reverse back
-        U = np.concatenate([r[:, None], W], 1)[::-1].T
-        back = filter_columns(
-            regs.dsc,
-            np.stack([edge_pad(u, regs.Tp) for u in U]),
-            np.zeros(U.shape[0]),
-            np.zeros(U.shape[0], np.int64),
-            T,
-        )[:, ::-1]
         m = np.ones(T) if regs.force_mask is None else regs.force_mask[:T]
         h0 = float(np.sum(m * m))
         if h0 <= 0:
             return np.zeros(0)
+        _, G = regs.design_gram(model, need_design=False)
+        c = solve_grams(G[None], T)[0][0]
         nb = PERIOD_BINS
         bins = np.clip(((regs.x - x_lo) / R * nb).astype(np.int64), 0, nb - 1)
-        H = np.stack([np.bincount(bins, weights=g * m, minlength=nb) for g in [*back, m]])
+        H = _adjoint_histograms(regs, model, c, n, m, bins, nb)
         Fh = np.fft.fft(H, nb * PERIOD_OVERSAMPLE, axis=1)  # Σ g·m·e^{−2πiκξ}
         ks = np.arange(Fh.shape[1]) / PERIOD_OVERSAMPLE
         keep = np.flatnonzero((ks >= PERIOD_CYCLES[0]) & (ks <= k_hi))

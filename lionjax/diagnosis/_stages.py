@@ -287,6 +287,7 @@ def prepare(
     filter_hz: float | None,
     window_s: float | None,
     max_memory_gb: float | None,
+    streamed: bool | None = None,
 ) -> Run:
     """Settings, the baseline fit, the noise floor of ε₁ and the record-level facts (closed
     loop, limits, a qualitatively wrong baseline) that every later stage reads."""
@@ -299,8 +300,8 @@ def prepare(
                 f"diagnose: the {ROLES[nm]} has {rec.n_samples} samples; at least "
                 f"{max(min_len, 200)} are needed (20 filter time constants)."
             )
-    _check_memory(train.n_samples, valid.n_samples, max_memory_gb)
-    fitter = _Fitter(train, valid, st)
+    streamed = _check_memory(train.n_samples, valid.n_samples, max_memory_gb, streamed)
+    fitter = _Fitter(train, valid, st, streamed=streamed)
     base = fitter.fit([])
     a, b = base.physical["a"], base.physical["b"]
     # noise floor of ε₁ on the validation record (with the encoder's count: else a clean
@@ -311,8 +312,8 @@ def prepare(
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     # the scale of ε₁'s input term b·F/Λ on validation, against which an effect's size counts
     Fv = np.asarray(valid.F, np.float64)
-    hF = fitter.rva.filtered({"F scale": (Fv - np.mean(Fv), "zoh")})["F scale"]
-    force_rms = max(abs(b) * float(np.sqrt(np.mean(hF[: valid.n_samples, 0] ** 2))), 1e-300)
+    hF = fitter.rva.mean_square(Fv - np.mean(Fv), "zoh", 0)
+    force_rms = max(abs(b) * float(np.sqrt(hF)), 1e-300)
     # in closed loop the controller feeds the position noise into F, so a regressor built from
     # F can cancel the noise's path through x in ε₁: at or below the estimated floor a delay of
     # a few samples does (a clean record named `delay` at 1.00), and is not taken as the device's

@@ -10,7 +10,14 @@ import numpy as np
 from .._errors import InputError
 from .._record import Record
 from ._filtering import zero_phase
-from ._fit import decimation_to_fit, longest_records, memory_estimate, physical_memory
+from ._fit import (
+    decimation_to_fit,
+    longest_records,
+    memory_estimate,
+    memory_estimate_streamed,
+    physical_memory,
+    streamed_by_default,
+)
 
 
 def _memory_budget(max_memory_gb: float | None) -> float | None:
@@ -39,12 +46,31 @@ def decimation_for(
     return decimation_to_fit(have, train.n_samples, valid.n_samples)
 
 
-def _check_memory(n_train: int, n_valid: int, max_memory_gb: float | None) -> None:
-    """InputError when records of these lengths need more host memory than allowed."""
+def _check_memory(
+    n_train: int, n_valid: int, max_memory_gb: float | None, streamed: bool | None = None
+) -> bool:
+    """Whether the records are diagnosed streamed (``streamed``, or by their length:
+    :func:`~._fit.streamed_by_default`); InputError when records of these lengths need more
+    host memory than allowed."""
+    if streamed is not None and not isinstance(streamed, bool):
+        raise InputError(f"diagnose: streamed must be True, False or None, got {streamed!r}.")
+    if streamed is None:
+        streamed = streamed_by_default(n_train, n_valid)
     have = _memory_budget(max_memory_gb)
+    if streamed:
+        need = memory_estimate_streamed(n_train, n_valid)
+        if have is None or need <= have:
+            return True
+        raise InputError(
+            f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need "
+            f"about {need / 1e9:.3g} GB of host memory streamed, more than "
+            f"{'max_memory_gb' if max_memory_gb is not None else 'this machine'} "
+            f"({have / 1e9:.3g} GB). Diagnose shorter excerpts or decimate both records "
+            f"(Record.decimate; CLI: --decimate)."
+        )
     need = memory_estimate(n_train, n_valid)
     if have is None or need <= have:
-        return
+        return False
     n = longest_records(have)
     r = decimation_to_fit(have, n_train, n_valid)
     limit = "max_memory_gb" if max_memory_gb is not None else "this machine's physical memory"
