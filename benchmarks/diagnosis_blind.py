@@ -108,6 +108,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -1717,6 +1718,15 @@ def _json_default(o):
     return str(o)
 
 
+def streamed(train, valid, chunk: int, **kw):
+    """``lj.diagnose(train, valid, streamed=True, **kw)`` in chunks of ``chunk`` samples."""
+    import lionjax as lj
+    from lionjax.diagnosis import _streaming
+
+    _streaming.CHUNK = chunk
+    return lj.diagnose(train, valid, streamed=True, **kw)
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(
         description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1737,8 +1747,18 @@ def main(argv=None) -> None:
         help="FILE.py:Name[,Name…]: extra candidates (lj.diagnosis.load_candidates) passed "
         "with the default library",
     )
+    p.add_argument(
+        "--streamed",
+        type=int,
+        metavar="CHUNK",
+        help="diagnose streamed (lj.diagnose(..., streamed=True)) in chunks of CHUNK samples "
+        "(a power of two; chunks shorter than the records carry the filters' states across "
+        "their edges): the streamed path's verdicts, for comparison with an in-memory run",
+    )
     p.add_argument("--json", help="write the summary and every case here")
     a = p.parse_args(argv)
+    if a.streamed is not None and (a.streamed < 64 or a.streamed & (a.streamed - 1)):
+        p.error(f"--streamed: CHUNK must be a power of two ≥ 64, got {a.streamed}")
     out = run(
         a.per_class,
         a.seed,
@@ -1748,7 +1768,10 @@ def main(argv=None) -> None:
         rate=(a.rate_min, a.rate_max),
         durations=(a.duration_min, a.duration_max),
         candidates=a.candidates,
+        diagnose=None if a.streamed is None else functools.partial(streamed, chunk=a.streamed),
     )
+    if a.streamed is not None:
+        out["streamed_chunk"] = a.streamed
     print_summary(out)
     if a.json:
         with open(a.json, "w") as fh:

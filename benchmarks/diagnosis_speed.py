@@ -37,7 +37,8 @@ mass–damper with an offset, exact zero-order-hold samples, band-limited noise 
 steps and position noise; ``--rate`` Hz) and reports its wall time (compilation included, as a
 first run sees it), its peak RSS, the diagnosis' memory estimate for the pair, and the
 verdict; a pair the diagnosis refuses for memory (its estimate above this machine's memory) is
-listed with the reason.
+listed with the reason. ``--streamed on|off`` diagnoses every length streamed or in memory
+(default ``auto``: as ``lj.diagnose`` chooses, streamed above 2¹⁸ padded samples).
 
     PYTHONPATH=<checkout> python benchmarks/diagnosis_speed.py --lengths 1e4,1e5,1e6 [--json F]
 """
@@ -101,10 +102,16 @@ def main(argv=None) -> dict:
     p.add_argument(
         "--lengths", help="time and peak RSS against training samples N1,N2,… (see above)"
     )
+    p.add_argument(
+        "--streamed",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="--lengths: diagnose streamed, in memory, or as lj.diagnose chooses (default)",
+    )
     p.add_argument("--one-length", type=float, help=argparse.SUPPRESS)  # a --lengths child
     args = p.parse_args(argv)
     if args.one_length:
-        return _one_length(int(args.one_length), args.rate)
+        return _one_length(int(args.one_length), args.rate, args.streamed)
     if args.lengths:
         return lengths(args)
     if args.passes < 1:
@@ -335,7 +342,7 @@ def _long_record(n: int, rate: float, seed: int):
     return x, F, dt
 
 
-def _one_length(n: int, rate: float) -> dict:
+def _one_length(n: int, rate: float, streamed: str = "auto") -> dict:
     """A --lengths child: diagnose one pair of n training samples; print one JSON line."""
     import resource
 
@@ -343,15 +350,17 @@ def _one_length(n: int, rate: float) -> dict:
 
     jax.config.update("jax_enable_x64", True)
     import lionjax as lj
-    from lionjax.diagnosis._fit import memory_estimate  # what diagnose checks against
+    from lionjax.diagnosis._fit import memory_estimate, streamed_by_default
 
     nv = max(n // 5, 4000)
     train, valid = (lj.Record(*_long_record(k, rate, seed)) for k, seed in ((n, 1), (nv, 2)))
-    out = {"train_samples": n, "valid_samples": nv, "rate_hz": rate}
-    out["memory_estimate_gb"] = memory_estimate(n, nv) / 1e9
+    mode = {"auto": None, "on": True, "off": False}[streamed]
+    on = streamed_by_default(n, nv) if mode is None else mode
+    out = {"train_samples": n, "valid_samples": nv, "rate_hz": rate, "streamed": on}
+    out["memory_estimate_gb"] = memory_estimate(n, nv, streamed=on) / 1e9  # diagnose's check
     t0 = time.perf_counter()
     try:
-        d = lj.diagnose(train, valid)
+        d = lj.diagnose(train, valid, streamed=mode)
         out.update(status="ok", verdict=d.verdict, confidence=d.confidence, stack=d.stack)
     except lj.InputError as e:  # refused for memory (the message says by how much)
         out.update(status="refused", reason=str(e))
@@ -367,7 +376,7 @@ def lengths(args) -> dict:
     for text in args.lengths.split(","):
         n = int(float(text))
         cmd = [sys.executable, os.path.abspath(__file__), "--one-length", str(n)]
-        cmd += ["--rate", str(args.rate)]
+        cmd += ["--rate", str(args.rate), "--streamed", args.streamed]
         t0 = time.perf_counter()
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
@@ -377,13 +386,14 @@ def lengths(args) -> dict:
         row["process_s"] = time.perf_counter() - t0
         rows.append(row)
         print(
-            f"N = {n:>9d}: {row['status']:8s} diagnose {row.get('seconds', math.nan):7.1f} s, "
+            f"N = {n:>9d} ({'streamed' if row.get('streamed') else 'in memory'}): "
+            f"{row['status']:8s} diagnose {row.get('seconds', math.nan):7.1f} s, "
             f"process {row['process_s']:7.1f} s, peak RSS {row.get('peak_rss_gb', math.nan):6.2f} "
             f"GB (estimate {row.get('memory_estimate_gb', math.nan):6.2f} GB) "
             f"{row.get('verdict', row.get('reason', ''))[:100]}",
             flush=True,
         )
-    out = {"mode": "lengths", "rate_hz": args.rate, "rows": rows}
+    out = {"mode": "lengths", "rate_hz": args.rate, "streamed": args.streamed, "rows": rows}
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)

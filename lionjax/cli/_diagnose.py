@@ -6,8 +6,9 @@ force sensor's artefacts force_sensor_line and force_sensor_drift) on VALID, sta
 significant ones, and prints the verdict. --candidates FILE.py:Name[,Name…] adds effects of
 one's own (docs/effects.md). --json writes the payload (baseline, where,
 effects, stack, verdict, confidence, ambiguous, final, and the decimation applied);
---plot writes a one-page summary (PNG/PDF/SVG by extension). --decimate R (or auto) diagnoses
-records too long for the memory at R× the sample interval.
+--plot writes a one-page summary (PNG/PDF/SVG by extension). Long records are streamed (the
+fits accumulated chunk by chunk: memory independent of the length; --streamed on/off/auto);
+--decimate R (or auto) diagnoses records at R× the sample interval.
 
 --pairs DIR diagnoses every pair NAME_train.* / NAME_valid.* of a folder (or --pairs FILE.csv,
 a manifest with the columns name,train,valid) in one process, sharing the compiled programs
@@ -63,6 +64,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="host memory the diagnosis may take [GB] (default: this machine's memory)",
     )
     g.add_argument(
+        "--streamed",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="accumulate the fits chunk by chunk, memory independent of the records' length "
+        "('auto': for records above 2^18 samples, padded; default auto)",
+    )
+    g.add_argument(
         "--decimate",
         metavar="R",
         type=_factor,
@@ -74,6 +82,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--columns", help="map column names, e.g. t=time,x=pos,F=force")
     g.add_argument("--force-scale", type=float, help="multiply F by this (e.g. N/V)")
     g.add_argument("--resample", action="store_true", help="resample a non-uniform record (linear)")
+
+
+def _streamed(args) -> bool | None:
+    return {"auto": None, "on": True, "off": False}[args.streamed]
 
 
 def _factor(s: str):
@@ -151,6 +163,7 @@ def _run_pairs(args) -> int:
         filter_hz=args.filter_hz,
         window_s=args.window,
         max_memory_gb=args.max_memory_gb,
+        streamed=_streamed(args),
     )
     rows = [dataclasses.replace(r, error=cli_words(r.error)) if r.error else r for r in result.rows]
     if orphans:  # a folder's pairs come sorted by name: the unpaired files take their places
@@ -180,7 +193,9 @@ def _run_one(args) -> int:
         valid = None
     r = args.decimate
     if r == "auto":
-        r = lj.diagnosis.decimation_for(train, valid, max_memory_gb=args.max_memory_gb)
+        r = lj.diagnosis.decimation_for(
+            train, valid, max_memory_gb=args.max_memory_gb, streamed=_streamed(args)
+        )
         if r == 0:
             r = 1  # no factor fits: diagnose refuses the records and says why
     dt0 = float(train.dt)
@@ -199,6 +214,7 @@ def _run_one(args) -> int:
             filter_hz=args.filter_hz,
             window_s=args.window,
             max_memory_gb=args.max_memory_gb,
+            streamed=_streamed(args),
         )
     except (InputError, IdentificationError) as e:
         raise type(e)(_name_files(str(e), args)) from None

@@ -40,6 +40,8 @@ MAINS_TOLERANCE = 0.01
 MAINS_POINTS = 21
 #: Highest harmonic of the line estimated from F (below 0.45·f_s).
 MAX_HARMONIC = 5
+#: Rows of :func:`line_in`'s design built at once.
+LINE_ROWS = 1 << 18
 #: A sensor line: the device feels at most this share of the line in F (|1 − share|).
 LINE_SHARE_TOL = 0.3
 
@@ -50,19 +52,34 @@ def line_in(F: np.ndarray, t: np.ndarray, f0: float, dt: float) -> np.ndarray:
     ks = [k for k in range(1, MAX_HARMONIC + 1) if k * f0 < 0.45 / dt]
     if not ks:
         return np.zeros_like(F)
-    # cos and sin of kw (k = 1 … K, as ks) from the powers of e^{iw}: one complex exponential,
-    # not 2K trig calls (a profile over the mains frequencies builds ~60 of these per record)
-    z = np.exp(2j * np.pi * f0 * (t - t[0]))
-    A = np.empty((F.size, 2 * len(ks)))
-    zk = z
-    for i in range(len(ks)):
-        if i:
-            zk = zk * z
-        A[:, 2 * i], A[:, 2 * i + 1] = zk.real, zk.imag
+
+    def design(a: int, b: int) -> np.ndarray:
+        # cos and sin of kw (k = 1 … K, as ks) from the powers of e^{iw}: one complex
+        # exponential, not 2K trig calls (a profile over the mains frequencies builds ~60 of
+        # these per record)
+        z = np.exp(2j * np.pi * f0 * (t[a:b] - t[0]))
+        A = np.empty((b - a, 2 * len(ks)))
+        zk = z
+        for i in range(len(ks)):
+            if i:
+                zk = zk * z
+            A[:, 2 * i], A[:, 2 * i + 1] = zk.real, zk.imag
+        return A
+
     # by its normal equations: the columns are near-orthogonal over the record's many periods
-    # (AᵀA ≈ T/2·I), and a profile over the mains frequencies solves ~60 of these per record
-    coef, *_ = np.linalg.lstsq(A.T @ A, A.T @ (F - np.mean(F)), rcond=None)
-    return A @ coef
+    # (AᵀA ≈ T/2·I), and a profile over the mains frequencies solves ~60 of these per record;
+    # rows in blocks of LINE_ROWS (a long record's design is never held whole)
+    Fc = F - np.mean(F)
+    blocks = [(a, min(a + LINE_ROWS, F.size)) for a in range(0, F.size, LINE_ROWS)]
+    G, r = 0.0, 0.0
+    for a, b in blocks:
+        A = design(a, b)
+        G, r = G + A.T @ A, r + A.T @ Fc[a:b]
+    coef, *_ = np.linalg.lstsq(G, r, rcond=None)
+    out = np.empty_like(Fc)
+    for a, b in blocks:
+        out[a:b] = design(a, b) @ coef
+    return out
 
 
 class ForceSensorLine(ForceEffect):

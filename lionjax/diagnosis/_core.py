@@ -228,13 +228,20 @@ def diagnose(
             largest stack; defaults 10, 0.3, 0.005, 1.5, 3); where given, they replace those
             fields of ``criteria``.
         max_memory_gb: host memory [GB] the diagnosis may take (default: this machine's
-            physical memory). Its peak grows with the records' padded lengths (about 3.6 kB per
-            padded sample of each record above 2¹⁸, 6.5 kB below, where designs are cached:
-            :func:`~lionjax.diagnosis._fit.memory_estimate`); records that would need more get
+            physical memory). In memory its peak grows with the records' padded lengths (about
+            3.6 kB per padded sample of each record above 2¹⁸, 6.5 kB below, where designs are
+            cached); streamed, by their raw per-sample signals only
+            (:func:`~lionjax.diagnosis._fit.memory_estimate`). Records that would need more get
             an :class:`~lionjax.InputError` before anything is computed, not an out-of-memory
             kill, naming the least decimation that fits (:func:`decimation_for`,
             :meth:`lionjax.Record.decimate`).
         criteria: every other threshold (default :class:`~lionjax.diagnosis.Criteria`()).
+        streamed: accumulate every fit's statistics chunk by chunk (:mod:`._streamed`: Grams,
+            cross products with the profiles' columns and the validation residuals over chunks
+            of 2¹⁶ samples, the filters' states carried between chunks), so that no filtered
+            signal, design or profile column is held whole; the same verdicts as in memory, the
+            numbers equal to the last bits. None (default): streamed where a record's padded
+            length exceeds 2¹⁸ samples.
 
     Returns:
         a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,

@@ -245,6 +245,10 @@ def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
     Tp = padded_length(T)
     bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
     dsc = Discrete.of(bank, dt)
+    if Tp > LONG_BATCH:  # a long record: filtered chunk by chunk, forwards then backwards
+        from ._streaming import zero_phase_streamed
+
+        return zero_phase_streamed(dsc, x, dt)
     sm, g = _zero_phase(dsc, edge_pad(x, Tp), _i(T), _f(dt))
     return np.asarray(sm)[:T], np.asarray(g)[:T]
 

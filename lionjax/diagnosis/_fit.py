@@ -123,33 +123,44 @@ def _record_bytes(Tp: int) -> int:
     return (BYTES_PER_SAMPLE_CACHED if Tp <= BIG else BYTES_PER_SAMPLE) * Tp
 
 
-def memory_estimate(*n_samples: int) -> int:
-    """Peak host memory [bytes] a diagnosis of records of ``n_samples`` samples needs
-    (:data:`BYTES_PER_SAMPLE`, or :data:`BYTES_PER_SAMPLE_CACHED` where the record's padded
-    length keeps the per-structure caches, per padded sample)."""
+def memory_estimate(*n_samples: int, streamed: bool | None = None) -> int:
+    """Peak host memory [bytes] a diagnosis of records of ``n_samples`` samples needs: streamed
+    (``streamed``, by default where :func:`streamed_by_default`),
+    :func:`memory_estimate_streamed`; in memory :data:`BYTES_PER_SAMPLE`, or
+    :data:`BYTES_PER_SAMPLE_CACHED` where the record's padded length keeps the per-structure
+    caches, per padded sample."""
+    if streamed is None:
+        streamed = streamed_by_default(*n_samples)
+    if streamed:
+        return memory_estimate_streamed(*n_samples)
     return sum(_record_bytes(padded_length(int(n))) for n in n_samples)
 
 
-def longest_records(budget: float, count: int = 2) -> int:
+def longest_records(budget: float, count: int = 2, streamed: bool | None = None) -> int:
     """The most samples each of ``count`` records of one length may have for
     :func:`memory_estimate` to stay within ``budget`` [bytes]; 0 when even the shortest bucket
-    does not fit. (Every padded length is tried: the estimate drops where the caches stop.)"""
+    does not fit. (Every padded length is tried: the estimate drops where the caches stop, and
+    again where the records are streamed.)"""
     fits = [
         _capacity(Tp)
         for Tp in (MIN_PADDED << k for k in range(29))
-        if count * _record_bytes(Tp) <= budget
+        if memory_estimate(*[_capacity(Tp)] * count, streamed=streamed) <= budget
     ]
+    if streamed is not False:
+        n = int((budget - STREAM_FIXED) // (BYTES_PER_SAMPLE_STREAMED * count))
+        if n > 0 and (streamed or streamed_by_default(n)):
+            fits.append(n)
     return max(fits, default=0)
 
 
-def decimation_to_fit(budget: float, *n_samples: int) -> int:
+def decimation_to_fit(budget: float, *n_samples: int, streamed: bool | None = None) -> int:
     """The least factor r ≥ 1 for which records of ``n_samples`` samples, decimated by r
     (:meth:`lionjax.Record.decimate`: ⌊n/r⌋ samples each), fit :func:`memory_estimate` within
     ``budget`` [bytes]; 0 when none does (not even the shortest bucket fits)."""
     r = 1
     while True:
         n = [int(k) // r for k in n_samples]
-        if memory_estimate(*n) <= budget:
+        if memory_estimate(*n, streamed=streamed) <= budget:
             return r
         if max(n) <= _capacity(MIN_PADDED):  # already in the shortest bucket: none helps
             return 0

@@ -67,6 +67,7 @@ from ._streamed import ModeProfileColumns, Streamed
 from ._streaming import FilteredColumns, chunk_length, dahl_chunked, mode_seed_streamed
 from ._structures import (
     Fitted,
+    Recompute,
     Variant,
     _effects_of,
     _has_mode,
@@ -80,6 +81,19 @@ DAHL_BATCH = 16
 #: Hard clips evaluated between the best one's neighbours on the quantile grid
 #: (:meth:`_Fitter._refine_clip`).
 CLIP_REFINE = 8
+
+
+def _position_raw(x, center, scale, lo, hi, clamp: bool, k: int, which: int):
+    """Per rows, the degree-``k`` raw signal of :meth:`_Fitter._position_known`:
+    ℓξ_cᵏ⁺¹/(k+1) + ℓξ_cᵏ(ξ − ξ_c) (``which`` 0) or its multiplier ξ_cᵏ (1)."""
+
+    def raw(k0, k1):
+        xi = (x[k0:k1] - center) / scale
+        xic = np.clip(xi, lo, hi) if clamp else xi
+        gv, mv = position_values(xic, scale, k)
+        return mv if which else gv + scale * mv * (xi - xic)
+
+    return raw
 
 
 def _local_raw(x, F, c: float, w: float, j: int):
@@ -261,6 +275,18 @@ class _Fitter(LookAlikes):
         validation record's position signals held beyond train's range when
         :attr:`position_clamp` is set."""
         x = np.asarray(rec.x, np.float64)
+        if self.streamed:  # computed per chunk: no (T,) array each
+            e = self.st.v_eps
+            known = {
+                "one": (lambda k0, k1: np.ones(k1 - k0), "zoh"),
+                "x_spring": (x, "foh"),
+                "sgn_v": (lambda k0, k1: np.tanh(v[k0:k1] / e), "foh"),
+                "abs_sgn_v": (lambda k0, k1: np.abs(np.tanh(v[k0:k1] / e)), "foh"),
+                "v_abs_v": (lambda k0, k1: v[k0:k1] * np.abs(v[k0:k1]), "foh"),
+            }
+            for z in set(self._z.values()) - {0.0}:
+                known |= self._dahl(rec, v, [z])
+            return known | self._position_known(rec, clamp=self._clamp and rec is self.valid)
         known = {
             "one": (np.ones_like(x), "zoh"),
             "x_spring": (x, "foh"),
@@ -348,6 +374,14 @@ class _Fitter(LookAlikes):
         exact. (Equal to the polynomial's on the training record itself.)"""
         xi = (np.asarray(rec.x, np.float64) - self.st.x_center) / self.st.x_scale
         lo, hi = ((r - self.st.x_center) / self.st.x_scale for r in self.st.x_range)
+        if self.streamed:  # computed per chunk
+            x, c, sc = np.asarray(rec.x, np.float64), self.st.x_center, self.st.x_scale
+            known = {}
+            for k in range(1, MAX_POSITION_DEGREE + 1):
+                g, _, m = position_terms(k)
+                known[m] = _position_raw(x, c, sc, lo, hi, clamp, k, 1)
+                known[g] = (_position_raw(x, c, sc, lo, hi, clamp, k, 0), "foh")
+            return known
         xic = np.clip(xi, lo, hi) if clamp else xi
         known = {}
         for k in range(1, MAX_POSITION_DEGREE + 1):  # in float64 (the effect's own: jax)
@@ -640,7 +674,24 @@ class _Fitter(LookAlikes):
                 if self.position_clamp:
                     phys["x_lo"], phys["x_hi"] = self.st.x_range
         sim = self._simulate(phys, u_va, cands)
-        return Fitted(
+        fields = {}
+        if self.streamed:  # no (T,) array held per fit: recomputed under this variant if read
+            var = self.variant
+
+            def make():
+                now = self.variant
+                self.variant = var
+                try:
+                    u = apply_input(self.valid.F, dt, tau, fmax)
+                    return residual(rva, model, theta, (tau, fmax)), self._simulate(phys, u, cands)
+                finally:
+                    self.variant = now
+
+            fields["signals"] = Recompute(make)
+        return Fitted.of(
+            r,
+            sim,
+            keep=not self.streamed,
             names=names,
             theta=theta,
             std=std,
@@ -649,8 +700,6 @@ class _Fitter(LookAlikes):
             fmax=fmax,
             rss_train=float(rss[0]),
             ms_valid=float(np.mean(r**2)),
-            residual=r,
-            sim_error=sim,
             condition=float(cond[0]),
             # the first window is not scored where a second one follows: its input before the
             # record is unknown (a delayed input needs τ of it; a command that starts at −9.7 N
@@ -660,6 +709,7 @@ class _Fitter(LookAlikes):
             gap_from=self.gap_from(sim.size),
             diverge_at=DIVERGED * max(float(np.ptp(np.asarray(self.valid.x))), 1e-300),
             variant=self.variant,
+            **fields,
         )
 
     def window(self, a: float) -> int:

@@ -114,7 +114,7 @@ class Run:
         samples within one are not): n_w·ln(gap_cur²/gap_new²) − p·ln n_w; −inf where either
         simulation diverged. Where the baseline is qualitatively wrong the equation error is no
         measure of an effect (below)."""
-        n_w = (new.sim_error.size - new.gap_from) // self.fitter.H
+        n_w = (new.n_sim - new.gap_from) // self.fitter.H
         if not (math.isfinite(cur.gap) and math.isfinite(new.gap) and new.gap > 0 and n_w > 1):
             return -math.inf
         return n_w * 2 * math.log(cur.gap / new.gap) - p * math.log(n_w)

@@ -33,17 +33,22 @@ def _memory_budget(max_memory_gb: float | None) -> float | None:
 
 
 def decimation_for(
-    train: Record, valid: Record | None = None, *, max_memory_gb: float | None = None
+    train: Record,
+    valid: Record | None = None,
+    *,
+    max_memory_gb: float | None = None,
+    streamed: bool | None = None,
 ) -> int:
     """The least factor r for which :func:`diagnose` of ``train.decimate(r)`` and
     ``valid.decimate(r)`` (:meth:`lionjax.Record.decimate`) fits the host memory
-    (``max_memory_gb``, default this machine's; see :func:`diagnose`): 1 when the records fit
-    as they are; 0 when no factor helps. ``lionjax diagnose --decimate auto`` uses it."""
+    (``max_memory_gb``, default this machine's; ``streamed`` as :func:`diagnose` takes it):
+    1 when the records fit as they are; 0 when no factor helps. ``lionjax diagnose --decimate
+    auto`` uses it."""
     valid = train if valid is None else valid
     have = _memory_budget(max_memory_gb)
     if have is None:
         return 1
-    return decimation_to_fit(have, train.n_samples, valid.n_samples)
+    return decimation_to_fit(have, train.n_samples, valid.n_samples, streamed=streamed)
 
 
 def _check_memory(
@@ -68,11 +73,11 @@ def _check_memory(
             f"({have / 1e9:.3g} GB). Diagnose shorter excerpts or decimate both records "
             f"(Record.decimate; CLI: --decimate)."
         )
-    need = memory_estimate(n_train, n_valid)
+    need = memory_estimate(n_train, n_valid, streamed=False)
     if have is None or need <= have:
         return False
-    n = longest_records(have)
-    r = decimation_to_fit(have, n_train, n_valid)
+    n = longest_records(have, streamed=False)
+    r = decimation_to_fit(have, n_train, n_valid, streamed=False)
     limit = "max_memory_gb" if max_memory_gb is not None else "this machine's physical memory"
     if n:
         how = (
@@ -85,7 +90,8 @@ def _check_memory(
     raise InputError(
         f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
         f"{need / 1e9:.3g} GB of host memory, more than {limit} ({have / 1e9:.3g} GB). "
-        f"{how} pass a larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
+        f"{how} diagnose them streamed (streamed=True; CLI: --streamed on), or pass a larger "
+        f"max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
     )
 
 

@@ -54,7 +54,7 @@ class Streamed(Regressors):
         self.dsc = Discrete.of(bank, self.dt)
         self.x = np.asarray(record.x, np.float64)
         self.F = np.asarray(record.F, np.float64)
-        self.known = dict(known or {})
+        self.known = {} if known is None else known  # shared with the record's other regressors
         self.cache: dict = {}
         # signals whose columns are computed, not filtered: {name: (ω, ζ, "x" | "F")} of the
         # flexible modes' exact columns (:meth:`add_mode`)
@@ -92,8 +92,7 @@ class Streamed(Regressors):
     def mean_square(self, u, hold: str, order: int) -> float:
         filt = Filters(self.dsc, self.T, self.chunk, {0: (rows(u), 1.0 if hold == "foh" else 0.0)})
         return (
-            sum(float(np.sum(filt.step(k0, k1)[0]["V"][:, order] ** 2)) for k0, k1 in self.spans)
-            / self.T
+            sum(float(np.sum(filt.step(k0, k1)[0][order] ** 2)) for k0, k1 in self.spans) / self.T
         )
 
     # ------------------------------------------------------------------ chunks
@@ -141,13 +140,14 @@ class Streamed(Regressors):
         N = self.free(k0, k1)
         return np.concatenate([N, *extra], 1) if extra else N
 
-    def multiplier(self, model, signal: str) -> np.ndarray | None:
-        """g(x) (T,) of an F-dependent signal times the force mask; None for 1."""
+    def multiplier(self, model, signal: str):
+        """g(x) of an F-dependent signal times the force mask, held (T,) or a raw signal; None
+        for 1."""
         from ._fit import f_multiplier
 
         g = None if f_multiplier(signal) is None else self._multiplier(model, signal)
         if self.force_mask is not None:
-            g = self.force_mask if g is None else g * self.force_mask
+            g = self.force_mask if g is None else scaled(self.force_mask, rows(g))
         return g
 
     def design_pass(self, model, grid: bool = False) -> _DesignPass:
@@ -248,7 +248,7 @@ class GridColumns(ColumnSource):
         m = len(self.inputs)
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
-            V = np.stack([out[(i, k)]["V"][:, 0] for i in range(m) for k in range(K)])
+            V = np.stack([out[(i, k)][0] for i in range(m) for k in range(K)])
             yield V.reshape(m, K, k1 - k0)
 
 
@@ -313,24 +313,24 @@ class _DesignPass:
         out = self.filters.step(k0, k1)
         mode_cols = {}
         if self.stages is not None:
-            cx, cF = self.stages.step(out["x"], out["F"])
+            cx, cF = self.stages.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
             for i, (w, z) in enumerate(self.modes):
                 mode_cols[(w, z, "x")], mode_cols[(w, z, "F")] = cx[i], cF[i]
-        A = np.zeros((k1 - k0, P_MAX + 1))
+        At = np.zeros((P_MAX + 1, k1 - k0))  # filled by rows: A = Atᵀ (column-major)
         for j, c in enumerate(self.cols):
             if f_dependent(c.signal):
                 continue
             if c.signal in regs.derived:
                 # the mode's columns read x's order 2 and F's order 0 (ModeColumns.columns)
-                A[:, j] = c.sign * mode_cols[regs.derived[c.signal]]
+                At[j] = c.sign * mode_cols[regs.derived[c.signal]]
                 continue
             nm = f"{c.signal}|stick" if c.order == 0 and c.signal in self.masked else c.signal
-            A[:, j] = c.sign * out[nm]["V"][:, c.order]
+            At[j] = c.sign * out[nm][c.order]
         for k, j, nm in self.fdep:
-            A[:, j] = plan.onehot[k, j] * out[nm]["V"][:, 0]
-        A[:, plan.p : self.n] = regs.nuisance_rows(self.model, k0, k1)
-        A[:, P_MAX] = out["x"]["V"][:, 2]
-        return A
+            At[j] = plan.onehot[k, j] * out[nm][0]
+        At[plan.p : self.n] = regs.nuisance_rows(self.model, k0, k1).T
+        At[P_MAX] = out["x"][2]
+        return At.T
 
 
 class ModeProfileColumns(ColumnSource):
@@ -380,7 +380,7 @@ class ModeProfileColumns(ColumnSource):
             out = filt.step(k0, k1)
             cx, cF = [], []
             for ms, m in stages:
-                a, b = ms.step(out["x"], out["F"])
+                a, b = ms.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
                 cx.append(a[:m])
                 cF.append(b[:m])
             blk = np.empty((len(self.modes), 4, k1 - k0))

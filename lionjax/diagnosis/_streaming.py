@@ -45,15 +45,18 @@ Raw = Callable[[int, int], np.ndarray]
 
 
 def rows(a) -> Raw:
-    """The raw signal of a held array ``a`` (T,)."""
+    """The raw signal of a held array ``a`` (T,), or ``a`` itself where it is one already."""
+    if callable(a):
+        return a
     a = np.asarray(a, np.float64)
     return lambda k0, k1: a[k0:k1]
 
 
 def scaled(m, raw: Raw) -> Raw:
-    """``m·raw`` for a held (T,) multiplier ``m`` (a force mask, a position's multiplier)."""
-    m = np.asarray(m, np.float64)
-    return lambda k0, k1: m[k0:k1] * raw(k0, k1)
+    """``m·raw`` for a multiplier ``m`` (a force mask, a position's multiplier), held (T,) or
+    a raw signal."""
+    m = rows(m)
+    return lambda k0, k1: m(k0, k1) * raw(k0, k1)
 
 
 def spans(T: int, chunk: int) -> list[tuple[int, int]]:
@@ -82,6 +85,24 @@ def held(raw: Raw, k0: int, k1: int, T: int, foh: float):
         d2[0] = d2[1]
     h = w[1:-1] - foh * d2 / 12.0
     return w[1:-2], h[:-1], foh * (h[1:] - h[:-1])
+
+
+@jax.jit
+def _filter_window(dsc: Discrete, W, foh, first, z0):
+    """Outputs (B, 4, C) and end states (B, n) of signals given by their windows W (B, C + 3) =
+    u[k0 − 1 … k0 + C + 1]: held (:func:`held`'s arithmetic) and filtered from ``z0``, or with
+    ``first`` from the steady state of the first held sample."""
+    c_last = dsc.c_last
+
+    def one(w, f, z):
+        d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]  # Δ² at k0 … k0 + C
+        d2 = d2.at[0].set(jnp.where(first, d2[1], d2[0]))
+        h = w[1:-1] - f * d2 / 12.0
+        z = jnp.where(first, jnp.zeros_like(z).at[0].set(h[0] / c_last), z)
+        V, end = filter_from(dsc, w[1:-2], h[:-1], f * (h[1:] - h[:-1]), z)
+        return V.T, end
+
+    return jax.vmap(one)(W, foh, z0)
 
 
 @jax.jit
@@ -116,17 +137,43 @@ class Filters:
         self.z: np.ndarray | None = None  # (S, n) states before the next chunk
         self.c_last = float(np.asarray(dsc.c_last))
 
-    def step(self, k0: int, k1: int) -> dict[str, dict]:
-        """{name: {"V": (c, 4) outputs V₁…V₄, "u", "h", "du": the chunk's samples, held
-        samples and steps (:func:`held`)}} of rows [k0, k1)."""
+    def step(self, k0: int, k1: int) -> dict:
+        """{name: (4, c) outputs V₁…V₄} of rows [k0, k1), in order (one compiled call per
+        batch of :data:`BATCHES`: each signal's window u[k0 − 1 … k0 + chunk + 1] held and
+        filtered inside it, :func:`_filter_window`)."""
         if not self.names:
             return {}
-        parts = [held(raw, k0, k1, self.T, foh) for raw, foh in self.inputs.values()]
-        Ua, Uh, dU = (np.stack([p[i] for p in parts]) for i in range(3))
-        V = self.step_held(Ua, Uh, dU, last=k1 == self.T)
-        return {
-            nm: {"V": V[s], "u": Ua[s], "h": Uh[s], "du": dU[s]} for s, nm in enumerate(self.names)
-        }
+        c, C, T = k1 - k0, self.chunk, self.T
+        lo, hi = max(k0 - 1, 0), min(k0 + C + 2, T)
+        off = 1 if k0 == 0 else 0  # u[−1]: a stand-in (the first Δ² is the second's)
+        n = np.asarray(self.dsc.Phi).shape[0]
+        first = self.z is None
+        z = np.zeros((len(self.names), n)) if first else self.z
+        V = {}
+        z_next = np.empty_like(z)
+        items = list(self.inputs.values())
+        top = BATCHES[-1]
+        for i in range(0, len(items), top):
+            part = items[i : i + top]
+            b = next(b for b in BATCHES if b >= len(part))
+            W = np.zeros((b, C + 3))
+            for s, (raw, _) in enumerate(part):
+                w = np.asarray(raw(lo, hi), np.float64)
+                W[s, off : off + w.size] = w
+                W[s, off + w.size :] = w[-1]  # beyond the record: its last sample
+                if off:
+                    W[s, 0] = w[0]
+            foh = np.zeros(b)
+            foh[: len(part)] = [f for _, f in part]
+            z0 = np.zeros((b, n))
+            z0[: len(part)] = z[i : i + len(part)]
+            out, end = _filter_window(self.dsc, W, foh, np.bool_(first), z0)
+            out = np.asarray(out)
+            for s in range(len(part)):
+                V[self.names[i + s]] = out[s, :, :c]
+            z_next[i : i + len(part)] = np.asarray(end)[: len(part)]
+        self.z = z_next  # after a short (last) chunk: never read
+        return V
 
     def step_held(self, Ua, Uh, dU, last: bool) -> np.ndarray:
         """(S, c, 4) outputs of the next chunk from its samples, held samples and steps (S, c)
@@ -168,24 +215,26 @@ class ModeStages:
         self.stages, self.zeta, self.lam, self.chunk = stages, zeta, lam, chunk
         self.p: np.ndarray | None = None
 
-    def step(self, x: dict, F: dict) -> tuple[np.ndarray, np.ndarray]:
-        """(x's columns (m, c), F's columns (m, c)) of the next chunk; ``x``, ``F`` their
-        entries of :meth:`Filters.step`."""
-        c, C = x["V"].shape[0], self.chunk
+    def step(self, Vx, Vf, x: np.ndarray, F: np.ndarray, k0: int, k1: int):
+        """(x's columns (m, c), F's columns (m, c)) of rows [k0, k1); ``Vx``, ``Vf`` the
+        filtered x and F of the chunk ((4, c) each, :meth:`Filters.step`), ``x``, ``F`` the
+        records."""
+        c, C = k1 - k0, self.chunk
         m = self.zeta.shape[0]
+        _, h, du = held(rows(x), k0, k1, x.size, 1.0)
         if self.p is None:  # x steady at 0 in p, F steady at F[0]: p = (F[0], 0)
             self.p = np.zeros((2 * m, 2))
-            self.p[m:, 0] = F["u"][0]
-        pad = lambda a: _pad_rows(a.T, C).T  # noqa: E731
+            self.p[m:, 0] = F[k0]
+        pad = lambda a: _pad_rows(a, C).T  # noqa: E731
         cx, cF, end = _mode_chunk(
             self.stages,
             self.zeta,
             np.float64(self.lam),
-            pad(x["V"]),
-            _pad_rows(x["h"], C),
-            _pad_rows(x["du"], C),
-            pad(F["V"]),
-            _pad_rows(F["u"], C),
+            pad(Vx),
+            _pad_rows(h, C),
+            _pad_rows(du, C),
+            pad(Vf),
+            _pad_rows(np.asarray(F[k0:k1], np.float64), C),
             self.p,
         )
         self.p = np.asarray(end)
@@ -323,7 +372,7 @@ class FilteredColumns(ColumnSource):
         signs = np.array([s for *_, s in flat])[:, None]
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
-            V = np.stack([out[i]["V"][:, orders[i]] for i in range(len(flat))]) * signs
+            V = np.stack([out[i][orders[i]] for i in range(len(flat))]) * signs
             yield V.reshape(m, K, k1 - k0)
 
 
@@ -394,3 +443,26 @@ def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
             out[i : i + part.size, k0:k1] = np.asarray(Z)[: part.size, : k1 - k0]
             zeta = np.asarray(zeta)
     return out
+
+
+def zero_phase_streamed(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CHUNK):
+    """:func:`~._filtering.zero_phase` of a long record chunk by chunk: V₁ of the record
+    filtered forwards, then of that filtered backwards (both under the first-order hold of the
+    hold-corrected samples, from steady states), then central differences (one-sided at the
+    ends); (x smoothed, v̂) (T,) each."""
+    T = x.size
+    fwd = np.empty(T)
+    f = Filters(dsc, T, chunk, {0: (rows(x), 1.0)})
+    for k0, k1 in spans(T, chunk):
+        fwd[k0:k1] = f.step(k0, k1)[0][0]
+    rev = fwd[::-1]
+    sm = np.empty(T)
+    b = Filters(dsc, T, chunk, {0: (rows(rev), 1.0)})
+    for k0, k1 in spans(T, chunk):
+        sm[k0:k1] = b.step(k0, k1)[0][0]
+    sm = sm[::-1].copy()
+    g = np.empty(T)
+    g[1:-1] = (sm[2:] - sm[:-2]) / (2 * dt)
+    g[0] = (sm[1] - sm[0]) / dt
+    g[-1] = (sm[-1] - sm[-2]) / dt
+    return sm, g

@@ -31,21 +31,51 @@ class Fitted:
     fmax: float
     rss_train: float
     ms_valid: float  # mean square ε₁ on validation
-    residual: np.ndarray  # ε₁ on validation
-    sim_error: np.ndarray  # windowed simulation error on validation [m]
+    #: (ε₁ on validation, the windowed simulation error on validation [m]), or what recomputes
+    #: them (a streamed fit holds no (T,) array: :class:`Recompute`)
+    signals: tuple[np.ndarray, np.ndarray] | Recompute
     condition: float
     gap_from: int = 0  # the first sample the gap counts (the second window's)
     #: a simulated gap above this [m] is a diverging simulation (:data:`DIVERGED`)
     diverge_at: float = math.inf
     #: the fitter's variants it was fitted under (:class:`Variant`)
     variant: Variant | None = None
+    #: the simulation error's samples and its rms from :attr:`gap_from` [m] (set by
+    #: :meth:`of`)
+    n_sim: int = 0
+    gap_rms: float = math.nan
+    #: the residual's effective sample count where computed when fitted (streamed fits)
+    n_eff_at_fit: float | None = None
+
+    @classmethod
+    def of(cls, residual, sim_error, *, keep: bool = True, **fields) -> Fitted:
+        """A fit with its validation residual and simulation error: held (``keep``), or
+        summarised (their sample count, the gap, the residual's effective sample count) and
+        recomputed when read (``fields["signals"]``, a :class:`Recompute`)."""
+        g0 = fields.get("gap_from", 0)
+        with np.errstate(over="ignore", invalid="ignore"):
+            gap = float(np.sqrt(np.mean(sim_error[g0:] ** 2)))
+        if keep:
+            fields["signals"] = (residual, sim_error)
+        else:
+            fields["n_eff_at_fit"] = _n_eff(residual)
+        return cls(n_sim=int(sim_error.size), gap_rms=gap, **fields)
+
+    @property
+    def residual(self) -> np.ndarray:
+        """ε₁ on validation (T,)."""
+        return self.signals[0] if isinstance(self.signals, tuple) else self.signals()[0]
+
+    @property
+    def sim_error(self) -> np.ndarray:
+        """The windowed simulation error on validation [m] (T,)."""
+        return self.signals[1] if isinstance(self.signals, tuple) else self.signals()[1]
 
     @property
     def gap(self) -> float:
         """rms windowed simulation error [m]; ``inf`` where the simulation diverges
         (:attr:`simulation`)."""
-        with np.errstate(over="ignore", invalid="ignore"):
-            g = float(np.sqrt(np.mean(self.sim_error[self.gap_from :] ** 2)))
+        g = self.gap_rms
         return g if g <= self.diverge_at else math.inf
 
     @property
@@ -62,7 +92,21 @@ class Fitted:
     @functools.cached_property
     def n_eff(self) -> float:
         """Effective sample count of the validation residual (:func:`_n_eff`), once per fit."""
-        return _n_eff(self.residual)
+        return self.n_eff_at_fit if self.n_eff_at_fit is not None else _n_eff(self.residual)
+
+
+class Recompute:
+    """What recomputes a streamed fit's (validation residual, simulation error), called when
+    read (the baseline's and the final stack's are), its result kept: ``make()`` computes
+    them."""
+
+    def __init__(self, make):
+        self.make, self.value = make, None
+
+    def __call__(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.value is None:
+            self.value = self.make()
+        return self.value
 
 
 def _has_position(cands: Sequence[AbstractCandidate]) -> bool:
