@@ -119,15 +119,22 @@ def test_settings_finite_over_rates_and_lengths(fs, duration):
 
 
 def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, capsys):
-    """The diagnosis's peak host memory grows with the padded length (measured: 6.5 kB per
-    padded sample of each record with the designs cached, up to 2¹⁸; 3.6 kB above): records
+    """The in-memory diagnosis's peak host memory grows with the padded length (measured: 6.5 kB
+    per padded sample of each record with the designs cached, up to 2¹⁸; 3.6 kB above): records
     that would need more than ``max_memory_gb`` (default: the machine's memory) get an
     InputError naming the need, the limit, the least decimation that fits (``decimation_for``)
     and the longest records that fit, before anything is computed. A 10-minute record at
-    10 kHz, padded to 2²³, needs 60 GB."""
-    from lionjax.diagnosis._fit import longest_records, memory_estimate
+    10 kHz, padded to 2²³, would need 60 GB in memory; it is streamed by default, estimated by
+    its raw samples."""
+    from lionjax.diagnosis._fit import (
+        BYTES_PER_SAMPLE_STREAMED,
+        STREAM_FIXED,
+        longest_records,
+        memory_estimate,
+    )
 
-    assert memory_estimate(6_000_000, 6_000_000) == 3600 * 2 * 2**23
+    assert memory_estimate(6_000_000, 6_000_000, streamed=False) == 3600 * 2 * 2**23
+    assert memory_estimate(6_000_000, 6_000_000) == STREAM_FIXED + BYTES_PER_SAMPLE_STREAMED * 12e6
     assert memory_estimate(20_000, 20_000) == 6500 * 2 * 2**15
     t = np.arange(20_000) / 1000.0
     rec = lj.Record(0.01 * np.sin(2 * np.pi * 0.7 * t), np.cos(2 * np.pi * 0.7 * t), 1e-3)
@@ -147,8 +154,12 @@ def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, 
         lj.diagnose(rec, rec, max_memory_gb=0.01)
     # the estimate is per padded sample, cached up to 2¹⁸ and not above: at 3.8 GB two records
     # of 2¹⁹ (3600·2·2¹⁹ = 3.77 GB) fit, at 3.5 GB two of 2¹⁸ (6500·2·2¹⁸ = 3.41 GB)
-    assert longest_records(3.8e9) == 2**19 - 20 and longest_records(0.01e9) == 0
-    assert longest_records(3.5e9) == 2**18 - 20
+    assert longest_records(3.8e9, streamed=False) == 2**19 - 20
+    assert longest_records(0.01e9) == 0
+    assert longest_records(3.5e9, streamed=False) == 2**18 - 20
+    # streamed (by default above 2¹⁸ padded samples), far longer records fit
+    n = longest_records(3.8e9)
+    assert n == (3.8e9 - STREAM_FIXED) // (2 * BYTES_PER_SAMPLE_STREAMED) and n > 2**22
     for bad in (-1.0, 0, "8", True, float("nan")):
         with pytest.raises(lj.InputError, match="max_memory_gb must be a number > 0"):
             lj.diagnose(rec, rec, max_memory_gb=bad)

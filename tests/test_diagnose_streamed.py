@@ -43,8 +43,8 @@ def _cands(names):
 def test_chunked_filter_equals_whole_record():
     """:class:`Filters` over chunks of 256 samples (a short last one) against the whole-record
     filter bank (:func:`filter_signals`), first- and zero-order holds, all four outputs: 1e-12
-    of each output's peak; and the backward pass's short first chunk (:meth:`step_held`, padded
-    in front) against the whole reversed record."""
+    of each output's peak; and the backward pass's short first chunk (:meth:`step_values`,
+    padded in front) against the whole reversed record."""
     from lionjax._filters import FilterBank
     from lionjax.diagnosis._filtering import Discrete, edge_pad, filter_signals, padded_length
     from lionjax.diagnosis._streaming import Filters, rows, spans
@@ -71,7 +71,7 @@ def test_chunked_filter_equals_whole_record():
     back = np.zeros(T)
     for k0, k1 in reversed(spans(T, 256)):
         seg = U[1, k0:k1][::-1][None]
-        back[k0:k1] = b.step_held(seg, seg, np.zeros_like(seg), last=k0 == 0)[0, ::-1, 0]
+        back[k0:k1] = b.step_values(seg, last=k0 == 0)[0, 0, ::-1]
     _close(ref, back[::-1], 1e-12)
 
 
@@ -255,3 +255,27 @@ def test_long_record_helpers_in_chunks():
     finally:
         _artefacts.LINE_ROWS = old
     _close(ref, got, 1e-10)
+
+
+def test_cli_streamed_flag(tmp_path):
+    """``lionjax diagnose --streamed on`` diagnoses streamed (the JSON's verdict and stack equal
+    the in-memory call's, confidence within 0.02); a bad value is refused by the parser."""
+    import json
+
+    import lionjax as lj
+    from lionjax.cli import main
+
+    tr, va, _ = blind.make_case("offset", 300_002_000, source="twin")
+    paths = []
+    for nm, rec in (("train", tr), ("valid", va)):
+        paths.append(tmp_path / f"{nm}.npz")
+        lj.save_record(paths[-1], rec)
+    out = tmp_path / "d.json"
+    argv = ["diagnose", str(paths[0]), "--validate", str(paths[1]), "--json", str(out)]
+    assert main([*argv, "--streamed", "on"]) == 0
+    got = json.loads(out.read_text())
+    ref = lj.diagnose(tr, va, streamed=False)
+    assert (got["verdict"], got["stack"]) == (ref.verdict, list(ref.stack))
+    assert abs(got["confidence"] - ref.confidence) <= 0.02
+    with pytest.raises(SystemExit):
+        main([*argv, "--streamed", "yes"])

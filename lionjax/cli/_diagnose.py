@@ -7,7 +7,7 @@ significant ones, and prints the verdict. --candidates FILE.py:Name[,Name…] ad
 one's own (docs/effects.md). --json writes the payload (baseline, where,
 effects, stack, verdict, confidence, ambiguous, final, and the decimation applied);
 --plot writes a one-page summary (PNG/PDF/SVG by extension). Long records are streamed (the
-fits accumulated chunk by chunk: memory independent of the length; --streamed on/off/auto);
+fits accumulated chunk by chunk, only the raw samples held whole; --streamed on/off/auto);
 --decimate R (or auto) diagnoses records at R× the sample interval.
 
 --pairs DIR diagnoses every pair NAME_train.* / NAME_valid.* of a folder (or --pairs FILE.csv,
@@ -67,7 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--streamed",
         choices=("auto", "on", "off"),
         default="auto",
-        help="accumulate the fits chunk by chunk, memory independent of the records' length "
+        help="accumulate the fits chunk by chunk: only the records' raw samples are held whole "
         "('auto': for records above 2^18 samples, padded; default auto)",
     )
     g.add_argument(

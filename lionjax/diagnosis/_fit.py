@@ -343,6 +343,16 @@ class Regressors:
         known: dict | None = None,
         force_mask: np.ndarray | None = None,
     ):
+        self._record(record, bank, force_mask)
+        self.Fp = jnp.asarray(edge_pad(self.F, self.Tp))
+        self.mask = np.zeros(self.Tp)
+        self.mask[: self.T] = 1.0
+        self.known = dict(known or {})
+        self.N = np.asarray(_free(self.dsc, np.zeros(self.Tp)))  # (Tp, n)
+        self.W0 = self.filtered({"x": (self.x, "foh")})["x"][:, 2]
+
+    def _record(self, record: Record, bank: FilterBank, force_mask) -> None:
+        """The record, its filter and force mask, and an empty cache."""
         self.record, self.bank = record, bank
         self.force_mask = None if force_mask is None else np.asarray(force_mask, np.float64)
         self.T = record.n_samples
@@ -351,13 +361,7 @@ class Regressors:
         self.dsc = Discrete.of(bank, self.dt)
         self.x = np.asarray(record.x, np.float64)
         self.F = np.asarray(record.F, np.float64)
-        self.Fp = jnp.asarray(edge_pad(self.F, self.Tp))
-        self.mask = np.zeros(self.Tp)
-        self.mask[: self.T] = 1.0
-        self.known = dict(known or {})
         self.cache: dict = {}
-        self.N = np.asarray(_free(self.dsc, np.zeros(self.Tp)))  # (Tp, n)
-        self.W0 = self.filtered({"x": (self.x, "foh")})["x"][:, 2]
 
     def filtered(self, raw: dict) -> dict:
         """{name: (Tp, 4)} for raw signals {name: (samples, hold)}, cached by name."""
@@ -648,8 +652,8 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
         G0 = regs.design_gram(model, grid=True, need_design=False)[1]
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
-        for i in range(0, len(inputs), GRID_BATCH):
-            C, D = regs.cross(model, GridColumns(model, inputs[i : i + GRID_BATCH]), grid=True)
+        for i in range(0, len(inputs), 2 * GRID_BATCH):  # a pass each: a chunk held per point
+            C, D = regs.cross(model, GridColumns(model, inputs[i : i + 2 * GRID_BATCH]), grid=True)
             Gs.append(_gram_from_blocks(G0, C, D, O))
     else:
         # only the K F-dependent columns change along the grid: Gram blocks in float64

@@ -448,7 +448,8 @@ class _Fitter(LookAlikes):
             return (lo, max(abs(lo), 1.0) * 1e-3)
         w_lo, w_hi = (R * f for f in LOCAL_W_RANGE)
         # points per filter call: 4 signals each, (4·m, Tp, 4) float64 held at once
-        per = int(min(16, max(2, 2e8 // (regs.Tp * 4 * 32))))
+        # (a streamed pass holds a chunk of each: as many as a batch of the whole record's)
+        per = 16 if regs.streamed else int(min(16, max(2, 2e8 // (regs.Tp * 4 * 32))))
 
         def rss_of(points) -> np.ndarray:
             out = []
@@ -513,8 +514,9 @@ class _Fitter(LookAlikes):
             # validation RSS of the training fit at each mode, with (True) and/or without
             # (False) the κ column
             rss: dict[bool, list] = {v: [] for v in variants}
-            for i in range(0, len(modes), 8):
-                chunk = modes[i : i + 8]
+            per = 32 if regs.streamed else 8  # streamed: a pass each, a chunk of each mode held
+            for i in range(0, len(modes), per):
+                chunk = modes[i : i + per]
                 # the mode's columns (h_x, h_F) and its free response (refitted, not counted)
                 # on each record, (m, 4, T); whole, they are computed once for both variants
                 cols = ModeProfileColumns(chunk, lam, self.st.dt, T_free=max(regs.T, va.T))

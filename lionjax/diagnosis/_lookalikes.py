@@ -76,7 +76,7 @@ def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) ->
         A = d.block(k0, k1)
         W = A[:, :n]
         U = np.concatenate([(W @ c[:n] + A[:, -1])[:, None], W], 1)[::-1].T
-        g = back.step_held(U, U, np.zeros_like(U), last=k0 == 0)[:, ::-1, 0]
+        g = back.step_values(U, last=k0 == 0)[:, 0, ::-1]
         for i in range(n + 1):
             H[i] += np.bincount(bins[k0:k1], weights=g[i] * m[k0:k1], minlength=nb)
     H[-1] = np.bincount(bins, weights=m, minlength=nb)

@@ -10,7 +10,7 @@ import numpy as np
 from .._filters import FilterBank
 from .._models import AbstractModel
 from .._record import Record
-from ._filtering import MODE_BUCKETS, P_MAX, Discrete, _batches, _f, _mode_stages, padded_length
+from ._filtering import MODE_BUCKETS, P_MAX, _batches, _f, _mode_stages
 from ._fit import Regressors, _columns, _model_key, f_dependent
 from ._streaming import (
     ColumnSource,
@@ -46,16 +46,8 @@ class Streamed(Regressors):
         chunk: int | None = None,
         lam: float | None = None,
     ):
-        self.record, self.bank = record, bank
-        self.force_mask = None if force_mask is None else np.asarray(force_mask, np.float64)
-        self.T = record.n_samples
-        self.Tp = padded_length(self.T)
-        self.dt = float(record.dt)
-        self.dsc = Discrete.of(bank, self.dt)
-        self.x = np.asarray(record.x, np.float64)
-        self.F = np.asarray(record.F, np.float64)
+        self._record(record, bank, force_mask)
         self.known = {} if known is None else known  # shared with the record's other regressors
-        self.cache: dict = {}
         # signals whose columns are computed, not filtered: {name: (ω, ζ, "x" | "F")} of the
         # flexible modes' exact columns (:meth:`add_mode`)
         self.derived: dict[str, tuple[float, float, str]] = {}

@@ -7,7 +7,7 @@ refitted part) is a sum over rows, so it is accumulated chunk by chunk of :data:
 Each chunk runs the same recursion as a whole record (:func:`~._filtering.filter_from`,
 :func:`~._filtering.mode_cascade_from`) from the state the previous chunk ended in; the first
 starts from the steady state before the record, as the whole-record filter does, and the
-hold correction of each chunk reads its neighbours' samples (:func:`held`). So a chunked pass
+hold correction of each chunk reads its neighbours' samples (:func:`window`). So a chunked pass
 gives the whole record's numbers, rounded differently in the last bits.
 
 Raw signals are functions of a row range, ``raw(k0, k1) -> (k1 − k0,)`` (:func:`rows` of a held
@@ -70,49 +70,58 @@ def chunk_length(T: int) -> int:
     return min(CHUNK, padded_length(T))
 
 
-def held(raw: Raw, k0: int, k1: int, T: int, foh: float):
-    """(u (c,), u held (c,), its steps (c,)) of rows [k0, k1) of a signal of ``T`` samples, as
-    :func:`~._filtering._filt` forms them on the whole record: u − foh·Δ²u/12
-    (:func:`~._filtering.hold_corrected`: Δ² of the first sample is the second's, samples beyond
-    the record repeat its last) and foh·(next held − held)."""
-    lo, hi = max(k0 - 1, 0), min(k1 + 2, T)
+def window(raw: Raw, k0: int, T: int, C: int) -> np.ndarray:
+    """u[k0 − 1 … k0 + C + 1] (C + 3,) of a signal of ``T`` samples: the rows a chunk of ``C``
+    samples from ``k0`` reads for its hold correction; samples beyond the record repeat its last
+    (the whole record's edge padding), and u[−1] is a stand-in (:func:`_held` replaces its
+    Δ²)."""
+    lo, hi = max(k0 - 1, 0), min(k0 + C + 2, T)
     w = np.asarray(raw(lo, hi), np.float64)
-    parts = [w[:1]] if k0 == 0 else []  # a stand-in for u[−1], whose Δ² is replaced
-    parts += [w, np.repeat(w[-1:], k1 + 2 - hi)]
-    w = np.concatenate(parts)  # u[k0 − 1 … k1 + 1]
-    d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]  # Δ² at k0 … k1
-    if k0 == 0:
-        d2[0] = d2[1]
+    off = 1 if k0 == 0 else 0
+    out = np.empty(C + 3)
+    out[off : off + w.size] = w
+    out[off + w.size :] = w[-1]
+    out[:off] = w[:1]
+    return out
+
+
+def _held(w, foh, first):
+    """(u (C,), u held (C,), its steps (C,)) of a :func:`window` ``w`` (C + 3,), as
+    :func:`~._filtering._filt` forms them on the whole record: u − foh·Δ²u/12
+    (:func:`~._filtering.hold_corrected`; with ``first``, the record's first chunk, Δ² of the
+    first sample is the second's) and foh·(next held − held)."""
+    d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]  # Δ² at k0 … k0 + C
+    d2 = d2.at[0].set(jnp.where(first, d2[1], d2[0]))
     h = w[1:-1] - foh * d2 / 12.0
     return w[1:-2], h[:-1], foh * (h[1:] - h[:-1])
 
 
+def _window_filter(dsc: Discrete, w, foh, first, z):
+    """(outputs (4, C), end state (n,)) of one signal's :func:`window` ``w`` held and filtered
+    from the state ``z``, or with ``first`` from the steady state of its first held sample."""
+    u_at, h, du = _held(w, foh, first)
+    z = jnp.where(first, jnp.zeros_like(z).at[0].set(h[0] / dsc.c_last), z)
+    V, end = filter_from(dsc, u_at, h, du, z)
+    return V.T, end
+
+
 @jax.jit
 def _filter_window(dsc: Discrete, W, foh, first, z0):
-    """Outputs (B, 4, C) and end states (B, n) of signals given by their windows W (B, C + 3) =
-    u[k0 − 1 … k0 + C + 1]: held (:func:`held`'s arithmetic) and filtered from ``z0``, or with
-    ``first`` from the steady state of the first held sample."""
-    c_last = dsc.c_last
-
-    def one(w, f, z):
-        d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]  # Δ² at k0 … k0 + C
-        d2 = d2.at[0].set(jnp.where(first, d2[1], d2[0]))
-        h = w[1:-1] - f * d2 / 12.0
-        z = jnp.where(first, jnp.zeros_like(z).at[0].set(h[0] / c_last), z)
-        V, end = filter_from(dsc, w[1:-2], h[:-1], f * (h[1:] - h[:-1]), z)
-        return V.T, end
-
-    return jax.vmap(one)(W, foh, z0)
+    """:func:`_window_filter` of signals W (B, C + 3) through one filter: (B, 4, C), (B, n)."""
+    return jax.vmap(_window_filter, in_axes=(None, 0, 0, None, 0))(dsc, W, foh, first, z0)
 
 
 @jax.jit
-def _filter_chunk(dsc: Discrete, u_at, u, du, z0):
-    return jax.vmap(filter_from, in_axes=(None, 0, 0, 0, 0))(dsc, u_at, u, du, z0)
+def _systems_window(dsc: Discrete, W, foh, first, z0):
+    """:func:`_window_filter` of signals W (B, C + 3), each through its own filter (a batch of
+    :class:`~._filtering.Discrete`)."""
+    return jax.vmap(_window_filter, in_axes=(0, 0, 0, None, 0))(dsc, W, foh, first, z0)
 
 
 @jax.jit
-def _mode_chunk(stages, zeta, lam, Vx, u, du, VF, F, p0):
-    return mode_cascade_from(stages, zeta, lam, Vx, u, du, VF, F, p0)
+def _mode_chunk(stages, zeta, lam, Vx, wx, VF, F, p0, first):
+    _, h, du = _held(wx, 1.0, first)
+    return mode_cascade_from(stages, zeta, lam, Vx, h, du, VF, F, p0)
 
 
 def _pad_rows(a: np.ndarray, n: int) -> np.ndarray:
@@ -135,7 +144,6 @@ class Filters:
         self.names = list(inputs)
         self.inputs = inputs
         self.z: np.ndarray | None = None  # (S, n) states before the next chunk
-        self.c_last = float(np.asarray(dsc.c_last))
 
     def step(self, k0: int, k1: int) -> dict:
         """{name: (4, c) outputs V₁…V₄} of rows [k0, k1), in order (one compiled call per
@@ -143,67 +151,54 @@ class Filters:
         filtered inside it, :func:`_filter_window`)."""
         if not self.names:
             return {}
-        c, C, T = k1 - k0, self.chunk, self.T
-        lo, hi = max(k0 - 1, 0), min(k0 + C + 2, T)
-        off = 1 if k0 == 0 else 0  # u[−1]: a stand-in (the first Δ² is the second's)
+        W = np.stack([window(raw, k0, self.T, self.chunk) for raw, _ in self.inputs.values()])
+        out = self.step_windows(W, np.array([f for _, f in self.inputs.values()]), k1 - k0)
+        return dict(zip(self.names, out, strict=True))
+
+    def step_windows(self, W: np.ndarray, foh: np.ndarray, c: int, front: int = 0) -> np.ndarray:
+        """(S, 4, c) outputs of the next chunk from the signals' windows W (S, chunk + 3)
+        (:func:`window`), its c samples from ``front`` on; the states carried (after a short
+        last chunk they are never read)."""
+        S = W.shape[0]
         n = np.asarray(self.dsc.Phi).shape[0]
         first = self.z is None
-        z = np.zeros((len(self.names), n)) if first else self.z
-        V = {}
+        z = np.zeros((S, n)) if first else self.z
+        V = np.empty((S, 4, c))
         z_next = np.empty_like(z)
-        items = list(self.inputs.values())
-        top = BATCHES[-1]
-        for i in range(0, len(items), top):
-            part = items[i : i + top]
-            b = next(b for b in BATCHES if b >= len(part))
-            W = np.zeros((b, C + 3))
-            for s, (raw, _) in enumerate(part):
-                w = np.asarray(raw(lo, hi), np.float64)
-                W[s, off : off + w.size] = w
-                W[s, off + w.size :] = w[-1]  # beyond the record: its last sample
-                if off:
-                    W[s, 0] = w[0]
-            foh = np.zeros(b)
-            foh[: len(part)] = [f for _, f in part]
-            z0 = np.zeros((b, n))
-            z0[: len(part)] = z[i : i + len(part)]
-            out, end = _filter_window(self.dsc, W, foh, np.bool_(first), z0)
-            out = np.asarray(out)
-            for s in range(len(part)):
-                V[self.names[i + s]] = out[s, :, :c]
-            z_next[i : i + len(part)] = np.asarray(end)[: len(part)]
-        self.z = z_next  # after a short (last) chunk: never read
-        return V
-
-    def step_held(self, Ua, Uh, dU, last: bool) -> np.ndarray:
-        """(S, c, 4) outputs of the next chunk from its samples, held samples and steps (S, c)
-        each. A short chunk is padded behind where it is the ``last`` (its end state is never
-        read) and in front otherwise (a first chunk: its held first sample repeated, the state
-        steady there, so that its end state is the one after its c samples)."""
-        S, c = Ua.shape
-        C = self.chunk
-        n = np.asarray(self.dsc.Phi).shape[0]
-        if self.z is None:  # steady before the record
-            self.z = np.zeros((S, n))
-            self.z[:, 0] = Uh[:, 0] / self.c_last
-        front = 0 if (c == C or last) else C - c
-        if front:
-            Ua, Uh = (np.concatenate([np.repeat(a[:, :1], front, 1), a], 1) for a in (Ua, Uh))
-            dU = np.concatenate([np.zeros((S, front)), dU], 1)
-        V = np.empty((S, c, 4))
-        z_next = np.empty_like(self.z)
         top = BATCHES[-1]
         for i in range(0, S, top):
             j = min(i + top, S)
             b = next(b for b in BATCHES if b >= j - i)
-            args = [_pad_rows(a[i:j], C) for a in (Ua, Uh, dU)]
-            args = [np.concatenate([a, np.zeros((b - (j - i), C))]) for a in args]
-            z0 = np.concatenate([self.z[i:j], np.zeros((b - (j - i), n))])
-            out, end = _filter_chunk(self.dsc, *args, z0)
-            V[i:j] = np.asarray(out)[: j - i, front : front + c]
+            pad = ((0, b - (j - i)), (0, 0))
+            out, end = _filter_window(
+                self.dsc,
+                np.pad(W[i:j], pad),
+                np.pad(foh[i:j], pad[0]),
+                np.bool_(first),
+                np.pad(z[i:j], pad),
+            )
+            V[i:j] = np.asarray(out)[: j - i, :, front : front + c]
             z_next[i:j] = np.asarray(end)[: j - i]
         self.z = z_next
         return V
+
+    def step_values(self, U: np.ndarray, last: bool) -> np.ndarray:
+        """(S, 4, c) outputs of the next chunk of zero-order-held values U (S, c) (a pass
+        backwards in time hands them over, no raw signal to read). A short chunk is padded
+        behind where it is the ``last`` and in front otherwise (a first chunk: its first value
+        repeated, the state steady there, so that its end state is the one after its c
+        values)."""
+        S, c = U.shape
+        front = 0 if (c == self.chunk or last) else self.chunk - c
+        W = np.concatenate(
+            [
+                np.repeat(U[:, :1], front + 1, 1),
+                U,
+                np.repeat(U[:, -1:], self.chunk + 2 - front - c, 1),
+            ],
+            1,
+        )
+        return self.step_windows(W, np.zeros(S), c, front)
 
 
 class ModeStages:
@@ -221,8 +216,8 @@ class ModeStages:
         records."""
         c, C = k1 - k0, self.chunk
         m = self.zeta.shape[0]
-        _, h, du = held(rows(x), k0, k1, x.size, 1.0)
-        if self.p is None:  # x steady at 0 in p, F steady at F[0]: p = (F[0], 0)
+        first = self.p is None
+        if first:  # x steady at 0 in p, F steady at F[0]: p = (F[0], 0)
             self.p = np.zeros((2 * m, 2))
             self.p[m:, 0] = F[k0]
         pad = lambda a: _pad_rows(a, C).T  # noqa: E731
@@ -231,11 +226,11 @@ class ModeStages:
             self.zeta,
             np.float64(self.lam),
             pad(Vx),
-            _pad_rows(h, C),
-            _pad_rows(du, C),
+            window(rows(x), k0, x.size, C),
             pad(Vf),
             _pad_rows(np.asarray(F[k0:k1], np.float64), C),
             self.p,
+            np.bool_(first),
         )
         self.p = np.asarray(end)
         return np.asarray(cx)[:, :c], np.asarray(cF)[:, :c]
@@ -376,30 +371,20 @@ class FilteredColumns(ColumnSource):
             yield V.reshape(m, K, k1 - k0)
 
 
-@jax.jit
-def _systems_chunk(dsc: Discrete, u_at, u, du, z0):
-    return jax.vmap(filter_from)(dsc, u_at, u, du, z0)
-
-
 def mode_seed_streamed(x, F, dt: float, lam: float, chunk: int):
     """:func:`~._filtering.mode_seed` chunk by chunk: the Gram of its fit accumulated, solved
     on its scaled normal equations (the whole record's fit solves the scaled rows)."""
     x, F = np.asarray(x, np.float64), np.asarray(F, np.float64)
     T = x.size
     dsc = _seed_discretes(np.float64(lam), np.float64(dt))
-    c_last = np.asarray(dsc.c_last)
     n0 = min(int(math.ceil(10.0 / (lam * dt))), T // 4)
     M = np.zeros((7, 7))
-    z = None
+    z = np.zeros((2, 5))
     for k0, k1 in spans(T, chunk):
         c = k1 - k0
-        parts = [held(rows(x), k0, k1, T, 1.0), held(rows(F), k0, k1, T, 0.0)]
-        Ua, Uh, dU = (np.stack([_pad_rows(p[i], chunk) for p in parts]) for i in range(3))
-        if z is None:
-            z = np.zeros((2, 5))
-            z[:, 0] = Uh[:, 0] / c_last
-        V, z = _systems_chunk(dsc, Ua, Uh, dU, z)
-        V, z = np.asarray(V, np.float64)[:, :c], np.asarray(z)
+        W = np.stack([window(rows(u), k0, T, chunk) for u in (x, F)])
+        V, z = _systems_window(dsc, W, np.array([1.0, 0.0]), np.bool_(k0 == 0), z)
+        V, z = np.swapaxes(np.asarray(V, np.float64), 1, 2)[:, :c], np.asarray(z)
         lo = max(n0 - k0, 0)
         if lo < c:
             A, y = seed_design(V[0, lo:], V[1, lo:])
