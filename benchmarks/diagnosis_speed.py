@@ -38,7 +38,7 @@ steps and position noise; ``--rate`` Hz) and reports its wall time (compilation 
 first run sees it), its peak RSS, the diagnosis' memory estimate for the pair, and the
 verdict; a pair the diagnosis refuses for memory (its estimate above this machine's memory) is
 listed with the reason. ``--streamed on|off`` diagnoses every length streamed or in memory
-(default ``auto``: as ``lj.diagnose`` chooses, streamed above 2¹⁸ padded samples).
+(default ``auto``: as ``lj.diagnose`` chooses, streamed above 2¹⁷ padded samples).
 
     PYTHONPATH=<checkout> python benchmarks/diagnosis_speed.py --lengths 1e4,1e5,1e6 [--json F]
 """

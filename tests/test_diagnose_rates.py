@@ -157,7 +157,7 @@ def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, 
     assert longest_records(3.8e9, streamed=False) == 2**19 - 20
     assert longest_records(0.01e9) == 0
     assert longest_records(3.5e9, streamed=False) == 2**18 - 20
-    # streamed (by default above 2¹⁸ padded samples), far longer records fit
+    # streamed (by default above 2¹⁷ padded samples), far longer records fit
     n = longest_records(3.8e9)
     assert n == (3.8e9 - STREAM_FIXED) // (2 * BYTES_PER_SAMPLE_STREAMED) and n > 2**22
     for bad in (-1.0, 0, "8", True, float("nan")):

@@ -207,7 +207,7 @@ def test_diagnosis_streamed_agrees_with_in_memory(cls, source, monkeypatch):
 
 
 def test_streamed_by_length_and_memory_estimate():
-    """Records above 2¹⁸ padded samples are streamed by default and estimated by their raw
+    """Records above 2¹⁷ padded samples are streamed by default and estimated by their raw
     samples (a 10-minute record at 10 kHz: under 3 GB, where in memory it needs 38 GB); a
     ``streamed`` that is no bool is refused, naming the argument."""
     import lionjax as lj

@@ -68,7 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=("auto", "on", "off"),
         default="auto",
         help="accumulate the fits chunk by chunk: only the records' raw samples are held whole "
-        "('auto': for records above 2^18 samples, padded; default auto)",
+        "('auto': for records above 2^17 samples, padded; default auto)",
     )
     g.add_argument(
         "--decimate",

@@ -241,7 +241,7 @@ def diagnose(
             of 2¹⁶ samples, the filters' states carried between chunks), so that no filtered
             signal, design or profile column is held whole; the same verdicts as in memory, the
             numbers equal to the last bits. None (default): streamed where a record's padded
-            length exceeds 2¹⁸ samples.
+            length exceeds 2¹⁷ samples (in memory, records of up to 2¹⁷ samples peak below 2 GB).
 
     Returns:
         a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,

@@ -31,6 +31,11 @@ Compilation. Every compiled program here sees only *bucketed* shapes and *traced
   1, 2 or 4 (:data:`MODE_BUCKETS`), F-dependent slots 1, 2 or 4 (:data:`K_BUCKETS`), profile
   grids 8 points per call (:data:`GRID_BATCH`): a call filters what it needs, not a fixed batch
   of zeros, at a few programs per length bucket.
+
+Long records are streamed (:class:`~._streamed.Streamed`, above :data:`STREAM_ABOVE` padded
+samples): the same Grams, grid products and residuals, accumulated over chunks of the record
+(:mod:`._streaming`) instead of from whole designs; the functions here take either kind of
+regressors and the profile columns whole or as a :class:`~._streaming.ColumnSource`.
 """
 
 from __future__ import annotations
@@ -98,14 +103,22 @@ BYTES_PER_SAMPLE = 3_600
 
 
 #: Padded lengths above this are diagnosed streamed (:class:`~._streamed.Streamed`) unless the
-#: caller says otherwise.
-STREAM_ABOVE = BIG
+#: caller says otherwise: in memory a diagnosis of records of up to 2¹⁷ samples peaks below
+#: 2 GB (1.25–1.64 GB measured at 10⁵ training samples), one of 2¹⁸ up to 2.7 GB; streamed, about
+#: 1.1 GB whatever the length, at up to twice the time (a friction record of 2 × 5·10⁵ samples:
+#: 198 s and 1.21 GB streamed, 104 s and 3.86 GB in memory). The blind benchmark's records (at
+#: most 2¹⁶ padded samples) are diagnosed in memory.
+STREAM_ABOVE = 1 << 17
 #: Host memory a streamed diagnosis holds per sample of each record [bytes], over
-#: :data:`STREAM_FIXED`: its raw per-sample signals.
-BYTES_PER_SAMPLE_STREAMED = 400
+#: :data:`STREAM_FIXED`: its raw per-sample signals (x, F, v̂, the start states, the stick
+#: mask, an effect's whole-record signals while it is profiled). Measured at 10 kHz
+#: (2026-11-28, benchmarks/results/2026-11-28_streamed_diagnosis.md): 1.06 GB for 1.2·10⁵
+#: samples, 1.75 GB (an offset) and 1.88 GB (spring, delay and friction, the command line) for
+#: 7.2·10⁶: 96–115 B per sample over the short record's; 160 B keeps 25 % over the heaviest.
+BYTES_PER_SAMPLE_STREAMED = 160
 #: Host memory a streamed diagnosis holds whatever the length [bytes]: the process, its compiled
-#: programs and a chunk's intermediates.
-STREAM_FIXED = 1_500_000_000
+#: programs and a chunk's intermediates (1.06 GB measured at 1.2·10⁵ samples).
+STREAM_FIXED = 1_200_000_000
 
 
 def streamed_by_default(*n_samples: int) -> bool:
