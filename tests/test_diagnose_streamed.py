@@ -279,3 +279,28 @@ def test_cli_streamed_flag(tmp_path):
     assert abs(got["confidence"] - ref.confidence) <= 0.02
     with pytest.raises(SystemExit):
         main([*argv, "--streamed", "yes"])
+
+
+def test_windowed_simulation_in_segments(monkeypatch):
+    """A long record's windowed simulation in segments of whole windows against the whole
+    record at once (each window restarts from its own state: the same steps), friction that
+    sticks and a spring included: equal to 1e-12 of the error's peak; the samples after the last
+    whole window 0 in both."""
+    from lionjax.diagnosis import _fit
+    from lionjax.twin._windows import WINDOW_PARAMETERS
+
+    rng = np.random.default_rng(7)
+    T, dt, H = 20_003, 1e-3, 150
+    t = np.arange(T) * dt
+    u = np.sin(2 * np.pi * 0.7 * t) + 0.3 * rng.standard_normal(T)
+    x = 0.01 * np.sin(2 * np.pi * 0.7 * t - 0.3)
+    v = np.gradient(x, dt)
+    p = {k: 0.0 for k in WINDOW_PARAMETERS}
+    p |= {"a": 20.0, "b": 3.0, "Fc": 0.4, "k": 2.0, "x_lo": -np.inf, "x_hi": np.inf}
+    whole = _fit.simulate_windows(p, u, x, x, v, dt, H)
+    monkeypatch.setattr(_fit, "STREAM_ABOVE", 1 << 12)
+    monkeypatch.setattr(_fit, "SIM_SEGMENT", 1 << 12)
+    seg = _fit.simulate_windows(p, u, x, x, v, dt, H)
+    n = (T // H) * H
+    assert np.all(seg[n:] == 0) and np.all(whole[n:] == 0) and np.any(whole[:n] != 0)
+    _close(whole, seg, 1e-12)

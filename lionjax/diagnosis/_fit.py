@@ -871,11 +871,36 @@ def simulate_windows(
     T = int(np.asarray(u).shape[0])
     H = int(H)
     Tn = (T // H) * H
+    if padded_length(T) > STREAM_ABOVE and Tn > 2 * SIM_SEGMENT:
+        # a long record in segments of whole windows (each window simulated alone, from its
+        # own start state: the same steps, a segment's arrays held at a time)
+        seg = max(SIM_SEGMENT // H, 1) * H
+        e = np.zeros(T)
+        for s0 in range(0, Tn, seg):
+            s1 = min(s0 + seg, Tn)
+            e[s0:s1] = _simulate_segment(
+                p, (a[s0:s1] for a in (u, x_meas, x_start, v_start)), dt, H, extra, t0, s0
+            )
+        return e
+    return _simulate_segment(p, (u, x_meas, x_start, v_start), dt, H, extra, t0, 0)[:T]
+
+
+#: Samples (whole windows) a long record's windowed simulation runs at once.
+SIM_SEGMENT = 1 << 16
+
+
+def _simulate_segment(p, signals, dt, H: int, extra, t0: float, k0: int) -> np.ndarray:
+    """:func:`simulate_windows` of samples starting at ``k0`` (a multiple of H; their times
+    t0 + (k0 + k)·dt): the whole windows of ``signals`` (u, x, x_start, v_start), on the
+    padded length bucket; (Tp,) errors."""
+    signals = [np.asarray(a, np.float64) for a in signals]
+    T = signals[0].size
+    Tn = (T // H) * H
     Tp = padded_length(T)
-    args = [edge_pad(s, Tp) for s in (u, x_meas, x_start, v_start)]
+    args = [edge_pad(a, Tp) for a in signals]
     pj = {k: _f(v) for k, v in p.items()}
     t = None
     if extra is not None:
-        t = jnp.asarray(float(t0) + float(dt) * np.arange(Tp), jnp.float64)
+        t = jnp.asarray(float(t0) + float(dt) * np.arange(k0, k0 + Tp), jnp.float64)
     e = windowed_errors(pj, *args, _f(dt), _i(H), _i(Tn), extra, t, span=window_span(H))
     return np.asarray(e)[:T]
