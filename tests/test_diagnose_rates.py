@@ -184,9 +184,9 @@ def test_start_states_against_the_closed_form(fs, f0, q, tol_v):
     smoothed states of v̂'s filter were 163 µm and 27 % off (measured when written), the raw
     samples 2.9 µm and 0.7 %; at 10 kHz with a 20 µm encoder on a slow axis the raw samples'
     derivative would be 2.6× the rms velocity in noise, and a filter must be chosen."""
-    from lionjax.diagnosis._filtering import zero_phase
     from lionjax.diagnosis._settings import settings
     from lionjax.diagnosis._statistics import _start_states
+    from lionjax.diagnosis._streaming import zero_phase
 
     A = 1e-3
     t = np.arange(int(8 * fs)) / fs
@@ -210,10 +210,10 @@ def test_true_model_simulates_at_the_noise_at_low_rates():
     of the twin's record and at most half the gap of the same model without the clip; from the
     states of the former f_s/10 velocity filter both were 150 µm (measured when written), and the
     diagnosis rejected true models for making the simulated gap worse."""
-    from lionjax.diagnosis._filtering import zero_phase
     from lionjax.diagnosis._fit import simulate_windows
     from lionjax.diagnosis._settings import settings
     from lionjax.diagnosis._statistics import _start_states
+    from lionjax.diagnosis._streaming import zero_phase
     from lionjax.twin._windows import WINDOW_PARAMETERS
 
     fs, q, a, b, clip = 277.3, 5e-6, 40.0, 0.9, 6.0

@@ -236,23 +236,6 @@ def _zero_phase(dsc: Discrete, x, T, dt):
     return sm, g
 
 
-def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
-    """(x smoothed, v̂) of :func:`lionjax._model_effects.zero_phase_lowpass` /
-    ``zero_phase_velocity`` (forward and backward through (ω/(s + ω))³, then central
-    differences), on bucketed shapes."""
-    x = np.asarray(x, np.float64)
-    T = x.size
-    Tp = padded_length(T)
-    bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
-    dsc = Discrete.of(bank, dt)
-    if Tp > LONG_BATCH:  # a long record: filtered chunk by chunk, forwards then backwards
-        from ._streaming import zero_phase_streamed
-
-        return zero_phase_streamed(dsc, x, dt)
-    sm, g = _zero_phase(dsc, edge_pad(x, Tp), _i(T), _f(dt))
-    return np.asarray(sm)[:T], np.asarray(g)[:T]
-
-
 @jax.jit
 def _free(dsc: Discrete, T0):
     """V₁ of the unforced filter from each unit state, (T, n) (:meth:`FilterBank.free_response`

@@ -67,7 +67,7 @@ from ._filtering import (
     filter_signals,
     padded_length,
 )
-from ._streaming import as_source
+from ._streaming import GridColumns, as_source
 
 
 class TooWide(ValueError):
@@ -660,8 +660,6 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
     if len(inputs) == 1 and taus[0] == 0 and fmaxs[0] == np.inf:
         Gs = [regs.gram(model)[None]]
     elif regs.streamed:
-        from ._streamed import GridColumns
-
         G0 = regs.design_gram(model, grid=True, need_design=False)[1]
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
@@ -829,8 +827,6 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
 def _residual_streamed(regs, model, theta, inp, mapped: bool) -> np.ndarray:
     """:func:`residual` of streamed regressors: r₀ = Wθ + y chunk by chunk, with the Gram of
     [N | r₀] for the nuisance's least squares, then r₀ + Nη."""
-    from ._streamed import GridColumns
-
     plan = regs.plan(model)
     p, n, onehot = plan.p, regs.width(model), plan.onehot
     theta = np.asarray(theta, np.float64)

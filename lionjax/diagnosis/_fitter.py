@@ -32,7 +32,6 @@ from ._filtering import (
     mode_seed,
     mode_signals,
     padded_length,
-    zero_phase,
 )
 from ._fit import (
     Regressors,
@@ -64,7 +63,13 @@ from ._settings import (
 )
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
 from ._streamed import ModeProfileColumns, Streamed
-from ._streaming import FilteredColumns, chunk_length, dahl_chunked, mode_seed_streamed
+from ._streaming import (
+    FilteredColumns,
+    chunk_length,
+    dahl_chunked,
+    mode_seed_streamed,
+    zero_phase,
+)
 from ._structures import (
     Fitted,
     Recompute,

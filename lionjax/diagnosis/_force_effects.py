@@ -44,7 +44,7 @@ from jaxtyping import Array
 from .._models import AbstractEffect, Column
 from .._record import Record
 from ._candidates import AbstractCandidate, Context, Limits
-from ._filtering import zero_phase
+from ._streaming import zero_phase
 
 #: Golden-section steps of :meth:`ForceEffect.profile`'s refinement (the bracket shrinks by
 #: 0.618 per step: 16 steps leave 5·10⁻⁴ of the grid's spacing).

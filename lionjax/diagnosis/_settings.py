@@ -14,7 +14,7 @@ from .._record import Record
 from ._candidates import (
     Context,
 )
-from ._filtering import zero_phase
+from ._streaming import zero_phase
 
 
 @dataclasses.dataclass(frozen=True)

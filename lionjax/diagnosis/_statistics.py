@@ -9,7 +9,6 @@ import numpy as np
 
 from .._errors import InputError
 from .._record import Record
-from ._filtering import zero_phase
 from ._fit import (
     decimation_to_fit,
     longest_records,
@@ -18,6 +17,7 @@ from ._fit import (
     physical_memory,
     streamed_by_default,
 )
+from ._streaming import zero_phase
 
 
 def _memory_budget(max_memory_gb: float | None) -> float | None:
@@ -115,7 +115,7 @@ STATE_NOISE = 0.02
 def _noise_gain(dt: float, omega: float | None) -> float:
     """‖h‖₂ of the velocity estimator's impulse response: white position noise of σ [m] gives
     the estimate the noise σ·‖h‖₂ [m/s]. ``omega`` [rad/s] is the zero-phase filter's corner
-    (:func:`~._fit.zero_phase`); None is the five-point derivative of the raw samples
+    (:func:`~._streaming.zero_phase`); None is the five-point derivative of the raw samples
     (:func:`_five_point`), √130/(12·dt)."""
     if omega is None:
         return math.sqrt(130.0) / (12.0 * dt)

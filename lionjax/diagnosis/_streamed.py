@@ -18,7 +18,6 @@ from ._streaming import (
     FreeRows,
     ModeStages,
     chunk_length,
-    input_map,
     mode_free_blocks,
     rows,
     scaled,
@@ -208,40 +207,6 @@ class DesignColumns(ColumnSource):
     def blocks(self, regs: Streamed) -> Iterator[np.ndarray]:
         for A in regs.design_blocks(self.model):
             yield A[:, self.js].T[None]
-
-
-class GridColumns(ColumnSource):
-    """The F-dependent columns (m, K, ·) of a structure for each input map (τ, F_max) in
-    ``inputs`` (in-memory :func:`~._fit._grid_columns`, unsigned: rows of K slots, zero beyond
-    the structure's F-dependent signals)."""
-
-    def __init__(self, model, inputs):
-        self.model, self.inputs = model, [(float(t), float(f)) for t, f in inputs]
-
-    def shape(self, regs) -> tuple[int, int]:
-        return len(self.inputs), regs.plan(self.model).onehot.shape[0]
-
-    def blocks(self, regs: Streamed) -> Iterator[np.ndarray]:
-        plan = regs.plan(self.model)
-        K = plan.onehot.shape[0]
-        mult = [regs.multiplier(self.model, s) for s in plan.fdep]
-        F, dt = regs.F, regs.dt
-        zero = lambda k0, k1: np.zeros(k1 - k0)  # noqa: E731
-
-        def one(tau, fmax, g):
-            u = lambda k0, k1: input_map(F, dt, tau, fmax, k0, k1)  # noqa: E731
-            return u if g is None else scaled(g, u)
-
-        inputs = {}
-        for i, (tau, fmax) in enumerate(self.inputs):
-            for k in range(K):
-                inputs[(i, k)] = (one(tau, fmax, mult[k]) if k < len(mult) else zero, 0.0)
-        filt = Filters(regs.dsc, regs.T, regs.chunk, inputs)
-        m = len(self.inputs)
-        for k0, k1 in regs.spans:
-            out = filt.step(k0, k1)
-            V = np.stack([out[(i, k)][0] for i in range(m) for k in range(K)])
-            yield V.reshape(m, K, k1 - k0)
 
 
 class _DesignPass:

@@ -24,9 +24,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._filters import FilterBank
 from ._filtering import (
+    LONG_BATCH,
     Discrete,
+    _f,
+    _i,
     _seed_discretes,
+    _zero_phase,
+    edge_pad,
     filter_from,
     mode_cascade_from,
     padded_length,
@@ -431,7 +437,7 @@ def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
 
 
 def zero_phase_streamed(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CHUNK):
-    """:func:`~._filtering.zero_phase` of a long record chunk by chunk: V₁ of the record
+    """:func:`zero_phase` of a long record chunk by chunk: V₁ of the record
     filtered forwards, then of that filtered backwards (both under the first-order hold of the
     hold-corrected samples, from steady states), then central differences (one-sided at the
     ends); (x smoothed, v̂) (T,) each."""
@@ -451,3 +457,52 @@ def zero_phase_streamed(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CH
     g[0] = (sm[1] - sm[0]) / dt
     g[-1] = (sm[-1] - sm[-2]) / dt
     return sm, g
+
+
+def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x smoothed, v̂) of :func:`lionjax._model_effects.zero_phase_lowpass` /
+    ``zero_phase_velocity`` (forward and backward through (ω/(s + ω))³, then central
+    differences), on bucketed shapes."""
+    x = np.asarray(x, np.float64)
+    T = x.size
+    Tp = padded_length(T)
+    bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
+    dsc = Discrete.of(bank, dt)
+    if Tp > LONG_BATCH:  # a long record: filtered chunk by chunk, forwards then backwards
+        return zero_phase_streamed(dsc, x, dt)
+    sm, g = _zero_phase(dsc, edge_pad(x, Tp), _i(T), _f(dt))
+    return np.asarray(sm)[:T], np.asarray(g)[:T]
+
+
+class GridColumns(ColumnSource):
+    """The F-dependent columns (m, K, ·) of a structure for each input map (τ, F_max) in
+    ``inputs`` (in-memory :func:`~._fit._grid_columns`, unsigned: rows of K slots, zero beyond
+    the structure's F-dependent signals)."""
+
+    def __init__(self, model, inputs):
+        self.model, self.inputs = model, [(float(t), float(f)) for t, f in inputs]
+
+    def shape(self, regs) -> tuple[int, int]:
+        return len(self.inputs), regs.plan(self.model).onehot.shape[0]
+
+    def blocks(self, regs) -> Iterator[np.ndarray]:
+        plan = regs.plan(self.model)
+        K = plan.onehot.shape[0]
+        mult = [regs.multiplier(self.model, s) for s in plan.fdep]
+        F, dt = regs.F, regs.dt
+        zero = lambda k0, k1: np.zeros(k1 - k0)  # noqa: E731
+
+        def one(tau, fmax, g):
+            u = lambda k0, k1: input_map(F, dt, tau, fmax, k0, k1)  # noqa: E731
+            return u if g is None else scaled(g, u)
+
+        inputs = {}
+        for i, (tau, fmax) in enumerate(self.inputs):
+            for k in range(K):
+                inputs[(i, k)] = (one(tau, fmax, mult[k]) if k < len(mult) else zero, 0.0)
+        filt = Filters(regs.dsc, regs.T, regs.chunk, inputs)
+        m = len(self.inputs)
+        for k0, k1 in regs.spans:
+            out = filt.step(k0, k1)
+            V = np.stack([out[(i, k)][0] for i in range(m) for k in range(K)])
+            yield V.reshape(m, K, k1 - k0)
