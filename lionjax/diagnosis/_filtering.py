@@ -294,12 +294,12 @@ def mode_free_response(omega: float, zeta: float, dt: float, Tp: int) -> np.ndar
     return mode_free_responses([(omega, zeta)], dt, Tp)[0].T
 
 
-def mode_free_responses(modes, dt: float, T: int) -> np.ndarray:
+def mode_free_responses(modes, dt: float, T: int, k0: int = 0) -> np.ndarray:
     """(m, 2, T) :func:`mode_free_response` of each mode (ω [rad/s], ζ) in ``modes`` (m, 2), in
-    one pass (the mode profile asks for a few hundred)."""
+    one pass (the mode profile asks for a few hundred); rows k0 … T − 1 (a streamed chunk's)."""
     modes = np.asarray(modes, np.float64).reshape(-1, 2)
     w, z = modes[:, :1], modes[:, 1:]
-    t = np.arange(T) * float(dt)
+    t = np.arange(k0, T) * float(dt)
     wd = w * np.sqrt(np.maximum(1.0 - z * z, 0.0))
     env = np.exp(-z * w * t)
     return np.stack([env * np.cos(wd * t), env * np.sin(wd * t)], 1)

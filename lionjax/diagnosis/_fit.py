@@ -527,7 +527,7 @@ class Regressors:
         return out
 
     def added_columns(self, model: AbstractModel, base: AbstractModel) -> np.ndarray | None:
-        """(K, T) filtered columns (signs included) that ``model`` adds to ``base``, for
+        """(1, K, T) filtered columns (signs included) that ``model`` adds to ``base``, for
         :func:`rss_with_columns` on ``base``; None where it adds more than columns of its own
         signals (an F-dependent column, initial-state columns) or lacks one of ``base``'s."""
         have = set(_model_key(base))
@@ -540,7 +540,7 @@ class Regressors:
         ):
             return None
         cols = self.fixed_columns(model, new)
-        return np.stack([cols[j][: self.T] for j in range(len(new))])
+        return np.stack([cols[j][: self.T] for j in range(len(new))])[None]
 
     def _multiplier(self, model, signal: str) -> np.ndarray:
         """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the signals of the

@@ -191,7 +191,6 @@ class _Fitter(LookAlikes):
                     cols = self.rtr.added_columns(model, base)
                     if cols is None:
                         return float(fit_batch(self.rtr, model, [(0.0, math.inf)])[1][0])
-                    cols = cols if self.streamed else cols[None]
                     return float(rss_with_columns(self.rtr, base, cols)[0])
                 finally:
                     self.rtr.drop(signal_names(e))
@@ -352,7 +351,6 @@ class _Fitter(LookAlikes):
                     if cols is None:
                         out.append(float(fit_batch(regs, model, [(0.0, math.inf)])[1][0]))
                     else:
-                        cols = cols if regs.streamed else cols[None]
                         out.append(float(rss_with_columns(regs, base, cols)[0]))
                 regs.drop(list(raw))
             return np.asarray(out)

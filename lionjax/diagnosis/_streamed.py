@@ -10,7 +10,7 @@ import numpy as np
 from .._filters import FilterBank
 from .._models import AbstractModel
 from .._record import Record
-from ._filtering import MODE_BUCKETS, P_MAX, _batches, _f, _mode_stages
+from ._filtering import MODE_BUCKETS, P_MAX, _batches, _f, _mode_stages, mode_free_responses
 from ._fit import Regressors, _columns, _model_key, f_dependent
 from ._streaming import (
     ColumnSource,
@@ -18,7 +18,6 @@ from ._streaming import (
     FreeRows,
     ModeStages,
     chunk_length,
-    mode_free_blocks,
     rows,
     scaled,
     spans,
@@ -117,7 +116,7 @@ class Streamed(Regressors):
         out = []
         for e in getattr(model, "effects", ()):
             if isinstance(e, ModeColumns):
-                out.append(mode_free_blocks([(e.omega, e.zeta)], self.dt, k0, k1)[0].T)
+                out.append(mode_free_responses([(e.omega, e.zeta)], self.dt, k1, k0)[0].T)
             else:
                 r = e.free_response(self.dt, k1)
                 if r is not None:
@@ -311,7 +310,7 @@ class ModeProfileColumns(ColumnSource):
         return len(self.modes), len(np.arange(4)[self.keep])
 
     def full(self, regs) -> np.ndarray:
-        from ._filtering import mode_columns, mode_free_responses
+        from ._filtering import mode_columns
 
         if id(regs) not in self._full:
             cx, cF = mode_columns(regs, self.modes, self.lam)
@@ -342,5 +341,5 @@ class ModeProfileColumns(ColumnSource):
                 cF.append(b[:m])
             blk = np.empty((len(self.modes), 4, k1 - k0))
             blk[:, 0], blk[:, 1] = -np.concatenate(cx), np.concatenate(cF)
-            blk[:, 2:] = mode_free_blocks(self.modes, self.dt, k0, k1)
+            blk[:, 2:] = mode_free_responses(self.modes, self.dt, k1, k0)
             yield blk[:, self.keep]

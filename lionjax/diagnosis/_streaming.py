@@ -269,16 +269,6 @@ class FreeRows:
         return self.row[: k1 - k0] @ P
 
 
-def mode_free_blocks(modes, dt: float, k0: int, k1: int) -> np.ndarray:
-    """(m, 2, c) of :func:`~._filtering.mode_free_responses` at rows [k0, k1)."""
-    modes = np.asarray(modes, np.float64).reshape(-1, 2)
-    w, z = modes[:, :1], modes[:, 1:]
-    t = np.arange(k0, k1) * float(dt)
-    wd = w * np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    env = np.exp(-z * w * t)
-    return np.stack([env * np.cos(wd * t), env * np.sin(wd * t)], 1)
-
-
 def input_map(F: np.ndarray, dt: float, tau: float, fmax: float, k0: int, k1: int) -> np.ndarray:
     """Rows [k0, k1) of u = sat_Fmax(F(t − τ)) (:func:`~._fit._apply_input`'s formula: τ/dt =
     n + φ, F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1], F before the record = F[0]; F_max < 0
