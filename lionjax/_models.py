@@ -253,10 +253,11 @@ class AbstractEffect(eqx.Module):
     @abc.abstractmethod
     def physical(self, theta: Array, b: Array) -> dict[str, Array]: ...
 
-    def free_response(self, dt: float, Tp: int):
-        """Initial-state columns of its own, shape (Tp, n), that the filtered equation error
-        carries from an unknown initial state of the effect (a flexible mode's decaying
-        oscillation), refitted on every record as the filter's are; None for most effects."""
+    def free_response(self, dt: float, T: int, k0: int = 0):
+        """Rows k0 … T − 1 of initial-state columns of its own, shape (T − k0, n), that the
+        filtered equation error carries from an unknown initial state of the effect (a flexible
+        mode's decaying oscillation), refitted on every record as the filter's are; None for
+        most effects."""
         return None
 
 

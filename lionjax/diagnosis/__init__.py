@@ -6,36 +6,36 @@ model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figu
 :func:`diagnose_many` diagnoses many (train, valid) pairs in one process, one row per pair.
 The library is open: a :class:`ForceEffect` subclass is a candidate of the user's own
 (docs/effects.md), passed as ``candidates=DEFAULT_CANDIDATES + (MyEffect(),)`` or loaded from a
-file by :func:`load_candidates`.
-``lionjax.diagnose`` is the same function as :func:`lionjax.diagnosis.diagnose`.
+file by :func:`load_candidates`. The candidates live in :mod:`lionjax.diagnosis.effects`, one
+module per family. ``lionjax.diagnose`` is the same function as
+:func:`lionjax.diagnosis.diagnose`.
 """
 
-from ._artefacts import (
-    ForceSensorDrift as ForceSensorDrift,
-    ForceSensorLine as ForceSensorLine,
-)
-from ._candidates import (
-    AbstractCandidate as AbstractCandidate,
-    AsymmetricFrictionCandidate as AsymmetricFrictionCandidate,
-    CoulombCandidate as CoulombCandidate,
-    DelayCandidate as DelayCandidate,
-    Limits as Limits,
-    OffsetCandidate as OffsetCandidate,
-    PositionCandidate as PositionCandidate,
-    SaturationCandidate as SaturationCandidate,
-    SpringCandidate as SpringCandidate,
-)
+from . import effects as effects
 from ._core import diagnose as diagnose
 from ._criteria import Criteria as Criteria
-from ._force_effects import ForceEffect as ForceEffect
-from ._library import DEFAULT_CANDIDATES as DEFAULT_CANDIDATES
 from ._load import load_candidates as load_candidates
 from ._many import (
     DiagnosisRow as DiagnosisRow,
     ManyDiagnoses as ManyDiagnoses,
     diagnose_many as diagnose_many,
 )
-from ._mode import FlexibleModeCandidate as FlexibleModeCandidate
 from ._plot import plot_diagnosis as plot_diagnosis
 from ._result import Diagnosis as Diagnosis, EffectScore as EffectScore
 from ._statistics import decimation_for as decimation_for
+from .effects import (
+    DEFAULT_CANDIDATES as DEFAULT_CANDIDATES,
+    AbstractCandidate as AbstractCandidate,
+    AsymmetricFrictionCandidate as AsymmetricFrictionCandidate,
+    CoulombCandidate as CoulombCandidate,
+    DelayCandidate as DelayCandidate,
+    FlexibleModeCandidate as FlexibleModeCandidate,
+    ForceEffect as ForceEffect,
+    ForceSensorDrift as ForceSensorDrift,
+    ForceSensorLine as ForceSensorLine,
+    Limits as Limits,
+    OffsetCandidate as OffsetCandidate,
+    PositionCandidate as PositionCandidate,
+    SaturationCandidate as SaturationCandidate,
+    SpringCandidate as SpringCandidate,
+)

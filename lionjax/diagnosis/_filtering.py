@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._filters import FilterBank, powers, sample_hold
+from .._filters import FilterBank, sample_hold
 from .._linalg import matvec_unrolled
 
 if TYPE_CHECKING:
@@ -203,21 +203,6 @@ def filter_signals(dsc: Discrete, U: np.ndarray, foh: np.ndarray) -> np.ndarray:
     return out[0] if len(out) == 1 else np.concatenate(out)  # one batch: no copy
 
 
-def filter_columns(dsc: Discrete, U: np.ndarray, foh: np.ndarray, orders, n: int) -> np.ndarray:
-    """(S, n) output ``orders[i]`` (0…3: V₁…V₄) of each signal of :func:`filter_signals`, its
-    first ``n`` samples: the same numbers, without holding every output of every signal (a
-    profile that reads one output of each of 64 signals keeps 1/4 of the (64, Tp, 4) outputs,
-    batch by batch, and copies no whole batch)."""
-    orders = np.asarray(orders, np.int64)
-    out = np.empty((len(U), n))
-    i = 0
-    for V in _filtered_batches(dsc, U, foh):
-        for v in V:
-            out[i] = v[:n, orders[i]]
-            i += 1
-    return out
-
-
 @jax.jit
 def _zero_phase(dsc: Discrete, x, T, dt):
     Tp = x.shape[0]
@@ -234,13 +219,6 @@ def _zero_phase(dsc: Discrete, x, T, dt):
     g = jnp.where(k == T - 1, (sm[T - 1] - sm[T - 2]) / dt, g)
     g = jnp.where(k < T, g, g[T - 1])
     return sm, g
-
-
-@jax.jit
-def _free(dsc: Discrete, T0):
-    """V₁ of the unforced filter from each unit state, (T, n) (:meth:`FilterBank.free_response`
-    on a traced dt)."""
-    return jnp.einsum("jn,tni->tij", dsc.C, powers(dsc.Phi, T0.shape[0]))[:, :, 0]
 
 
 @jax.jit
@@ -285,15 +263,6 @@ def mode_signals(
     return out
 
 
-def mode_free_response(omega: float, zeta: float, dt: float, Tp: int) -> np.ndarray:
-    """(Tp, 2) samples of e^(−ζωt)·(cos ω_d t, sin ω_d t), ω_d = ω√(1 − ζ²): the mode's own
-    free response. The mode's columns start from a steady state (the record constant before
-    t = 0); a record that starts with the mode deflected carries this transient in them
-    (time constant 1/ζω: 0.4 s at 17 Hz, ζ = 0.02), which only these two columns, refitted on
-    each record like the filter's initial state, absorb."""
-    return mode_free_responses([(omega, zeta)], dt, Tp)[0].T
-
-
 def mode_free_responses(modes, dt: float, T: int, k0: int = 0) -> np.ndarray:
     """(m, 2, T) :func:`mode_free_response` of each mode (ω [rad/s], ζ) in ``modes`` (m, 2), in
     one pass (the mode profile asks for a few hundred); rows k0 … T − 1 (a streamed chunk's)."""
@@ -317,36 +286,6 @@ def _seed_discretes(lam, dt) -> Discrete:
     D = jnp.zeros((4,), c.dtype)
     one = lambda rows: Discrete(Phi, G0, G1, eye[rows], D, c[-1])
     return jax.tree.map(lambda *a: jnp.stack(a), one(jnp.arange(1, 5)), one(jnp.arange(4)))
-
-
-def mode_seed(record_x, record_F, dt: float, lam: float, Tp: int) -> tuple[float, float] | None:
-    """A first guess of a flexible mode's (ω [rad/s], ζ) from one linear fit, or None.
-
-    With the mode, ẍ + aẋ − μ·s²h[x] = b(u − κh[u]) (h = (s²/D)[·], D = s² + 2ζωs + ω²) is,
-    multiplied by D, the 4th-order equation
-
-        (1 − μ)s⁴x + (a + Z)s³x + (W + aZ)s²x + aW·sx = b(1 − κ)s²u + bZ·su + bW·u,
-
-    W = ω², Z = 2ζω: linear in its six coefficients (divided by 1 − μ), which an equation-error
-    least-squares fit through the filter 1/(s + λ)⁵ gives in one solve (its first 10/λ seconds
-    dropped: the filters' start). Then r = Z/W = c₅/c₆ and W = c₃/(c₁ + r²c₃ − rc₂). Biased by
-    noise (an equation error on derivatives) and by any other effect, it only starts the exact
-    profile's search (:meth:`~lionjax.diagnosis._fitter._Fitter._profile_mode`), whose RSS valley
-    in (ω, ζ) is a few per cent wide for a lightly damped mode: a coarse grid misses it (a
-    noise-free 12.9 Hz, ζ 0.047 record had its valley between grid points and the search
-    stopped at a μ ≈ 0 input filter, 480× the true mode's RSS). None when the fit gives no
-    real, positive (ω, ζ)."""
-    T = int(np.asarray(record_x).size)
-    U = np.stack([edge_pad(record_x, Tp), edge_pad(record_F, Tp)])
-    V = np.asarray(
-        _filter_systems(_seed_discretes(_f(lam), _f(dt)), U, np.array([1.0, 0.0])),
-        np.float64,
-    )
-    n0 = min(int(math.ceil(10.0 / (lam * dt))), T // 4)
-    A, y = seed_design(V[0, n0:T], V[1, n0:T])
-    scale = np.maximum(np.sqrt(np.mean(A * A, 0)), 1e-300)
-    c = np.linalg.lstsq(A / scale, y, rcond=None)[0] / scale
-    return seed_mode(c)
 
 
 def seed_design(X, Fv):
@@ -402,22 +341,6 @@ def _mode_stages(omega, zeta, lam, dt):
     return jax.vmap(one)(omega, zeta)
 
 
-@jax.jit
-def _mode_cascade(stages, zeta, lam, Vx, x, VF, F):
-    """The columns of :func:`mode_columns` ((m, Tp) each) for the modes of ``stages``
-    (:func:`_mode_stages`) and their ``zeta`` (m,): one batched recursion of order 2 per mode
-    and signal (:func:`mode_cascade_from` from the steady state before the record)."""
-    u = hold_corrected(x, 1.0)
-    du = jnp.concatenate([u[1:], u[-1:]]) - u
-    # x (first-order hold) is steady before the record: v̂₂ = 0 there and p = 0; F (zero-order
-    # hold) is steady at F[0]: v̂₀ = F[0] and p = (F[0], 0)
-    m = zeta.shape[0]
-    p0 = jnp.concatenate(
-        [jnp.zeros((m, 2), F.dtype), jnp.tile(jnp.stack([F[0], 0.0 * F[0]]), (m, 1))]
-    )
-    return mode_cascade_from(stages, zeta, lam, Vx, u, du, VF, F, p0)[:2]
-
-
 def mode_cascade_from(stages, zeta, lam, Vx, u, du, VF, F, p0):
     """(x's columns (m, T), F's columns (m, T), the stages' states after the last sample
     (2m, 2)) of the mode stages from the states ``p0`` (2m, 2: x's of each mode, then F's),
@@ -446,40 +369,6 @@ def mode_cascade_from(stages, zeta, lam, Vx, u, du, VF, F, p0):
         VF[None, :, 0] - (pF[:, :, 0] + 2 * z * pF[:, :, 1]),
         end,
     )
-
-
-def mode_columns(regs, modes, lam: float) -> tuple[np.ndarray, np.ndarray]:
-    """The flexible mode's two ε₁ columns on the record of ``regs`` (a :class:`~._fit.Regressors`)
-    for each mode (ω [rad/s], ζ) in
-    ``modes`` (m, 2): λ³s⁴/((s + λ)³D)[x] (x's V₃ of h_x = (s²/D)[x], under the first-order
-    hold of its :func:`hold_corrected` samples) and λ³s²/((s + λ)³D)[F] (F's V₁ of h_F, under
-    the zero-order hold), two arrays ``(m, Tp)``, D = s² + 2ζωs + ω², λ the diagnosis filter's
-    triple pole (``regs.bank`` = λ³/(s + λ)³).
-
-    Exact: the mode's filter of order 5 is the diagnosis filter (whose output the regressors
-    hold) followed by a stage of order 2 (:func:`_mode_stage`), sampled exactly as one system,
-    so each mode costs a recursion of order 2 instead of 5 (2–3× faster; equal to the order-5
-    filter to ~1e-13). Filtering h's samples again (:func:`mode_signals`, then the diagnosis
-    filter under a hold) is not exact: h_F jumps with every step of F and then rings at the
-    mode, so neither hold describes it, and the non-collocated mode's input path
-    b(1 − s²/D)F = b·(2ζωs + ω²)/D·F is the small difference of two such columns: on a
-    noise-free 905 Hz record (f_mode 17 Hz) the two-stage columns left a quarter of the excess
-    error at the true (ω, ζ). Modes run in batches of :data:`MODE_BUCKETS`."""
-    filt = regs.filtered({"x": (regs.x, "foh"), "F": (regs.F, "zoh")})
-    args = (filt["x"], edge_pad(regs.x, regs.Tp), filt["F"], regs.Fp)
-    xs, Fs = [], []
-    buckets = _buckets(MODE_BUCKETS, regs.Tp)
-    for chunk, m in _batches(np.asarray(modes, np.float64).reshape(-1, 2), buckets):
-        # the stages (a few small matrix exponentials) of the largest batch, cut to this one:
-        # one compiled program instead of one per batch size (each costs a process ~0.1 s)
-        b = len(chunk)
-        (whole, _), *_ = _batches(chunk, MODE_BUCKETS[-1:])
-        stages = _mode_stages(whole[:, 0], whole[:, 1], _f(lam), _f(regs.dt))
-        stages = tuple(np.asarray(a)[:b] for a in stages)
-        cx, cF = _mode_cascade(stages, chunk[:, 1], _f(lam), *args)
-        xs.append(np.asarray(cx, np.float64)[:m])
-        Fs.append(np.asarray(cF, np.float64)[:m])
-    return np.concatenate(xs), np.concatenate(Fs)
 
 
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:

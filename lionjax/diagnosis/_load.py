@@ -9,7 +9,7 @@ import os
 import sys
 
 from .._errors import InputError
-from ._candidates import AbstractCandidate
+from .effects import AbstractCandidate
 
 
 def load_candidates(spec: str) -> tuple[AbstractCandidate, ...]:

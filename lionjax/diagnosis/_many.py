@@ -22,10 +22,9 @@ from .._errors import IdentificationError, InputError
 from .._progress import run_chunks
 from .._record import Record
 from .._tables import Table, jsonable
-from ._candidates import AbstractCandidate
 from ._core import diagnose
-from ._library import DEFAULT_CANDIDATES
 from ._result import Diagnosis
+from .effects import DEFAULT_CANDIDATES, AbstractCandidate
 
 #: ``error`` of the pairs not reached when the run was interrupted (Ctrl-C).
 NOT_RUN = "not run: interrupted before this pair"

@@ -11,9 +11,6 @@ import numpy as np
 from .._errors import InputError
 from .._filters import FilterBank
 from .._record import Record
-from ._candidates import (
-    Context,
-)
 from ._streaming import zero_phase
 
 
@@ -37,9 +34,6 @@ class Settings:
         w = 2 * math.pi * self.filter_hz
         return FilterBank.from_poles(np.full(3, -w), unit_dc_gain=True)
 
-    def context(self) -> Context:
-        return Context(2 * math.pi * self.velocity_hz, self.v_eps, self.x_center, self.x_scale)
-
 
 #: Upper bound of the default filter corner [Hz]: f_s/25 up to 1 kHz records, then fixed, so
 #: a record of the same device sampled faster is weighted the same way (and the filter's poles
@@ -53,48 +47,13 @@ VELOCITY_MIN_HZ = 100.0
 #: Longest delay of the default profile grid [s] (at least 60 samples).
 MAX_DELAY_S = 0.03
 #: Flexible-mode grid: frequencies from MODE_BAND[0]·f_filter to MODE_BAND[1]·f_filter
-#: (below 0.2·f_s), and damping ratios.
+#: (below 0.2·f_s).
 MODE_BAND = (0.1, 4.0)
-MODE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 MODE_N = 16
-#: The halvings of the mode's pattern search's steps and its most rings of 8 evaluations (the
-#: damping ratios it may reach: MODE_ZETA_RANGE).
-MODE_ROUNDS = 4
-MODE_STEPS = 16
-#: The localized position's (x₀, w) grid: the training positions' LOCAL_RANGE quantiles span R;
-#: widths w = R·LOCAL_WIDTHS, centres across R spaced by max(w, R/LOCAL_SPACING); then a pattern
-#: search in (x₀, ln w) (LOCAL_ROUNDS step halvings, at most LOCAL_STEPS rings) with w kept in
-#: R·LOCAL_W_RANGE.
-LOCAL_RANGE = (0.02, 0.98)
-LOCAL_WIDTHS = (1 / 40, 1 / 12, 1 / 4)
-LOCAL_SPACING = 32
-LOCAL_ROUNDS = 2
-LOCAL_STEPS = 8
-LOCAL_W_RANGE = (1 / 100, 1.0)
 #: Soft-saturation levels in the F_max grid.
 SOFT_N = 15
-#: Shortest stick [s] the friction candidates' stick variant masks (_Fitter.stuck).
+#: Shortest stick [s] that counts where the axis sticks (:func:`~._problem.stuck_mask`).
 STICK_MIN_S = 0.01
-#: The pre-sliding distances z [m] friction's Dahl form is profiled over
-#: (:meth:`_Fitter._profile_presliding`): PRESLIDING_PER_DECADE per decade from a tenth of the
-#: position noise (at least PRESLIDING_RANGE[0]) to PRESLIDING_RANGE[1]. Pre-sliding in metal
-#: contacts spans 1–10 µm, the blind benchmark's LuGre bristles F_s/σ₀ 2–30 µm (fitted at
-#: 0.3–1.2 times that); a longer "pre-sliding" fits a force that depends on position (a
-#: cogging record with a 266 µm period was fitted at z = 39 µm).
-PRESLIDING_RANGE = (1e-7, 3e-5)
-PRESLIDING_PER_DECADE = 6
-#: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
-DEAD_ZONE_QUANTILES = tuple(float(q) for q in np.geomspace(0.01, 0.8, 16))
-#: The position-periodic look-alike (:meth:`_Fitter.periodic_lookalike`): the cycles κ across
-#: the positions both records cover that its screen searches (the period stays above
-#: PERIOD_OVER_NOISE times the position noise), the screen's position bins and κ steps per
-#: cycle (1/8: a sinusoid whose cycle count is off by δ loses its coherence over the range at
-#: δ ≈ 1/2), and the screen's peaks that are fitted.
-PERIOD_CYCLES = (1.5, 128.0)
-PERIOD_OVER_NOISE = 10.0
-PERIOD_BINS = 4096
-PERIOD_OVERSAMPLE = 8
-PERIOD_PEAKS = 6
 
 
 #: Least number of windows the validation record holds for the windowed simulation (the

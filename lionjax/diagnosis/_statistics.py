@@ -9,7 +9,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._record import Record
-from ._fit import (
+from ._lstsq import (
     decimation_to_fit,
     longest_records,
     memory_estimate,
@@ -52,15 +52,21 @@ def decimation_for(
 
 
 def _check_memory(
-    n_train: int, n_valid: int, max_memory_gb: float | None, streamed: bool | None = None
+    n_train: int, n_valid: int, max_memory_gb: float | None, streamed: bool | int | None = None
 ) -> bool:
-    """Whether the records are diagnosed streamed (``streamed``, or by their length:
-    :func:`~._fit.streamed_by_default`); InputError when records of these lengths need more
-    host memory than allowed."""
-    if streamed is not None and not isinstance(streamed, bool):
-        raise InputError(f"diagnose: streamed must be True, False or None, got {streamed!r}.")
+    """Whether the records are diagnosed streamed (``streamed``: True, False, a chunk length
+    in samples (streamed), or None: by their length, :func:`~._lstsq.streamed_by_default`);
+    InputError when records of these lengths need more host memory than allowed."""
+    ok = streamed is None or isinstance(streamed, bool)
+    ok = ok or (isinstance(streamed, numbers.Integral) and 16 <= streamed)
+    if not ok:
+        raise InputError(
+            "diagnose: streamed must be True, False, None or a chunk length of at least 16 "
+            f"samples, got {streamed!r}."
+        )
     if streamed is None:
         streamed = streamed_by_default(n_train, n_valid)
+    streamed = bool(streamed)
     have = _memory_budget(max_memory_gb)
     if streamed:
         need = memory_estimate_streamed(n_train, n_valid)

@@ -143,23 +143,38 @@ class Filters:
 
     ``inputs``: {name: (raw, foh)}, ``foh`` 1.0 (first-order hold of the hold-corrected
     samples) or 0.0 (zero-order hold). The first chunk starts from the steady state of its
-    first (held) sample, as the whole-record filter does."""
+    first (held) sample, as the whole-record filter does. ``kept``: where given (a record of
+    one chunk), the outputs {name: (4, T)} already filtered, read instead of filtered again,
+    and where each new one is kept (a signal's name stands for its samples)."""
 
-    def __init__(self, dsc: Discrete, T: int, chunk: int, inputs: dict[str, tuple[Raw, float]]):
+    def __init__(
+        self,
+        dsc: Discrete,
+        T: int,
+        chunk: int,
+        inputs: dict[str, tuple[Raw, float]],
+        kept: dict | None = None,
+    ):
         self.dsc, self.T, self.chunk = dsc, T, chunk
         self.names = list(inputs)
         self.inputs = inputs
+        self.kept = kept
         self.z: np.ndarray | None = None  # (S, n) states before the next chunk
 
     def step(self, k0: int, k1: int) -> dict:
         """{name: (4, c) outputs V₁…V₄} of rows [k0, k1), in order (one compiled call per
         batch of :data:`BATCHES`: each signal's window u[k0 − 1 … k0 + chunk + 1] held and
         filtered inside it, :func:`_filter_window`)."""
-        if not self.names:
-            return {}
-        W = np.stack([window(raw, k0, self.T, self.chunk) for raw, _ in self.inputs.values()])
-        out = self.step_windows(W, np.array([f for _, f in self.inputs.values()]), k1 - k0)
-        return dict(zip(self.names, out, strict=True))
+        kept = {} if self.kept is None else self.kept
+        todo = [n for n in self.names if n not in kept]
+        out = {}
+        if todo:
+            W = np.stack([window(self.inputs[n][0], k0, self.T, self.chunk) for n in todo])
+            foh = np.array([self.inputs[n][1] for n in todo])
+            out = dict(zip(todo, self.step_windows(W, foh, k1 - k0), strict=True))
+            if self.kept is not None:
+                self.kept.update(out)
+        return {n: out[n] if n in out else kept[n] for n in self.names}
 
     def step_windows(self, W: np.ndarray, foh: np.ndarray, c: int, front: int = 0) -> np.ndarray:
         """(S, 4, c) outputs of the next chunk from the signals' windows W (S, chunk + 3)
@@ -243,7 +258,7 @@ class ModeStages:
 
 
 class FreeRows:
-    """V₁ of the unforced filter from each unit state (:func:`~._filtering._free`) at any rows:
+    """V₁ of the unforced filter from each unit state at any rows:
     C·Φʲ·Φᵏ⁰ for rows k0 + j of a chunk (Φʲ for j < chunk computed once); zeros where Φᵏ⁰ has
     decayed to nothing."""
 
@@ -289,15 +304,17 @@ def input_map(F: np.ndarray, dt: float, tau: float, fmax: float, k0: int, k1: in
 
 class ColumnSource:
     """Columns (m, K, ·) of a profile (m points, K columns each) that a fit adds to a
-    structure's design: whole (:meth:`full`, the in-memory path's numbers) or chunk by chunk
-    (:meth:`blocks`, one (m, K, c) block per chunk of the streamed path)."""
+    structure's design, chunk by chunk (:meth:`blocks`, one (m, K, c) block per chunk;
+    :meth:`full`, the one block of a record of one chunk)."""
 
     def shape(self, regs) -> tuple[int, int]:
         """(m, K)."""
         raise NotImplementedError
 
     def full(self, regs) -> np.ndarray:
-        raise NotImplementedError
+        """The columns of a record of one chunk (m, K, T)."""
+        (blk,) = self.blocks(regs)
+        return blk
 
     def blocks(self, regs) -> Iterator[np.ndarray]:
         raise NotImplementedError
@@ -326,8 +343,7 @@ def as_source(cols) -> ColumnSource:
 
 class FilteredColumns(ColumnSource):
     """Filtered raw signals, one output each, signed: ``signals`` [[(raw, foh, order, sign)
-    × K] × m] (the raw signals computed per chunk). :meth:`full` filters them whole (the
-    in-memory path's :func:`~._filtering.filter_columns`), :meth:`blocks` chunk by chunk."""
+    × K] × m] (the raw signals computed per chunk), chunk by chunk."""
 
     def __init__(self, signals: Sequence[Sequence[tuple[Raw, float, int, float]]]):
         self.signals = [list(s) for s in signals]
@@ -337,21 +353,6 @@ class FilteredColumns(ColumnSource):
 
     def shape(self, regs) -> tuple[int, int]:
         return len(self.signals), len(self.signals[0])
-
-    def full(self, regs) -> np.ndarray:
-        """Filtered whole, a filter batch at a time (only a batch's raw signals held)."""
-        from ._filtering import S_BUCKETS, _buckets, edge_pad, filter_columns
-
-        flat = self._flat()
-        m, K = self.shape(regs)
-        V = np.empty((len(flat), regs.T))
-        per = _buckets(S_BUCKETS, regs.Tp)[-1]
-        for i in range(0, len(flat), per):
-            part = flat[i : i + per]
-            U = np.stack([edge_pad(raw(0, regs.T), regs.Tp) for raw, _, _, _ in part])
-            foh = np.array([f for _, f, _, _ in part])
-            V[i : i + per] = filter_columns(regs.dsc, U, foh, [o for _, _, o, _ in part], regs.T)
-        return V.reshape(m, K, regs.T) * np.array([s for *_, s in flat]).reshape(m, K, 1)
 
     def blocks(self, regs) -> Iterator[np.ndarray]:
         flat = self._flat()
@@ -367,9 +368,21 @@ class FilteredColumns(ColumnSource):
             yield V.reshape(m, K, k1 - k0)
 
 
-def mode_seed_streamed(x, F, dt: float, lam: float, chunk: int):
-    """:func:`~._filtering.mode_seed` chunk by chunk: the Gram of its fit accumulated, solved
-    on its scaled normal equations (the whole record's fit solves the scaled rows)."""
+def mode_seed(x, F, dt: float, lam: float, chunk: int):
+    """A first guess of a flexible mode's (ω [rad/s], ζ) from one linear fit, or None.
+
+    With the mode, ẍ + aẋ − μ·s²h[x] = b(u − κh[u]) (h = (s²/D)[·], D = s² + 2ζωs + ω²) is,
+    multiplied by D, the 4th-order equation
+
+        (1 − μ)s⁴x + (a + Z)s³x + (W + aZ)s²x + aW·sx = b(1 − κ)s²u + bZ·su + bW·u,
+
+    W = ω², Z = 2ζω: linear in its six coefficients (divided by 1 − μ), which an equation-error
+    least-squares fit through the filter 1/(s + λ)⁵ gives in one solve (its first 10/λ seconds
+    dropped: the filters' start), its Gram accumulated chunk by chunk and solved on its scaled
+    normal equations. Then r = Z/W = c₅/c₆ and W = c₃/(c₁ + r²c₃ − rc₂). Biased by noise (an
+    equation error on derivatives) and by any other effect, it only starts the exact profile's
+    search, whose RSS valley in (ω, ζ) is a few per cent wide for a lightly damped mode: a
+    coarse grid misses it. None when the fit gives no real, positive (ω, ζ)."""
     x, F = np.asarray(x, np.float64), np.asarray(F, np.float64)
     T = x.size
     dsc = _seed_discretes(np.float64(lam), np.float64(dt))
@@ -426,7 +439,7 @@ def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
     return out
 
 
-def zero_phase_streamed(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CHUNK):
+def zero_phase_chunked(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CHUNK):
     """:func:`zero_phase` of a long record chunk by chunk: V₁ of the record
     filtered forwards, then of that filtered backwards (both under the first-order hold of the
     hold-corrected samples, from steady states), then central differences (one-sided at the
@@ -459,7 +472,7 @@ def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
     bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
     dsc = Discrete.of(bank, dt)
     if Tp > LONG_BATCH:  # a long record: filtered chunk by chunk, forwards then backwards
-        return zero_phase_streamed(dsc, x, dt)
+        return zero_phase_chunked(dsc, x, dt)
     sm, g = _zero_phase(dsc, edge_pad(x, Tp), _i(T), _f(dt))
     return np.asarray(sm)[:T], np.asarray(g)[:T]
 

@@ -3,8 +3,8 @@
 A sensor error is not dynamics: the measured force F_meas = F + s(t) carries a term s the device
 never felt. The model sees ẍ + aẋ = b·F_meas − b·s, so s appears in the equation error like a
 force, and without a candidate of its own it is given a mechanical name (a mains line at 50 Hz
-was named ``flexible_mode`` at confidence 0.99: the mode's columns (s²/D)[F] pass a narrow band
-around the line). Each candidate here is a :class:`~._force_effects.ForceEffect` with
+can be named ``flexible_mode``: the mode's columns (s²/D)[F] pass a narrow band around the
+line). Each candidate here is a :class:`~._force_effects.ForceEffect` with
 ``acts_on = "measurement"``: its columns are estimated from each record's own F, and the windowed
 simulation subtracts the fitted s from the input.
 
@@ -28,10 +28,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._model_effects import Offset
-from .._record import Record
-from ._candidates import Limits
-from ._force_effects import ForceEffect
+from ..._model_effects import Offset
+from ..._record import Record
+from ._base import Limits
+from ._force_effect import ForceEffect
 
 #: Mains frequencies [Hz] a force-sensor line is searched at, each within ±MAINS_TOLERANCE.
 MAINS_HZ = (50.0, 60.0)
@@ -131,8 +131,7 @@ class ForceSensorDrift(ForceEffect):
     a constant force alone is never taken for a drift, while a sensor zeroed at each record's
     start (F₀ = r·(t_mid − t₁)) is explained whole. The offset stands in for it unless the ramp
     is significant on validation with the rest of the stack (a slow trend that an unmodelled
-    friction or saturation leaves in ε₁ is not a drift: Coulomb + offset records were named
-    ``force_sensor_drift`` at 1.00)."""
+    friction or saturation leaves in ε₁ is not a drift)."""
 
     name: ClassVar[str] = "force_sensor_drift"
     acts_on: ClassVar[str] = "measurement"
@@ -145,8 +144,8 @@ class ForceSensorDrift(ForceEffect):
     def n_params(self) -> int:  # type: ignore[override]
         return 2  # r and F₀
 
-    def effects(self, ctx):
-        return (*super().effects(ctx), Offset())
+    def effects(self, st):
+        return (*super().effects(st), Offset())
 
     def record_basis(self, record: Record, v):
         n = record.n_samples

@@ -13,8 +13,8 @@ diagnosis:
   friction candidates use, the measured F and the sample times; its coefficient is b·p_j, and
   p_j = coefficient / b is reported;
 - the **windowed simulation**: φ_j(x, v, u, t) evaluated on the simulated state at each step
-  (:func:`lionjax.twin._windows.windowed_errors`' ``extra`` term), so that the simulated gap
-  judges the structure with the effect in it;
+  (the simulator's ``extra`` term), so that the simulated gap judges the structure with the
+  effect in it;
 - **nonlinear parameters** (a period, a frequency): fields of the Module named in
   :attr:`~ForceEffect.nonlinear`, searched by :meth:`~ForceEffect.profile` over
   :meth:`~ForceEffect.grid` on the training record's residual sum of squares, once, on the
@@ -30,7 +30,6 @@ subtracted from the input of the windowed simulation.
 from __future__ import annotations
 
 import dataclasses
-import math
 import numbers
 from collections.abc import Callable, Sequence
 from typing import ClassVar
@@ -41,10 +40,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._models import AbstractEffect, Column
-from .._record import Record
-from ._candidates import AbstractCandidate, Context, Limits
-from ._streaming import zero_phase
+from ..._models import AbstractEffect, Column
+from ..._record import Record
+from .._search import GoldenSection, GridSearch
+from ._base import AbstractCandidate, Limits, b_positive
 
 #: Golden-section steps of :meth:`ForceEffect.profile`'s refinement (the bracket shrinks by
 #: 0.618 per step: 16 steps leave 5·10⁻⁴ of the grid's spacing).
@@ -97,18 +96,18 @@ class ForceEffect(AbstractCandidate):
 
     def profile(self, rss: Callable[[ForceEffect], float], limits: Limits) -> ForceEffect:
         """The profiled Module: the grid point of least training residual sum of squares
-        ``rss(effect)``; with one nonlinear parameter, then refined by a golden-section search
-        between that point's neighbours on the grid (:data:`REFINE_STEPS` more fits). Override
-        for another search (it returns a new, immutable Module)."""
+        ``rss(effect)`` (the effect alone on the baseline); with one nonlinear parameter, then
+        refined by a golden-section search between that point's neighbours on the grid
+        (:data:`REFINE_STEPS` more fits). Override for another search (it returns a new,
+        immutable Module)."""
         grid = list(self.grid(limits))
         if not grid:
             raise ValueError(f"{type(self).__name__}.grid() returned no Module to search.")
         if len(grid) == 1:
             return grid[0]
-        values = np.asarray([rss(g) for g in grid], np.float64)
+        i, values = GridSearch(tuple(grid), 1).minimise(lambda g: [rss(g[0])])
         if not np.any(np.isfinite(values)):
             raise ValueError(f"{type(self).__name__}: no grid point could be fitted.")
-        i = int(np.nanargmin(values))
         if len(self.nonlinear) != 1:
             return grid[i]
         (field,) = self.nonlinear
@@ -116,39 +115,46 @@ class ForceEffect(AbstractCandidate):
         j = pts.index((float(getattr(grid[i], field)), values[i]))
         if not 0 < j < len(pts) - 1:
             return grid[i]  # on the grid's edge: nothing to bracket
-        lo, hi = pts[j - 1][0], pts[j + 1][0]
-        best, best_rss = grid[i], float(values[i])
-        g = (math.sqrt(5.0) - 1.0) / 2.0
-        c, d = hi - g * (hi - lo), lo + g * (hi - lo)
         at = {}
 
         def f(val: float) -> float:
-            nonlocal best, best_rss
-            if val not in at:
-                e = dataclasses.replace(grid[i], **{field: val})
-                at[val] = float(rss(e))
-                if at[val] < best_rss:
-                    best, best_rss = e, at[val]
-            return at[val]
+            at[val] = dataclasses.replace(grid[i], **{field: val})
+            return float(rss(at[val]))
 
-        for _ in range(REFINE_STEPS):
-            if f(c) < f(d):
-                hi, d = d, c
-                c = hi - g * (hi - lo)
-            else:
-                lo, c = c, d
-                d = lo + g * (hi - lo)
-        return best
+        v0 = float(getattr(grid[i], field))
+        best, _ = GoldenSection(REFINE_STEPS).minimise(
+            f, pts[j - 1][0], pts[j + 1][0], v0, float(values[i])
+        )
+        return grid[i] if best == v0 else at[best]
 
-    def effects(self, ctx: Context) -> tuple[AbstractEffect, ...]:
-        return (ForceColumns(self, ctx.omega_v),)
+    def profiled(self) -> bool:
+        return not self.nonlinear
+
+    def effects(self, st) -> tuple[AbstractEffect, ...]:
+        return (ForceColumns(self),)
+
+    def physical(self, phys, problem) -> dict:
+        return self.nonlinear_values()
+
+    def simulation(self, phys, problem) -> dict:
+        """The device effect's force Σ p_j·φ_j(x, v, u, t) in the simulator (``"extra"``: the
+        effect with its floats traced, and its coefficients), or the measurement effect's
+        correction −Σ p_j·φ_j on the validation record's input (``"du"`` [N])."""
+        if self.acts_on == "measurement":
+            v = problem.signals("valid").v
+            du = np.zeros(problem.valid.n_samples)
+            for p, phi in zip(self.parameters, self.record_basis(problem.valid, v), strict=True):
+                du = du + float(phys.get(p, 0.0)) * np.asarray(phi, np.float64)
+            return {"du": du}
+        coefs = tuple(jnp.asarray(float(phys.get(p, 0.0)), jnp.float64) for p in self.parameters)
+        return {"extra": (_traced(self), coefs)}
 
     def report(self, phys: dict[str, float]) -> dict[str, float]:
         keys = (*self.parameters, *self.nonlinear, *self.units)
         return {k: phys[k] for k in dict.fromkeys(keys) if k in phys}
 
     def implausible(self, phys: dict[str, float], lim: Limits) -> str:
-        return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
+        return b_positive(phys)
 
     def measured_rms(self, phys: dict[str, float], record: Record, v) -> float | None:
         """RMS [N] of Σ p_j·φ_j on ``record`` for a measurement effect (None otherwise)."""
@@ -177,10 +183,9 @@ def signal_names(effect: ForceEffect) -> tuple[str, ...]:
 
 class ForceColumns(AbstractEffect):
     """The regressor columns of a :class:`ForceEffect`: −(1/Λ)[φ_j] with coefficient b·p_j
-    (module docstring); ``omega`` [rad/s] is the zero-phase velocity filter's bandwidth."""
+    (module docstring)."""
 
     effect: ForceEffect
-    omega: float
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -189,10 +194,9 @@ class ForceColumns(AbstractEffect):
     def columns(self) -> tuple[Column, ...]:
         return tuple(Column(n, 0, -1.0) for n in signal_names(self.effect))
 
-    def signals(self, record: Record) -> dict:
-        x = jnp.asarray(record.x)
-        v = _velocity(record, self.omega)
-        phis = self.effect.record_basis(record, v)
+    def signals(self, rs) -> dict:
+        x = jnp.asarray(rs.x)
+        phis = self.effect.record_basis(rs.record, jnp.asarray(rs.v))
         names = signal_names(self.effect)
         if len(phis) != len(names):
             raise ValueError(
@@ -216,23 +220,6 @@ class ForceColumns(AbstractEffect):
         return {p: theta[..., j] / b for j, p in enumerate(self.effect.parameters)}
 
 
-#: v̂ of the records last seen ((record, ω) → v̂): a profile builds one structure per grid
-#: point on the same record, and the zero-phase filter cost as much as the fit.
-_VELOCITIES: dict = {}
-
-
-def _velocity(record: Record, omega: float):
-    """The zero-phase velocity v̂ [m/s] of ``record`` at bandwidth ``omega``, cached."""
-    key = (id(record), float(omega))
-    hit = _VELOCITIES.get(key)
-    if hit is None or hit[0] is not record:
-        if len(_VELOCITIES) >= 8:
-            _VELOCITIES.clear()
-        v = jnp.asarray(zero_phase(record.x, float(record.dt), omega)[1])
-        hit = _VELOCITIES[key] = (record, v)
-    return hit[1]
-
-
 class SimulatedForce(eqx.Module):
     """Σ over device effects of Σ_j p_j·φ_j(x, v, u, t): the windowed simulation's ``extra``
     force term (its arrays traced: one program per set of effect types)."""
@@ -254,27 +241,6 @@ def _traced(effect: ForceEffect) -> ForceEffect:
     return jax.tree_util.tree_map(
         lambda a: jnp.asarray(a, jnp.float64) if isinstance(a, float) else a, effect
     )
-
-
-def simulation_terms(
-    effects: Sequence[ForceEffect], phys: dict[str, float], record: Record, v: Array
-) -> tuple[SimulatedForce | None, np.ndarray]:
-    """(the device effects' simulated force or None, the measurement effects' correction to
-    the input (T,) [N]) for fitted parameters ``phys``."""
-    device = [e for e in effects if e.acts_on == "device"]
-    du = np.zeros(record.n_samples)
-    for e in effects:
-        if e.acts_on == "measurement":
-            for p, phi in zip(e.parameters, e.record_basis(record, v), strict=True):
-                du = du + float(phys.get(p, 0.0)) * np.asarray(phi, np.float64)
-    extra = None
-    if device:
-        coefs = tuple(
-            tuple(jnp.asarray(float(phys.get(p, 0.0)), jnp.float64) for p in e.parameters)
-            for e in device
-        )
-        extra = SimulatedForce(tuple(_traced(e) for e in device), coefs)
-    return extra, du
 
 
 def check_library(candidates: Sequence[AbstractCandidate], reserved: Sequence[str]) -> None:

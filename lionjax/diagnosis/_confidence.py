@@ -1,0 +1,275 @@
+"""The verdict's confidence (:func:`weigh`; :func:`lionjax.diagnose`'s docstring, "Confidence"):
+BIC weights of the plausible candidates and of "no effect", the part of the excess the stack
+explains, the record's detection limit, and the odds of the rivals the record prefers."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ._fit import Fitted
+from ._result import EffectScore
+from ._run import Run
+from ._stack import Stack
+from ._verdict import Verdict, exact_tolerance
+from .effects import AbstractCandidate
+
+
+def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, float]:
+    """BIC weights exp(score/2) of each plausible candidate alone large enough to be named
+    (score = −ΔBIC) and of "no effect", whose prior odds are the significance threshold: at
+    score = threshold the two tie. Where the stack holds a sensor artefact, a device effect it
+    did not stack explained alone what the artefact explains: its evidence is the artefact's.
+    The first of candidates stacked together (a stand-in or a pair, a plausible and
+    significant step) counts their joint score where it is higher than its own alone, or where
+    it was implausible alone."""
+    crit = run.crit
+    plausible = {s.name: s.score for s in effects if s.plausible and s.size >= crit.min_size}
+    for k, (sc, _) in stk.together.items():
+        plausible[k] = max(plausible.get(k, -math.inf), sc)
+    if any(c.artefact() for c in stk.cands):
+        kept = {c.name for c in stk.cands} | {c.name for c in run.candidates if c.artefact()}
+        plausible = {k: v for k, v in plausible.items() if k in kept}
+    top = max([crit.threshold, *plausible.values()])
+    raw = {"none": math.exp((crit.threshold - top) / 2)} | {
+        k: math.exp((v - top) / 2) for k, v in plausible.items()
+    }
+    total = sum(raw.values())
+    return {k: v / total for k, v in raw.items()}
+
+
+def uncounted(run: Run, stk: Stack) -> tuple[dict[str, float], list[str]]:
+    """The candidates whose gains count only above the estimated floor (their columns can fit
+    the position noise) and whose columns explain all the named stack's evidence: in one of its
+    forms (plausible or not) the candidate alone, counted from no floor, outscores the stack
+    (:meth:`~._run.Run.bar`), and the stack adds nothing significant to it. That evidence then
+    no more decides for the stack's name than for the candidate's.
+
+    Returns ({name: score from no floor} of the rivals, [names]). A form the candidate knows
+    for a look-alike of the stack's (``imitates``) is no rival; where the baseline lies below
+    the floor, so that nothing the candidate explains counted, it is a second reading of the
+    record (the confidence is shared)."""
+    rivals: dict[str, float] = {}
+    readings: list[str] = []
+    held = {c.name for c in stk.cands}
+    if not stk.cands:
+        return rivals, readings
+    bar = run.bar(stk)
+    for c in run.candidates:
+        if not c.fits_noise() or c.name in held:
+            continue
+        for form, alone in run.variant_fits.get(c.name, []):
+            sc = run.score_ms(run.base, alone.ms_valid, form.params(), 0.0)
+            if not (math.isfinite(alone.ms_valid) and sc > bar):
+                continue
+            both = run.try_fit((*stk.cands, form))
+            if (
+                both is None
+                or run.score_ms(alone, both.ms_valid, run.params(stk.cands), 0.0)
+                > run.crit.threshold
+            ):
+                continue
+            if set(c.imitates(c.report(alone.physical))) & held:
+                if run.base.ms_valid <= run.floor_of([c]) ** 2:
+                    readings.append(c.name)
+            else:
+                rivals[c.name] = max(rivals.get(c.name, -math.inf), sc)
+    return rivals, [r for r in dict.fromkeys(readings) if r not in rivals]
+
+
+def _rivals(
+    run: Run, effects: list[EffectScore], stk: Stack, blind: dict[str, float], bar: float
+) -> dict[str, float]:
+    """Implausible candidates, each alone, that explain the validation error better than the
+    whole stack (score above ``bar``: the stack's summed step scores and the threshold; at
+    least ``min_size``): a structure the record prefers to the verdict, whose fitted parameters
+    no device effect of the library has — evidence against the verdict, not for another name.
+    Not a rival: one whose stand-in (``simpler``) the stack holds, nor any against a stack the
+    windowed simulation confirms where the baseline is qualitatively wrong (there the equation
+    error is no measure), nor in closed loop one whose columns can fit the position noise (they
+    fit its path through the controller), nor a fit its candidate knows for a look-alike of the
+    stack's (``imitates``). The rivals of :func:`uncounted` (``blind``) are rivals too."""
+    crit = run.crit
+    if run.confirmed(stk):
+        return {}
+    held = {c.name for c in stk.cands} | set(stk.stands_for.values())
+    by_name = run.by_name
+    out = {
+        s.name: s.score
+        for s in effects
+        if not s.plausible
+        and s.size >= crit.min_size
+        and s.score > bar
+        and not (run.closed_loop and by_name[s.name].fits_noise())
+        and not set(by_name[s.name].imitates(s.params)) & held
+        and not _holds_stand_in(held, by_name[s.name])
+    }
+    return out | {k: v for k, v in blind.items() if v > bar}
+
+
+def _holds_stand_in(held: set[str], c: AbstractCandidate) -> bool:
+    """Whether the names ``held`` include the whole stand-in (``simpler``) of ``c``."""
+    return bool(c.simpler) and set(c.simpler) <= held
+
+
+def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) -> list[str]:
+    """Candidates of which the stack is a reading too: fitted alone implausibly but perhaps
+    only by bias (:meth:`~.effects.AbstractCandidate.stand_in_doubtful`), their stand-in
+    (``simpler``) held whole by the stack, ``verdict`` among it."""
+    held = {c.name for c in stk.cands}
+    out = []
+    for s in effects:
+        c = run.by_name[s.name]
+        if s.plausible or s.name in held or verdict not in c.simpler:
+            continue
+        if _holds_stand_in(held, c) and c.stand_in_doubtful(s.params):
+            out.append(s.name)
+    return out
+
+
+def _detection(run: Run) -> tuple[float, float]:
+    """(the record's detection limit, the largest of its candidates'): the smallest effect (size
+    as in ``min_size``, one parameter) that would have reached the threshold, ΔMS > (threshold
+    + ln N_eff)·MS₀/N_eff; and, for candidates whose gains count only above the estimated floor,
+    the least that lifts MS₀ there first, ΔMS > max(MS₀, floor²)·exp((threshold +
+    p·ln N_eff)/N_eff) − MS₀ (a baseline below the estimated floor hides such an effect
+    whole)."""
+    crit, base = run.crit, run.base
+    n, ms0 = base.n_eff, base.ms_valid
+    generic = math.sqrt((crit.threshold + math.log(n)) * ms0 / n) / run.force_rms
+    worst = generic
+    for c in run.by_name.values():
+        lo = run.floor_of([c])
+        if lo**2 > ms0:
+            grow = math.exp((crit.threshold + c.params() * math.log(n)) / n)
+            worst = max(worst, math.sqrt(lo**2 * grow - ms0) / run.force_rms)
+    return generic, worst
+
+
+def _explains(run: Run, stk: Stack, v: Verdict) -> float:
+    """The part of a named verdict's confidence its stack's fit earns: min(1, explained /
+    ``explained_full``); and where every stacked candidate's model is exact, times tol/rest
+    where the stack leaves a rest of the excess above what a true instance leaves, tol = 1 − the
+    least exact share, in either direction; the other way (the records' roles swapped) also
+    times the odds of its score s over the threshold t, 1/(1 + exp((t − s)/2)), as "no effect"
+    is weighed. It is 0 where a stack holding an exact candidate is not the same effect fitted
+    the other way (:meth:`~.effects.AbstractCandidate.other_way`)."""
+    out = min(1.0, max(v.explained, 0.0) / run.crit.explained_full)
+    if v.reverse is not None and v.reverse[2]:
+        return 0.0
+    tol = exact_tolerance(stk)
+    if tol is None:
+        return out
+    rests = [1.0 - v.explained]
+    if v.reverse is not None:
+        rest, score, _ = v.reverse
+        rests.append(rest)
+        out /= 1.0 + math.exp(min((run.crit.threshold - score) / 2, 700.0))
+    for rest in rests:
+        if rest > tol:
+            out *= tol / rest
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Confidence:
+    verdict: str  # "none" may become "unexplained" (below)
+    confidence: float
+    weights: dict[str, float]
+    ambiguous: list[str]
+    detection: float  # the record's detection limit (share of the input's term)
+    detection_worst: float  # the largest of its candidates' limits (:func:`_detection`)
+    rivals: dict[str, float]  # implausible candidates that beat the stack (:func:`_rivals`)
+
+
+def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) -> float:
+    """The largest size (rms of ε₁ removed over the input's term) of a candidate fitted alone
+    that beats "no effect" (score above ``threshold``) but is refused only for lying within the
+    record's resolution (:meth:`~.effects.AbstractCandidate.unresolved`); 0 when none. An
+    effect that large may be there unnamed, so the record's detection limit is at least that."""
+    return max(
+        (
+            e.size
+            for e in effects
+            if not e.plausible
+            and e.score > run.crit.threshold
+            and run.by_name[e.name].unresolved(fitted[e.name].physical, run.limits)
+        ),
+        default=0.0,
+    )
+
+
+def weigh(
+    run: Run,
+    effects: list[EffectScore],
+    stk: Stack,
+    v: Verdict,
+    unseen: tuple[dict[str, float], list[str]],
+    below: float = 0.0,
+) -> Confidence:
+    """The verdict's confidence (:func:`lionjax.diagnose`: "Confidence"); ``unseen``: the
+    rivals and readings of :func:`uncounted`; ``below``: the size of an effect the record may
+    hold unnamed (:func:`unresolved`), a bound on the detection limit."""
+    crit = run.crit
+    blind, also = unseen
+    weights = _weights(run, effects, stk)
+    detection, detection_worst = _detection(run)
+    detection_worst = max(detection_worst, below)
+    bar = run.bar(stk)
+    rivals = _rivals(run, effects, stk, blind, bar)
+    # the rivals' odds against the verdict's evidence, as the BIC weights count them (the
+    # look-alikes' against the stack's joint score)
+    looks = {k: t.rival for k, t in v.lookalikes.items() if t.rival is not None}
+    joint = run.joint(stk) if looks else math.inf
+    odds = [s - bar for s in rivals.values()] + [s - joint for s in looks.values()]
+    doubt = 1.0 / (1.0 + sum(math.exp(min(d / 2, 700.0)) for d in odds))
+    rivals |= looks
+    verdict = v.verdict
+    if verdict == "none" and min(weights["none"], doubt) < 1.0 / crit.tie_ratio:
+        # a candidate beats "no effect" by more than the tie ratio yet removes too little of
+        # the gap to be named, or is implausible: there is an effect the library does not
+        # describe — not "none" with a confidence near 0
+        verdict = "unexplained"
+    if verdict in stk.stands_for and stk.stands_for[verdict] in weights:
+        # the stand-in and the candidate it replaced are one explanation: pool their evidence
+        weights[verdict] = weights.get(verdict, 0.0) + weights.pop(stk.stands_for[verdict])
+    ambiguous: list[str] = []
+    if verdict in weights:
+        near = [k for k in weights if weights[k] >= weights[verdict] / crit.tie_ratio]
+        if len(near) > 1:
+            ambiguous = sorted(near, key=lambda k: -weights[k])
+    # "nothing named" is only as sure as the record is sensitive: the share (log scale) of the
+    # sizes worth naming, min_size … 1, below the detection limit is where one could hide
+    hidden = math.log(max(detection_worst, crit.min_size) / crit.min_size) / math.log(
+        1.0 / crit.min_size
+    )
+    if verdict == "none":
+        confidence = weights["none"] * (1.0 - min(hidden, 1.0))
+    elif verdict == "unexplained":
+        # a fit that removes much of the gap (implausible but beating "no effect", or plausible
+        # below the threshold) leaves the question open; "no candidate explains it" holds only
+        # where train covered what validation holds; a look-alike that explains what the stack
+        # leaves is evidence of its own
+        best_share = max([s.share for s in effects if s.score > 0 or s.plausible], default=0.0)
+        coverage = 1.0 - max(run.outside.values())
+        decided = v.decided_by
+        against = max([1.0 - best_share, *(t.share for t in decided)])
+        confidence = float(np.clip(min(against, coverage), 0.0, 1.0))
+        if not decided:
+            # and, as "none", only as sure as a library effect below the detection limit could
+            # not be what is left
+            confidence *= 1.0 - min(hidden, 1.0)
+    else:
+        confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
+    if verdict != "unexplained":
+        confidence *= doubt
+    readings = list(dict.fromkeys([*_readings(run, effects, stk, verdict), *also]))
+    if readings and verdict not in ("none", "unexplained"):
+        # one more reading of the same force: the confidence is shared among them
+        ambiguous = list(dict.fromkeys([*(ambiguous or [verdict]), *readings]))
+        confidence /= 1 + len(readings)
+    return Confidence(
+        verdict, float(confidence), weights, ambiguous, detection, detection_worst, rivals
+    )

@@ -1,0 +1,185 @@
+"""A diagnosis problem (:class:`Problem`): the two records, the settings adapted to them, the
+windowed simulation's restart interval and start states, where the axis sticks, and what the
+candidates are judged against. Immutable; it keeps a memo of what it computed (regressors,
+filtered signals, profiles), which never changes an answer."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .._errors import InputError
+from .._models import Augmented, MassDamper
+from .._record import Record
+from ._criteria import Criteria
+from ._regressors import RecordSignals, Regressors
+from ._settings import STICK_MIN_S, WINDOWS_LEAST, Settings
+from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
+from ._streaming import chunk_length, zero_phase
+from .effects import Design, Limits
+
+#: How messages name the two records (the command line puts the file names in).
+ROLES = {
+    "train": "training record (argument 'train')",
+    "valid": "validation record (argument 'valid')",
+}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Problem:
+    """The records and what every fit of a diagnosis shares.
+
+    Attributes:
+        train, valid: the records.
+        st: the settings adapted to the training record (:func:`~._settings.settings`).
+        crit: the thresholds.
+        H: the windowed simulation's restart interval [samples].
+        x_start, v_start: its start states at every validation sample [m], [m/s];
+            ``state_hz`` the band they are estimated in (:func:`~._statistics._start_states`).
+        stuck: (train, valid) (T,) True where the axis sticks (:func:`stuck`).
+        limits: what plausibility is judged against (set once the baseline is fitted).
+        streamed: whether the records are read in chunks (else each in one); ``chunk``: the
+            chunk length where given.
+        memo: what the problem computed, by key (a cache: no answer depends on it).
+    """
+
+    train: Record
+    valid: Record
+    st: Settings
+    crit: Criteria
+    v_train: np.ndarray
+    v_valid: np.ndarray
+    x_start: np.ndarray
+    v_start: np.ndarray
+    state_hz: float
+    stuck: tuple[np.ndarray, np.ndarray]
+    streamed: bool = False
+    chunk: int | None = None
+    H: int = 0
+    limits: Limits | None = None
+    memo: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def of(cls, train, valid, st, crit, streamed=False, chunk=None) -> Problem:
+        """The problem of two records, its restart interval not yet set (:meth:`with_window`)."""
+        dt, wv = st.dt, 2 * math.pi * st.velocity_hz
+        v_valid = zero_phase(valid.x, dt, wv)[1]
+        v_train = v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
+        # the windowed simulation's start states: a wider band than v̂'s (_start_states)
+        state_hz, x_start, v_start = _start_states(
+            np.asarray(valid.x, np.float64), dt, st.velocity_hz, v_valid
+        )
+        stuck = tuple(stuck_mask(r, v, st) for r, v in ((train, v_train), (valid, v_valid)))
+        return cls(
+            train, valid, st, crit, v_train, v_valid, x_start, v_start, state_hz, stuck,
+            streamed, chunk,
+        )  # fmt: skip
+
+    def with_window(self, a: float) -> Problem:
+        """The problem with its restart interval H set from the baseline's a [1/s]: the
+        settings' ``window_s``, else the time constant 1/a within [20 dt, 2 s] and short enough
+        that the validation record holds :data:`~._settings.WINDOWS_LEAST` windows (the gap's
+        evidence counts windows)."""
+        dt, Hs = self.st.dt, self.st.window_s
+        if Hs is None:
+            Hs = 1.0 / a if a > 0 else 0.1
+            Hs = min(max(Hs, 20 * dt), 2.0, self.valid.n_samples * dt / WINDOWS_LEAST)
+        n = int(round(Hs / dt))
+        if n < 2 or n > self.valid.n_samples:
+            raise InputError(
+                f"window_s: the restart interval H = {Hs!r} s gives {n} samples; expected "
+                f"2 … {self.valid.n_samples} (the validation record's length)."
+            )
+        return dataclasses.replace(self, H=n)
+
+    def gap_from(self, n: int) -> int:
+        """The first of ``n`` simulated samples the gap scores: the second window's, where one
+        follows."""
+        return self.H if n >= 2 * self.H else 0
+
+    @property
+    def hold_gap(self) -> float:
+        """The rms error [m] of holding each window's start position for the window (the gap of
+        a model that predicts no motion), scored as the gaps are."""
+        key = ("hold_gap",)
+        if key not in self.memo:
+            H, x = self.H, np.asarray(self.valid.x, np.float64)
+            n = (x.size // H) * H
+            held = np.repeat(np.asarray(self.x_start, np.float64)[:n:H], H)
+            e = x[:n] - held
+            self.memo[key] = float(np.sqrt(np.mean(e[self.gap_from(n) :] ** 2)))
+        return self.memo[key]
+
+    @property
+    def stuck_share(self) -> float:
+        """The share of the validation samples where the axis sticks."""
+        return float(np.mean(self.stuck[1]))
+
+    @property
+    def sticks(self) -> bool:
+        """Whether the axis sticks anywhere on either record."""
+        return any(bool(np.any(m)) for m in self.stuck)
+
+    def _chunk(self, rec: Record) -> int:
+        T = rec.n_samples
+        from ._filtering import padded_length
+
+        return self.chunk or (chunk_length(T) if self.streamed else padded_length(T))
+
+    def signals(self, role: str) -> RecordSignals:
+        """The record ``role`` ("train" or "valid") as the effects read it, once."""
+        key = ("signals", role)
+        if key not in self.memo:
+            rec, v = (self.train, self.v_train) if role == "train" else (self.valid, self.v_valid)
+            x, F = (np.asarray(a, np.float64) for a in (rec.x, rec.F))
+            self.memo[key] = RecordSignals(rec, x, F, np.asarray(v), self._chunk(rec))
+        return self.memo[key]
+
+    def regressors(self, d: Design) -> tuple[Regressors, Regressors]:
+        """(train, valid) regressors of a design: force-masked where the axis sticks
+        (``d.stick``); the validation record's position signals held beyond train's (``d.held``:
+        their own regressors, the signals' names being the same)."""
+        lam = 2 * math.pi * self.st.filter_hz
+        out = []
+        for i, (role, key) in enumerate((("train", (d.stick,)), ("valid", (d.stick, d.held)))):
+            k = ("regressors", role, *key)
+            if k not in self.memo:
+                rs = self.signals(role)
+                mask = 1.0 - self.stuck[i] if d.stick else None
+                self.memo[k] = Regressors(rs, self.st.bank(), mask, rs.chunk, lam)
+            out.append(self.memo[k])
+        return out[0], out[1]
+
+    def regressors_of(self, structure) -> tuple[Regressors, Regressors]:
+        """The regressors of a structure's design."""
+        from ._fit import design_of
+
+        return self.regressors(design_of(structure))
+
+    def train_regressors(self) -> list[Regressors]:
+        """Every training regressors made so far."""
+        return [v for k, v in self.memo.items() if k[:2] == ("regressors", "train")]
+
+    def model(self, structure) -> Augmented:
+        """The mass–damper with the structure's columns: each effect type once (a spring and an
+        offset share the offset column), each force effect once."""
+        out, seen = [], set()
+        for c in structure:
+            for e in c.effects(self.st):
+                key = (type(e), tuple(c.signal for c in e.columns()))
+                if key not in seen:
+                    seen.add(key)
+                    out.append(e)
+        return Augmented(MassDamper(), tuple(out))
+
+
+def stuck_mask(rec: Record, v: np.ndarray, st: Settings) -> np.ndarray:
+    """(T,) True where the axis sticks: |v̂| within 3σ of its noise (the position noise
+    through the zero-phase derivative) for at least :data:`STICK_MIN_S` (and 3 samples)."""
+    sx = _position_noise(np.asarray(rec.x, np.float64))
+    va = np.abs(v)
+    gain = _noise_gain(st.dt, 2 * math.pi * st.velocity_hz)
+    thr = max(3.0 * sx * gain, 1e-4 * float(np.quantile(va, 0.99)))
+    return _long_runs(va <= thr, max(3, int(math.ceil(STICK_MIN_S / st.dt))))

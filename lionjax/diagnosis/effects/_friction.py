@@ -1,0 +1,278 @@
+"""Friction: Coulomb friction and direction-dependent (asymmetric) friction, each in one of two
+forms shared by every friction structure of a diagnosis (:class:`AbstractFriction`):
+
+- the **sign** of the motion, smoothed, F_c·tanh(v̂/v_ε) (v̂ the zero-phase velocity, v_ε 2 %
+  of its median while moving), or **Dahl's** pre-sliding state F_c·ζ (dζ/dx = (1 − ζ·sgn ẋ)/z:
+  the contact deflects elastically, stiffness F_c/z, before it slides), its distance z
+  profiled on the training record;
+- with the force columns as recorded, or **masked where the axis sticks** (``stick``): static
+  friction balances every force there, which neither form describes.
+
+The first friction candidate tried alone chooses the form by the validated score; every later
+friction candidate takes it (:meth:`AbstractFriction.variants`), so that every friction
+structure pays the same parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..._models import AbstractEffect, Column
+from .._search import GridSearch, ParabolaStep
+from .._streaming import _pad_rows, spans
+from ._base import AbstractCandidate, Design, Limits, b_positive
+
+#: The pre-sliding distances z [m] Dahl's form is profiled over: PRESLIDING_PER_DECADE per
+#: decade from a tenth of the position noise (at least PRESLIDING_RANGE[0]) to
+#: PRESLIDING_RANGE[1]. Pre-sliding in metal contacts spans 1–10 µm, LuGre bristles F_s/σ₀ a
+#: few to a few tens of µm; a longer "pre-sliding" is a force that depends on position.
+PRESLIDING_RANGE = (1e-7, 3e-5)
+PRESLIDING_PER_DECADE = 6
+#: How far below zero one direction's friction level may be fitted, as a share of the other's
+#: (:class:`AsymmetricFrictionCandidate`): zero within the fit's accuracy.
+FRICTION_TOL = 0.05
+#: How far below zero (as a share of the other direction's level) a friction level fitted by
+#: a model that leaves an effect out may still come from asymmetric friction: Coulomb friction
+#: with an offset, the same force while the axis moves, is then not told apart from it with
+#: confidence. An offset of F₀ ≥ 3·F_c (beyond this share) stands on its own.
+FRICTION_DOUBT = 0.5
+
+
+@jax.jit
+def _dahl_chunk(d, zs, zeta0):
+    def step(zeta, dk):
+        s = jnp.sign(dk)
+        zeta = s + (zeta - s) * jnp.exp(-jnp.abs(dk) / zs)
+        return zeta, zeta
+
+    end, out = jax.lax.scan(step, zeta0, d)
+    return out.T, end
+
+
+def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
+    """(m, T) Dahl states ζ of v̂ at the distances ``zs`` [m]
+    (:func:`lionjax._model_effects.dahl_states`: ζ → s + (ζ − s)·e^{−|d|/z} over each sample's
+    displacement d = (v[k−1] + v[k])·dt/2, s = sgn d, from ζ = 0), chunk by chunk (the states
+    carried; distances in batches of 1, 2, 4 or 8)."""
+    v = np.asarray(v, np.float64)
+    T, zs = v.size, np.asarray(zs, np.float64)
+    out = np.empty((zs.size, T))
+    for i in range(0, zs.size, 8):
+        part = zs[i : i + 8]
+        b = next(b for b in (1, 2, 4, 8) if b >= part.size)
+        zp = np.concatenate([part, np.repeat(part[-1:], b - part.size)])
+        zeta = np.zeros(b)
+        for k0, k1 in spans(T, chunk):
+            prev = v[k0 - 1 : k1 - 1] if k0 else np.concatenate([v[:1], v[: k1 - 1]])
+            d = 0.5 * (v[k0:k1] + prev) * dt
+            if k0 == 0:
+                d[0] = 0.0
+            Z, zeta = _dahl_chunk(_pad_rows(d, chunk), zp, zeta)
+            out[i : i + part.size, k0:k1] = np.asarray(Z)[: part.size, : k1 - k0]
+            zeta = np.asarray(zeta)
+    return out
+
+
+def dahl_name(z: float) -> str:
+    """The raw signal name of Dahl's state at the distance ``z`` [m]."""
+    return f"dahl@{float(z):.9g}"
+
+
+class SmoothedSign(AbstractEffect):
+    """Coulomb friction F_c·tanh(v̂/v_ε) [N]: column +(1/Λ)[tanh(v̂/v_ε)], parameter b·F_c."""
+
+    v_eps: float
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("bFc",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("sgn_v", 0, 1.0),)
+
+    def signals(self, rs) -> dict:
+        v, e = rs.v, self.v_eps
+        return {"sgn_v": (lambda k0, k1: np.tanh(v[k0:k1] / e), "foh")}
+
+    def physical(self, theta, b) -> dict:
+        return {"Fc": theta[..., 0] / b}
+
+
+class DahlSign(AbstractEffect):
+    """Coulomb friction with Dahl's pre-sliding, F_c·ζ [N] (:func:`dahl_chunked`, at the
+    distance ``z`` [m]): column +(1/Λ)[ζ], parameter b·F_c."""
+
+    z: float
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("bFc",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column(dahl_name(self.z), 0, 1.0),)
+
+    def signals(self, rs) -> dict:
+        key = ("dahl", float(self.z))
+        if key not in rs.memo:
+            rs.memo[key] = dahl_chunked(rs.v, rs.dt, [self.z], rs.chunk)[0]
+        return {dahl_name(self.z): (rs.memo[key], "foh")}
+
+    def physical(self, theta, b) -> dict:
+        return {"Fc": theta[..., 0] / b}
+
+
+class DirectionalFriction(AbstractEffect):
+    """The direction-dependent part of Coulomb friction, −ΔF·|sgn ẋ| [N]: with F⁺ for ẋ > 0 and
+    F⁻ for ẋ < 0, the friction force is −F_c·sgn ẋ − ΔF·|sgn ẋ|, F_c = (F⁺ + F⁻)/2,
+    ΔF = (F⁺ − F⁻)/2: column +(1/Λ)[|tanh(v̂/v_ε)|], parameter b·ΔF. (A direction-dependent
+    viscous term Δc·|ẋ| is left out: it takes the part of a constant offset while the axis
+    moves.)"""
+
+    v_eps: float
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("bdF",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("abs_sgn_v", 0, 1.0),)
+
+    def signals(self, rs) -> dict:
+        v, e = rs.v, self.v_eps
+        return {"abs_sgn_v": (lambda k0, k1: np.abs(np.tanh(v[k0:k1] / e)), "foh")}
+
+    def physical(self, theta, b) -> dict:
+        return {"dF": theta[..., 0] / b}
+
+
+class AbstractFriction(AbstractCandidate):
+    """A friction candidate and its form (module docstring): ``stick`` (force columns masked
+    where the axis sticks), ``dahl`` (Dahl's form tried) and ``z`` (its profiled distance [m];
+    0: the smoothed sign)."""
+
+    stick: bool = False
+    dahl: bool = False
+    z: float = 0.0
+
+    def _sign(self, st) -> AbstractEffect:
+        return DahlSign(self.z) if self.z > 0 else SmoothedSign(st.v_eps)
+
+    def design(self, d: Design) -> Design:
+        return Design(self.stick or d.stick, d.held, d.tau, d.fmax)
+
+    def params(self) -> int:
+        return self.n_params + (self.z > 0)  # and z, where Dahl's form is chosen
+
+    def profiled(self) -> bool:
+        return not self.dahl or self.z > 0
+
+    def variants(self, limits: Limits, chosen) -> list:
+        """The forms (module docstring) the first friction candidate chooses among: stick
+        masked or not (where the axis sticks on either record) × the smoothed sign or Dahl's;
+        later ones take the first's."""
+        first = next((c for c in chosen if isinstance(c, AbstractFriction)), None)
+        if first is not None:
+            return [self._with(first.stick, first.dahl, first.z)]
+        sticks = (False, True) if limits.sticks else (self.stick,)
+        return [self._with(k, d, 0.0) for k in sticks for d in (False, True)]
+
+    def _with(self, stick: bool, dahl: bool, z: float):
+        return dataclasses.replace(self, stick=stick, dahl=dahl, z=float(z))
+
+    def profile(self, objective, limits: Limits):
+        """Dahl's distance z: the least training RSS of the candidate alone over
+        :data:`PRESLIDING_RANGE` (the baseline's Gram shared), refined by a parabola in ln z
+        where that lowers it; 0 (the smoothed sign) where the least RSS lies at the range's end
+        (a longer "pre-sliding" describes a force that depends on position)."""
+        if not self.dahl or self.z > 0:
+            return self
+        lo = max(0.1 * limits.position_noise, PRESLIDING_RANGE[0])
+        hi = PRESLIDING_RANGE[1]
+        n = max(int(round(PRESLIDING_PER_DECADE * math.log10(hi / lo))), 1) + 1
+        zs = [float(z) for z in np.geomspace(min(lo, hi / 10), hi, n)]
+        rs = objective.train_signals
+        per = int(min(32, max(1, 2e8 // (rs.chunk * 32))))  # (per, chunk, 4) float64 at once
+
+        def rss_of(grid) -> np.ndarray:
+            Z = dahl_chunked(rs.v, rs.dt, grid, rs.chunk)
+            keys = [("dahl", float(z)) for z in grid]
+            rs.memo.update(zip(keys, Z, strict=True))
+            try:
+                return np.array([objective(self._with(self.stick, True, z)) for z in grid])
+            finally:
+                objective.drop([dahl_name(z) for z in grid])
+                for k in keys:
+                    rs.memo.pop(k, None)
+
+        i, rss = GridSearch(tuple(zs), per).minimise(rss_of)
+        if i == len(zs) - 1:  # the smoothed sign
+            return self._with(self.stick, False, 0.0)
+        z = zs[i]
+        v = ParabolaStep(log=True).vertex(np.asarray(zs), rss, i)
+        if v is not None and rss_of([v])[0] < rss[i]:
+            z = v
+        return self._with(self.stick, True, z)
+
+    def physical(self, phys, problem) -> dict:
+        return {"presliding": self.z} if self.z > 0 else {}
+
+    def simulated_gap_judges(self, stuck_share: float, crit) -> bool:
+        # the windowed simulation of the smoothed sign has no static friction: where the axis
+        # sticks for Criteria.stuck_share of the record it slides where the axis stuck, and only
+        # a diverging simulation is then worse than the one before
+        return stuck_share < crit.stuck_share
+
+
+class CoulombCandidate(AbstractFriction):
+    """Coulomb friction F_c·sgn ẋ [N] (module docstring: its forms)."""
+
+    name: ClassVar[str] = "coulomb_friction"
+    n_params: ClassVar[int] = 1
+    units: ClassVar[dict[str, str]] = {"Fc": "N", "presliding": "m"}
+
+    def effects(self, st):
+        return (self._sign(st),)
+
+    def implausible(self, phys, lim):
+        if not phys.get("Fc", 0) > 0:
+            return "friction would push along the motion (F_c ≤ 0)"
+        return b_positive(phys)
+
+
+class AsymmetricFrictionCandidate(AbstractFriction):
+    """Direction-dependent Coulomb friction: F⁺ for ẋ > 0 and F⁻ for ẋ < 0 [N]: the Coulomb
+    column plus :class:`DirectionalFriction`'s. Contains Coulomb friction; plausible when
+    F⁺ + F⁻ > 0 and neither is below −:data:`FRICTION_TOL` times the other (a direction with
+    almost no friction is fitted slightly negative as often as slightly positive)."""
+
+    name: ClassVar[str] = "asymmetric_friction"
+    n_params: ClassVar[int] = 2
+    units: ClassVar[dict[str, str]] = {"Fc_pos": "N", "Fc_neg": "N", "presliding": "m"}
+    subsumes: ClassVar[tuple[str, ...]] = ("coulomb_friction",)
+    simpler: ClassVar[tuple[str, ...]] = ("coulomb_friction", "offset")
+    excludes: ClassVar[tuple[str, ...]] = ("offset", "spring")
+
+    def effects(self, st):
+        return (self._sign(st), DirectionalFriction(st.v_eps))
+
+    def report(self, phys):
+        Fc, dF = phys.get("Fc", math.nan), phys.get("dF", math.nan)
+        out = {"Fc_pos": Fc + dF, "Fc_neg": Fc - dF}
+        return out | ({"presliding": phys["presliding"]} if "presliding" in phys else {})
+
+    def implausible(self, phys, lim):
+        r = self.report(phys)
+        lo, hi = sorted((r["Fc_pos"], r["Fc_neg"]))
+        if not (hi > 0 and lo >= -FRICTION_TOL * hi):
+            return "friction would push along the motion (F⁺ or F⁻ < 0)"
+        return b_positive(phys)
+
+    def stand_in_doubtful(self, params):
+        lo, hi = sorted((params.get("Fc_pos", math.nan), params.get("Fc_neg", math.nan)))
+        return bool(hi > 0 and lo >= -FRICTION_DOUBT * hi)

@@ -1,0 +1,147 @@
+"""The input map u = sat_Fmax(F(t − τ)): an input delay τ (:class:`DelayCandidate`) and an
+actuator saturation F_max (:class:`SaturationCandidate`), each a parameter searched again on
+a grid in every structure it joins (:class:`InputMapSearch`): the map changes every column
+built from F, so the other columns' fit moves with it."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import equinox as eqx
+import numpy as np
+
+from .._search import GridSearch, ParabolaStep
+from ._base import AbstractCandidate, Design, b_positive
+
+#: Hard clips evaluated between the best one's neighbours on the quantile grid
+#: (:meth:`InputMapSearch._refine_clip`).
+CLIP_REFINE = 8
+
+
+class InputMapSearch(eqx.Module):
+    """τ (``which = "tau"``) or F_max (``"fmax"``) of a structure's input map: the least
+    training RSS over the settings' grid (τ log-spaced; F_max the force's quantiles as hard
+    clips, then soft saturations as negative values, ``shape`` +1 or −1 keeping one shape, 0
+    both), a hard clip refined between its grid neighbours (:data:`CLIP_REFINE` more), then the
+    vertex of the parabola through the best and its neighbours (in ln τ; within one shape)."""
+
+    which: str
+    shape: int = 0
+
+    def run(self, rss_of, d: Design, st) -> Design:
+        """The design ``d`` with its τ or F_max searched; ``rss_of(inputs)`` the training RSS of
+        the structure for each input map (τ, F_max) of ``inputs``."""
+        tau = self.which == "tau"
+        grid = np.asarray(st.tau_grid if tau else st.fmax_grid)
+        if not tau and self.shape:
+            grid = grid[np.sign(grid) == self.shape]
+
+        def inputs(values):
+            return [(float(v), d.fmax) if tau else (d.tau, float(v)) for v in values]
+
+        i, rss = GridSearch(tuple(grid), nan_wins=True).minimise(lambda pts: rss_of(inputs(pts)))
+        if not tau and grid[i] > 0:
+            grid, rss = self._refine_clip(rss_of, inputs, grid, rss, i)
+            i = int(np.argmin(rss))
+        best = float(grid[i])
+        if 0 < i < len(grid) - 1 and len({np.sign(g) for g in grid[i - 1 : i + 2]}) == 1:
+            v = ParabolaStep(log=tau).vertex(grid, rss, i)  # soft: g < 0
+            if v is not None:
+                best = v
+        return dataclasses.replace(d, **{"tau" if tau else "fmax": best})
+
+    @staticmethod
+    def _refine_clip(rss_of, inputs, grid, rss, i):
+        """(grid, rss) on :data:`CLIP_REFINE` more hard clips, evenly spaced between the best
+        one's neighbours on the grid of force quantiles: a hard clip's RSS has a kink at the
+        truth, and the quantiles thin out at the force's tail (a parabola through points far
+        apart there can land above the validation record's largest force)."""
+        hard = np.flatnonzero(grid > 0)
+        k = int(np.searchsorted(hard, i))
+        lo = grid[hard[max(k - 1, 0)]]
+        hi = grid[hard[min(k + 1, hard.size - 1)]]
+        fine = np.linspace(lo, hi, CLIP_REFINE + 2)[1:-1]
+        fine = fine[~np.isin(fine, grid)]
+        if fine.size == 0:
+            return grid, rss
+        r = rss_of(inputs(fine))
+        g, r = np.concatenate([grid, fine]), np.concatenate([np.asarray(rss), np.asarray(r)])
+        # the hard clips in ascending order, then the soft ones as they were
+        pos = g > 0
+        o = np.concatenate([np.flatnonzero(pos)[np.argsort(g[pos])], np.flatnonzero(~pos)])
+        return g[o], r[o]
+
+
+class DelayCandidate(AbstractCandidate):
+    """Input delay τ [s]: u = F(t − τ), τ searched in every structure (:class:`InputMapSearch`).
+
+    In closed loop at the noise floor (``Limits.loop_noise``) a delay must also remove
+    :data:`LOOP_NOISE_SHRINK` of the simulated gap: F(t − τ) − F(t) ≈ −τḞ, and Ḟ carries the
+    controller's answer to the position noise, which cancels the noise's path through x in ε₁
+    — a gain on noise that only the windowed simulation, driven by the measured F, tells from a
+    delay of the device."""
+
+    name: ClassVar[str] = "delay"
+    n_params: ClassVar[int] = 1
+    units: ClassVar[dict[str, str]] = {"tau": "s"}
+    LOOP_NOISE_SHRINK: ClassVar[float] = 0.1
+
+    def effects(self, st):
+        return ()
+
+    def search(self):
+        return InputMapSearch("tau")
+
+    def implausible(self, phys, lim):
+        if not phys.get("tau", 0) > 0:
+            return "no positive delay"
+        return b_positive(phys)
+
+    def refusal(self, lim, gap_before: float, gap_after: float) -> str:
+        s = self.LOOP_NOISE_SHRINK
+        if lim.loop_noise and not gap_after <= (1 - s) * gap_before:
+            return (
+                "closed loop at the noise floor: it cancels the position noise the controller "
+                f"feeds into F and removes less than {s:.0%} of the simulated gap "
+                f"({gap_after:.3g} m against {gap_before:.3g} m)"
+            )
+        return ""
+
+
+class SaturationCandidate(AbstractCandidate):
+    """Actuator saturation F_max [N], hard u = clip(F, ±F_max) or soft
+    u = F_max·tanh(F/F_max): the shape (``shape`` +1 hard, −1 soft) chosen by the validated
+    score, alone and again on each stack (the effects beside it change which fits), F_max
+    searched in every structure. Plausible when it acts on both records: a hard F_max below
+    the largest force each reaches, a soft one below four times it (tanh then still compresses
+    that force by ≥ 2 %); a clip the validation record never reaches leaves its inputs
+    unchanged, and what it gains there comes from a and b refitted on train's clipped peaks."""
+
+    shape: int = 0
+    name: ClassVar[str] = "saturation"
+    n_params: ClassVar[int] = 1  # F_max; the shape is one binary choice
+    units: ClassVar[dict[str, str]] = {"Fmax": "N", "soft": ""}
+
+    def effects(self, st):
+        return ()
+
+    def search(self):
+        return InputMapSearch("fmax", self.shape)
+
+    def variants(self, limits, chosen):
+        return self.stack_variants()
+
+    def stack_variants(self):
+        return [SaturationCandidate(k) for k in (1, -1)]
+
+    def report(self, phys):
+        f = phys.get("Fmax", math.inf)
+        return {"Fmax": abs(f), "soft": float(f < 0)}
+
+    def implausible(self, phys, lim):
+        f = phys.get("Fmax", math.inf)
+        if not (0 < f < 0.99 * lim.F_abs_max or -4.0 * lim.F_abs_max < f < 0):
+            return "F_max is not below the largest force"
+        return b_positive(phys)

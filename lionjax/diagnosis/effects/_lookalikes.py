@@ -1,0 +1,451 @@
+"""Look-alikes: effects outside the library that a named stack must beat
+(:class:`AbstractLookalike`). They are fitted like candidates, but never named nor stacked:
+each may refuse a candidate's step (:meth:`~AbstractLookalike.veto`) or overrule a named stack
+(:meth:`~AbstractLookalike.test`), turning the verdict ``unexplained``.
+
+- :class:`DeadZoneLookalike`: a dead zone's input u = F − clip(F, ±d), which acts with the sign
+  of the force where friction acts with the sign of the velocity;
+- :class:`DragLookalike`: a force quadratic in the velocity (fluid drag), which lowers the
+  response to the largest forces as a saturation does but follows the velocity;
+- :class:`PeriodicLookalike`: a force periodic in position (cogging: a force that repeats with
+  the magnet pitch), found by a screen over every period at once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from ..._models import AbstractEffect, Augmented, Column, MassDamper
+from .._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns, solve_grams
+from .._regressors import Regressors, TooWide
+from .._statistics import _position_noise
+from .._streaming import FilteredColumns, Filters
+from ._base import AbstractCandidate, Design
+from ._friction import AbstractFriction
+
+#: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
+DEAD_ZONE_QUANTILES = tuple(float(q) for q in np.geomspace(0.01, 0.8, 16))
+#: The position-periodic look-alike: the cycles κ across the positions both records cover that
+#: its screen searches (the period stays above PERIOD_OVER_NOISE times the position noise), the
+#: screen's position bins and κ steps per cycle (1/8: a sinusoid whose cycle count is off by δ
+#: loses its coherence over the range at δ ≈ 1/2), and the screen's peaks that are fitted.
+PERIOD_CYCLES = (1.5, 128.0)
+PERIOD_OVER_NOISE = 10.0
+PERIOD_BINS = 4096
+PERIOD_OVERSAMPLE = 8
+PERIOD_PEAKS = 6
+
+
+@dataclasses.dataclass(frozen=True)
+class LookalikeTest:
+    """A look-alike fitted beside a stack: its validated mean square ``ms`` of ε₁, whether it
+    overrules the named stack (``overrules``; ``overrules_none``: also where nothing is
+    named), its score where it is evidence against the stack (``rival``, or None), its share of what
+    the stack leaves (``share``), its entries in the report's ``final`` and its ``where``
+    finding (or None)."""
+
+    ms: float
+    overrules: bool = False
+    overrules_none: bool = False
+    rival: float | None = None
+    share: float = 0.0
+    final: dict = dataclasses.field(default_factory=dict)
+    finding: dict | None = None
+
+
+def structure_key(structure) -> tuple:
+    """A structure's candidates with their fields, as a hashable key."""
+    return tuple(
+        (type(c), tuple((f.name, repr(getattr(c, f.name))) for f in dataclasses.fields(c)))
+        for c in structure
+    )
+
+
+class AbstractLookalike(AbstractCandidate):
+    """An out-of-library effect fitted only to guard the names (module docstring)."""
+
+    def veto(self, run, cur, new, ks, score: float) -> str:
+        """Why the step of candidates ``ks`` from fit ``cur`` to fit ``new`` (scoring
+        ``score``) describes this look-alike rather than them ("" by default)."""
+        return ""
+
+    def test(self, run, stk) -> LookalikeTest:
+        """This look-alike fitted beside the stack ``stk`` (:class:`LookalikeTest`)."""
+        raise NotImplementedError
+
+
+class ForceClip(AbstractEffect):
+    """The dead zone's input u = F − clip(F, ±d) (d [N]): column −(1/Λ)[clip(F, ±d)], whose
+    coefficient is b for the dead zone exactly (F's own column carries the rest)."""
+
+    d: float
+
+    @property
+    def signal(self) -> str:
+        return f"clip_F@{self.d:.9g}"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("b_clip",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column(self.signal, 0, -1.0),)
+
+    def signals(self, rs) -> dict:
+        return {self.signal: (np.clip(np.asarray(rs.F, np.float64), -self.d, self.d), "zoh")}
+
+    def physical(self, theta, b) -> dict:
+        return {}
+
+
+class VelocityDrag(AbstractEffect):
+    """A force quadratic in the velocity, −c₂·v̂|v̂| [N] (fluid drag): column +(1/Λ)[v̂|v̂|],
+    parameter b·c₂."""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("b_c2",)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column("v_abs_v", 0, 1.0),)
+
+    def signals(self, rs) -> dict:
+        v = rs.v
+        return {"v_abs_v": (lambda k0, k1: v[k0:k1] * np.abs(v[k0:k1]), "foh")}
+
+    def physical(self, theta, b) -> dict:
+        return {"c2": theta[..., 0] / b}
+
+
+def _validated_ms(problem, structure, extra, inp, design: Design | None = None) -> float:
+    """Validated mean square of ε₁ of ``structure`` with the effects ``extra`` added (input map
+    ``inp`` = (τ, F_max)), fitted on the training record."""
+    from .._fit import design_of
+
+    rtr, rva = problem.regressors(design or design_of(structure))
+    model = problem.model(structure)
+    model = Augmented(MassDamper(), (*model.effects, *extra))
+    th = fit_batch(rtr, model, [inp])[0]
+    r = residual(rva, model, th[0], inp)
+    return float(np.mean(r**2))
+
+
+class DeadZoneLookalike(AbstractLookalike):
+    """A dead zone's input F − clip(F, ±d) in place of F (:class:`ForceClip`, its coefficient
+    free; d the training |F|'s quantile of least training RSS, :data:`DEAD_ZONE_QUANTILES`).
+
+    It refuses a friction step that it explains clearly better on the same structure
+    (``Criteria.dead_zone_lookalike_gain``: friction acts with the sign of the velocity, a dead
+    zone with the sign of the force), and overrules a named stack where, on the baseline
+    structure, it validates below ``Criteria.dead_zone_lookalike_share`` of the stack's mean
+    square (not a stack holding a saturation: the look-alike's free columns F and clip(F, ±d)
+    span a hard saturation). Two parameters."""
+
+    name: ClassVar[str] = "dead_zone_lookalike"
+    n_params: ClassVar[int] = 2
+
+    def effects(self, st):
+        return ()
+
+    def ms(self, problem, structure, design, inp=(0.0, math.inf)) -> float:
+        """Its validated mean square with ``structure`` (input map ``inp``)."""
+        key = ("dead zone", structure_key(structure), tuple(inp))
+        if key not in problem.memo:
+            rtr, rva = problem.regressors(design)
+            Fa = np.abs(np.asarray(problem.train.F, np.float64))
+            ds = np.unique(np.quantile(Fa, np.asarray(DEAD_ZONE_QUANTILES)))
+            effects = problem.model(structure).effects
+            best = (math.inf, math.inf)
+            for d in ds[ds > 0]:
+                clip = ForceClip(float(d))
+                model = Augmented(MassDamper(), (*effects, clip))
+                try:
+                    th, rss, _, _ = fit_batch(rtr, model, [inp])
+                    if float(rss[0]) < best[0]:
+                        r = residual(rva, model, th[0], inp)
+                        best = (float(rss[0]), float(np.mean(r**2)))
+                except TooWide:
+                    pass
+                for regs in (rtr, rva):  # one structure per width: not kept
+                    regs.drop([clip.signal])
+            problem.memo[key] = best[1]
+        return problem.memo[key]
+
+    def veto(self, run, cur, new, ks, score) -> str:
+        crit = run.crit
+        if not (score > crit.threshold and any(isinstance(k, AbstractFriction) for k in ks)):
+            return ""
+        ms = self.ms(run.problem, cur.structure, cur.design, (cur.tau, cur.fmax))
+        if cur.ms_valid - ms > crit.dead_zone_lookalike_gain * (cur.ms_valid - new.ms_valid):
+            return (
+                "the residual follows the sign of the force rather than of the velocity: a dead "
+                "zone's input F − clip(F, ±d) validates clearly better than friction"
+            )
+        return ""
+
+    def test(self, run, stk) -> LookalikeTest:
+        cur = stk.fit
+        judged = bool(stk.cands) and math.isinf(cur.fmax)
+        ms = self.ms(run.problem, (), Design()) if judged else math.inf
+        return LookalikeTest(
+            ms,
+            overrules=bool(ms < run.crit.dead_zone_lookalike_share * cur.ms_valid),
+            rival=_rival(run, stk, ms, self.n_params),
+            final={"dead_zone_lookalike_ratio": ms / cur.ms_valid if judged else None},
+        )
+
+
+class DragLookalike(AbstractLookalike):
+    """A force quadratic in the velocity (:class:`VelocityDrag`, its coefficient free) on the
+    baseline: it overrules a named stack where it validates below
+    ``Criteria.drag_lookalike_share`` of the stack's mean square. One parameter."""
+
+    name: ClassVar[str] = "drag_lookalike"
+    n_params: ClassVar[int] = 1
+
+    def effects(self, st):
+        return (VelocityDrag(),)
+
+    def test(self, run, stk) -> LookalikeTest:
+        cur, problem = stk.fit, run.problem
+        ms = math.inf
+        if stk.cands:
+            if ("drag",) not in problem.memo:
+                problem.memo["drag",] = _validated_ms(problem, (), (VelocityDrag(),), (0, math.inf))
+            ms = problem.memo["drag",]
+        return LookalikeTest(
+            ms,
+            overrules=bool(ms < run.crit.drag_lookalike_share * cur.ms_valid),
+            rival=_rival(run, stk, ms, self.n_params),
+            final={"drag_lookalike_ratio": ms / cur.ms_valid if math.isfinite(ms) else None},
+        )
+
+
+def _rival(run, stk, ms: float, k: int) -> float | None:
+    """A look-alike's score from the baseline (its ``k`` parameters; the same N_eff and fitted
+    floor as the stack's joint score, :meth:`Run.joint`), where it has fewer parameters than
+    the stack and scores above the stack's joint score; None otherwise, or against a stack the
+    windowed simulation confirms where the baseline is qualitatively wrong (there the equation
+    error is no measure)."""
+    if not stk.cands or run.confirmed(stk) or not math.isfinite(ms):
+        return None
+    p, joint = run.params(stk.cands), run.joint(stk)
+    if k < p:
+        s = run.score_ms(run.base, ms, k, run.fit_floor)
+        if s > joint:
+            return s
+    return None
+
+
+class PeriodicLookalike(AbstractLookalike):
+    """A force periodic in position, A·sin(2πx/p + φ), fitted with the stack: columns
+    (1/Λ)[sin 2πκξ], (1/Λ)[cos 2πκξ], ξ = (x − x_lo)/R over the range R of both records'
+    positions, κ = R/p cycles, scored on validation as a candidate would be (2 coefficients and
+    the period). It overrules the stack (and "no effect") where it scores above
+    ``Criteria.periodic_score_factor`` times the threshold, removes ``min_share`` of what the
+    stack leaves and holds at least ``periodic_over_stack`` of the stack's own evidence (a
+    remainder small beside a dominant named effect is no rival). Not tried on a stack with an
+    input map."""
+
+    name: ClassVar[str] = "periodic_lookalike"
+    n_params: ClassVar[int] = 3
+
+    def effects(self, st):
+        return ()
+
+    def test(self, run, stk) -> LookalikeTest:
+        cur, crit = stk.fit, run.crit
+        if cur.design.maps_input:
+            ms, period = math.inf, math.nan
+        else:
+            ms, period = self.fitted(run.problem, stk.fit.structure)
+        score = run.score_ms(cur, ms, 3, 0.0) if math.isfinite(ms) and ms > 0 else -math.inf
+        # its validated fit bounds the floor, as every validated fit does
+        lo2 = min(run.fit_floor**2, ms)
+        ex_cur = max(cur.ms_valid - lo2, 0.0)
+        share = 1 - max(ms - lo2, 0.0) / ex_cur if ex_cur > 0 and math.isfinite(ms) else 0.0
+        better = bool(
+            score > crit.periodic_score_factor * crit.threshold
+            and share >= crit.min_share
+            and score >= crit.periodic_over_stack * run.bar(stk)
+        )
+        final = {
+            "periodic_lookalike": {
+                "ratio": ms / cur.ms_valid if math.isfinite(ms) else None,
+                "score": score if math.isfinite(score) else None,
+                "share": share,
+                "period": period if math.isfinite(period) else None,
+                "significant": better,
+            }
+        }
+        finding = None
+        if better:
+            finding = {
+                "kind": "position_period",
+                "band": f"period {period:.4g} m",
+                "period": period,
+                "share": share,
+                "score": score,
+                "note": "a force periodic in position (cogging; not in the library) fitted with "
+                "the stack: share = its part of the excess validation error the stack leaves",
+            }
+        return LookalikeTest(
+            ms, overrules=better, overrules_none=better, share=share, final=final, finding=finding
+        )
+
+    def fitted(self, problem, structure) -> tuple[float, float]:
+        """(validated mean square of ε₁, period p [m]) of the structure with the look-alike.
+
+        κ is found on the *training* record in two stages. A screen (:func:`_period_screen`)
+        ranks every κ at once; its :data:`PERIOD_PEAKS` highest peaks (and their neighbours 1/16
+        cycle off) are fitted with the structure (training RSS), then 9 points 1/64 cycle apart
+        around the best. Only the chosen κ is fitted on train and scored on validation, so a
+        sinusoid fitted to the training record's noise is not counted. ``(inf, nan)`` when there
+        is no period to search."""
+        key = ("periodic", structure_key(structure))
+        if key in problem.memo:
+            return problem.memo[key]
+        rtr, rva = problem.regressors_of(structure)
+        model = problem.model(structure)
+        x_lo = min(float(np.min(problem.train.x)), float(np.min(problem.valid.x)))
+        R = max(float(np.max(problem.train.x)), float(np.max(problem.valid.x))) - x_lo
+        sx = _position_noise(np.asarray(problem.valid.x))
+        k_hi = min(PERIOD_CYCLES[1], R / max(PERIOD_OVER_NOISE * sx, 1e-300))
+        out = (math.inf, math.nan)
+        if k_hi > PERIOD_CYCLES[0]:
+
+            def columns(regs: Regressors, ks) -> FilteredColumns:
+                # (m, 2, T) filtered sine and cosine of each κ; forces held at 0 where the
+                # structure's force columns are masked
+                return FilteredColumns(
+                    [
+                        [
+                            (_sinusoid(regs, x_lo, R, float(k), f), 1.0, 0, 1.0)
+                            for f in (np.sin, np.cos)
+                        ]
+                        for k in ks
+                    ]
+                )
+
+            lam = 2 * math.pi * problem.st.filter_hz
+            peaks = _period_screen(rtr, model, x_lo, R, k_hi, problem.v_train, lam)
+            try:
+                if peaks.size:  # (none where every force is masked)
+                    ks = (peaks[:, None] + np.array([-1.0, 0.0, 1.0]) / 16).ravel()
+                    k0 = ks[int(np.argmin(rss_with_columns(rtr, model, columns(rtr, ks))))]
+                    ks = k0 + np.arange(-4, 5) / 64
+                    coef, rss, _ = rss_with_columns(rtr, model, columns(rtr, ks), coef=True)
+                    i = int(np.argmin(rss))
+                    r = rss_fixed_with_columns(
+                        rva, model, columns(rva, ks[i : i + 1]), coef[i : i + 1], 2
+                    )
+                    out = (float(r[0]) / problem.valid.n_samples, R / float(ks[i]))
+            except TooWide:
+                pass
+        problem.memo[key] = out
+        return out
+
+
+def _sinusoid(regs: Regressors, x_lo: float, R: float, k: float, f):
+    """The raw signal m·f(2πκξ), ξ = (x − x_lo)/R (m the force mask), per rows."""
+    x, m = regs.x, regs.force_mask
+
+    def raw(k0, k1):
+        v = f(2 * math.pi * k * ((x[k0:k1] - x_lo) / R))
+        return v if m is None else m[k0:k1] * v
+
+    return raw
+
+
+def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) -> np.ndarray:
+    """(n + 2, nb) position histograms (``bins`` of each sample) of Λ*[g]·m for g the
+    structure's training residual r = Wc + y and each of its n columns, then of m itself:
+    Λ* the filter's adjoint (the causal filter run on the time-reversed signal, reversed back).
+    The chunks are visited backwards, each chunk's design recomputed from the filter states a
+    forward pass left at its start."""
+    T = regs.T
+    d = regs.design_pass(model)
+    states = []
+    for k0, k1 in regs.spans:  # the filters' states at each chunk's start
+        states.append(d.state())
+        d.block(k0, k1)
+    back = Filters(regs.dsc, T, regs.chunk, {i: (None, 0.0) for i in range(n + 1)})
+    H = np.zeros((n + 2, nb))
+    for (k0, k1), st in reversed(list(zip(regs.spans, states, strict=True))):
+        d.restore(st)
+        A = d.block(k0, k1)
+        W = A[:, :n]
+        U = np.concatenate([(W @ c[:n] + A[:, -1])[:, None], W], 1)[::-1].T
+        g = back.step_values(U, last=k0 == 0)[:, 0, ::-1]
+        for i in range(n + 1):
+            H[i] += np.bincount(bins[k0:k1], weights=g[i] * m[k0:k1], minlength=nb)
+    H[-1] = np.bincount(bins, weights=m, minlength=nb)
+    return H
+
+
+def _period_screen(
+    regs: Regressors, model, x_lo: float, R: float, k_hi: float, v_train, lam: float
+) -> np.ndarray:
+    """The :data:`PERIOD_PEAKS` cycle counts κ (of :meth:`PeriodicLookalike.fitted`) whose
+    columns C = Λ[m·(cos, sin)(2πκξ)] (m the force mask) would reduce the training RSS of the
+    structure W the most, estimated for every κ at once: the reduction is bᵀ(C⊥ᵀC⊥)⁻¹b,
+    b = Cᵀr (r the structure's residual, ⊥ W) and C⊥ᵀC⊥ = CᵀC − CᵀW(WᵀW)⁻¹WᵀC. Every inner
+    product with a filtered column is one with the raw sinusoid of the filter's adjoint (Λ run
+    backwards in time) of r and of W's columns, which the position histogram of those gives for
+    every κ by one FFT each; CᵀC is taken as the unfiltered sinusoids' Gram (from the mask's
+    histogram at 2κ) times the filter's mean loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm² (the sinusoid's
+    frequency at speed v̂ is κ|v̂|/R). The estimate only ranks κ: the chosen ones are fitted
+    exactly. Empty where every force is masked."""
+    T = regs.T
+    n = regs.width(model)
+    m = np.ones(T) if regs.force_mask is None else regs.force_mask[:T]
+    h0 = float(np.sum(m * m))
+    if h0 <= 0:
+        return np.zeros(0)
+    G = regs.design_gram(model)
+    c = solve_grams(G[None], T)[0][0]
+    nb = PERIOD_BINS
+    bins = np.clip(((regs.x - x_lo) / R * nb).astype(np.int64), 0, nb - 1)
+    H = _adjoint_histograms(regs, model, c, n, m, bins, nb)
+    Fh = np.fft.fft(H, nb * PERIOD_OVERSAMPLE, axis=1)  # Σ g·m·e^{−2πiκξ}
+    ks = np.arange(Fh.shape[1]) / PERIOD_OVERSAMPLE
+    keep = np.flatnonzero((ks >= PERIOD_CYCLES[0]) & (ks <= k_hi))
+    S2 = Fh[-1, 2 * keep]  # Σ m²·e^{−2πi·2κξ}: the unfiltered sinusoids' Gram
+    ks, Fh = ks[keep], Fh[:-1, keep]
+    P = np.stack([Fh.real, -Fh.imag], -1)  # (1 + n, K, 2): ⟨·, Λ[m cos]⟩, ⟨·, Λ[m sin]⟩
+    b, Q = P[0], P[1:]
+    # CᵀC from the speeds' histogram
+    va = np.abs(np.asarray(v_train, np.float64))[:T]
+    v_top = max(float(np.max(va)), 1e-300)
+    edges = np.geomspace(v_top * 1e-4, v_top, 257)
+    cnt, _ = np.histogram(np.clip(va, edges[0], edges[-1]), edges, weights=m * m)
+    vc = np.sqrt(edges[1:] * edges[:-1])
+    w = 2 * math.pi * ks[:, None] * vc[None, :] / R
+    D = 0.5 * ((lam * lam / (lam * lam + w * w)) ** 3) @ cnt  # (K,)
+    # the unfiltered Gram [[Σcos², Σcos·sin], [·, Σsin²]] scaled by the filter's loss
+    C2 = 0.5 * np.stack(
+        [np.stack([h0 + S2.real, -S2.imag], -1), np.stack([-S2.imag, h0 - S2.real], -1)], -2
+    )
+    Gi = np.linalg.pinv(G[:n, :n])
+    M = (2 * D / h0)[:, None, None] * C2 - np.einsum("nki,nm,mkj->kij", Q, Gi, Q)
+    det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
+    det = np.maximum(det, 1e-12 * D * D)
+    # bᵀM⁻¹b for the 2×2 M
+    b0, b1 = b[:, 0], b[:, 1]
+    red = (b0 * b0 * M[:, 1, 1] - 2 * b0 * b1 * M[:, 0, 1] + b1 * b1 * M[:, 0, 0]) / det
+    peak = (red >= np.roll(red, 1)) & (red >= np.roll(red, -1))
+    idx = np.flatnonzero(peak)
+    top = idx[np.argsort(-red[idx])[:PERIOD_PEAKS]]
+    return ks[np.sort(top)]
+
+
+#: The default look-alikes a named stack must beat.
+DEFAULT_LOOKALIKES: tuple[AbstractLookalike, ...] = (
+    DeadZoneLookalike(),
+    DragLookalike(),
+    PeriodicLookalike(),
+)

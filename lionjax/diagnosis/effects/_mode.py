@@ -1,0 +1,333 @@
+"""A flexible mode: its regressor columns (:class:`ModeColumns`) and its candidate
+(:class:`FlexibleModeCandidate`), which profiles (ω, ζ) on the validation record and judges
+whether a fitted mode is one (its mass, damping, deflection, and the sampling's hold error it
+could stand for).
+
+The rigid mass M = 1/b split into M₁ (driven) and m₂ = μM on a spring–damper (ω, ζ): with
+D(s) = s² + 2ζωs + ω² and h = (s²/D)[·], collocated (x = x₁): ẍ + aẋ − μ·s²h[x] = b·u;
+non-collocated (x = x₂): ẍ + aẋ − μ·s²h[x] = b·(u − h[u]). Columns −(s²/Λ)[h_x] and +(1/Λ)[h_F],
+parameters μ and β = κb (κ = 0 collocated, 1 non-collocated).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from ..._models import AbstractEffect, Column
+from .._filtering import mode_free_responses, mode_signals, padded_length
+from .._regressors import ModeProfileColumns
+from .._search import PatternSearch, best_so_far
+from .._streaming import mode_seed
+from ._base import AbstractCandidate, b_positive
+
+#: Largest plausible mass ratio of a flexible mode: friction's pre-sliding stiffness (Dahl) fits
+#: a collocated mode with μ ≈ 0.77 as well as a heavy load does, so above 0.6 a mode that the
+#: input passes through is left ``unexplained`` rather than named.
+MAX_MODE_MASS = 0.6
+#: Largest mass ratio of a heavy flexible mode (above :data:`MAX_MODE_MASS`), plausible only as
+#: a collocated resonance: a delay fits a heavy mode with the input share κ ≈ 1, friction's
+#: pre-sliding stiffness, a dead zone or backlash one at ζ above :data:`MAX_MODE_ZETA`.
+MAX_HEAVY_MODE_MASS = 0.95
+#: Largest damping ratio of a flexible mode: a resonance whose peak 1/(2ζ√(1 − ζ²)) stands at
+#: least 2× (6 dB) above its static gain; a fit more damped than that is a broadband lag.
+MAX_MODE_ZETA = 0.25
+#: Largest |κ| of a heavy flexible mode: collocated within the fit's accuracy.
+HEAVY_MODE_KAPPA = 0.1
+#: Smallest ratio of a mode's μ to the hold error it could stand for.
+MODE_OVER_HOLD = 3.0
+#: Least |κ| of a mode that is not held to MODE_OVER_HOLD: the hold error's look-alike has κ = 0.
+HOLD_KAPPA = 0.5
+#: Smallest ratio of a mode's deflection rms(μ·(s²/D)[x]) to the position noise, in closed
+#: loop (where a position loop feeds the quantisation into F) or for a heavy mode, and for a
+#: light mode (μ ≤ MAX_MODE_MASS) in open loop.
+MODE_OVER_NOISE = 2.0
+MODE_OVER_NOISE_OPEN = 1.0
+#: How close to the frequency search's ends (relative) a flexible mode counts as on its edge.
+MODE_EDGE = 1e-3
+#: Damping ratios a flexible mode's profile searches: beyond :data:`MAX_MODE_ZETA`, so that a
+#: damped look-alike lands where it is (and is refused) rather than on the plausible edge.
+MODE_ZETA_RANGE = (0.005, 0.4)
+#: Largest ratio of a mode's frequencies fitted from either record (``other_way``): the same
+#: resonance whatever the excitation.
+MODE_SAME_F = 1.25
+#: The coarse grid's damping ratios (its frequencies: the settings' ``mode_grid``), then the
+#: pattern search's step halvings and its most rings of 8 evaluations.
+MODE_ZETAS = (0.01, 0.03, 0.1, 0.3)
+MODE_ROUNDS = 4
+MODE_STEPS = 16
+
+
+def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
+    """Names of h_x and h_F for one (ω, ζ) (distinct per mode: the regressors cache by name)."""
+    key = f"{float(omega):.9g},{float(zeta):.6g}"
+    return f"mode_x@{key}", f"mode_F@{key}"
+
+
+class ModeColumns(AbstractEffect):
+    """A flexible mode at (ω [rad/s], ζ): columns −(s²/Λ)[h_x], +(1/Λ)[h_F], h = (s²/D)[·]
+    (module docstring); parameters μ (mass ratio) and β = κ·b. With ``input=False`` the
+    collocated mode alone (κ = 0: the h_x column and μ only). Its signals are the mode's
+    exact stages on the diagnosis filter's outputs (hold ``"mode"``:
+    :meth:`~.._regressors.Regressors.add_mode`), and it adds the mode's free response to the
+    refitted initial-state columns."""
+
+    acts_on_force: ClassVar[bool] = False  # μ multiplies an acceleration: not divided by b
+
+    omega: float
+    zeta: float
+    input: bool = True
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("mu", "beta") if self.input else ("mu",)
+
+    def columns(self) -> tuple[Column, ...]:
+        nx, nF = mode_signal_names(self.omega, self.zeta)
+        return (Column(nx, 2, -1.0), Column(nF, 0, 1.0))[: 2 if self.input else 1]
+
+    def signals(self, rs) -> dict:
+        nx, nF = mode_signal_names(self.omega, self.zeta)
+        w, z = float(self.omega), float(self.zeta)
+        return {nx: ((w, z, "x"), "mode"), nF: ((w, z, "F"), "mode")}
+
+    def free_response(self, dt: float, T: int, k0: int = 0):
+        """Rows k0 … T − 1 of the mode's initial-state columns (T − k0, 2)."""
+        return mode_free_responses([(self.omega, self.zeta)], dt, T, k0)[0].T
+
+    def physical(self, theta: Array, b: Array) -> dict:
+        beta = theta[..., 1] if self.input else jnp.zeros_like(theta[..., 0])
+        return {"mass_ratio": theta[..., 0], "beta": beta}
+
+
+class FlexibleModeCandidate(AbstractCandidate):
+    """A lightly damped flexible mode (:class:`ModeColumns`): mass ratio μ, frequency f_mode
+    [Hz] and damping ζ profiled on a grid, and the share κ of the input that passes through the
+    mode (0 collocated sensor, 1 non-collocated), fitted (``input``) or held at 0: the best
+    validated plausible variant is kept (in closed loop the free κ also fits the feedback of
+    position noise into F, and biases μ).
+
+    Plausible when 0 < μ ≤ :data:`MAX_MODE_MASS` (≤ :data:`MAX_HEAVY_MODE_MASS` for a
+    collocated mode, |κ| ≤ :data:`HEAVY_MODE_KAPPA`), ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤ 1.5,
+    f_mode inside the searched band (not on its first or last frequency: ``Limits.mode_band``),
+    μ ≥ :data:`MODE_OVER_HOLD`·(ωh)²/12 (unless |κ| ≥ :data:`HOLD_KAPPA`) and its deflection
+    rms(μ·(s²/D)[x]) on the validation record at least :data:`MODE_OVER_NOISE` times the
+    position noise in closed loop or for μ > :data:`MAX_MODE_MASS` (:data:`MODE_OVER_NOISE_OPEN`
+    otherwise): a mode on the search's edge located no resonance, a heavy one may be friction's
+    pre-sliding stiffness, one far above the excitation with μ/ω² ≈ h²/12 reproduces the
+    sampling's hold error (h the sample interval), and one whose deflection is below an encoder
+    count fits the quantisation that a position loop feeds back into F."""
+
+    input: bool = True
+    omega: float = 0.0
+    zeta: float = 0.0
+    name: ClassVar[str] = "flexible_mode"
+    n_params: ClassVar[int] = 4
+    exact_share: ClassVar[float | None] = 0.98
+    units: ClassVar[dict[str, str]] = {
+        "mass_ratio": "",
+        "f_mode": "Hz",
+        "zeta_mode": "",
+        "input_share": "",
+        "deflection": "m",
+    }
+
+    def effects(self, st):
+        if not self.omega > 0:
+            raise ValueError("FlexibleModeCandidate: the mode (ω, ζ) is not profiled yet")
+        return (ModeColumns(self.omega, self.zeta, input=self.input),)
+
+    def params(self):
+        return self.n_params if self.input else self.n_params - 1
+
+    def profiled(self) -> bool:
+        return self.omega > 0
+
+    def variants(self, limits, chosen):
+        # with and without the input-share column (κ free, or held at 0: collocated)
+        return [dataclasses.replace(self, input=m) for m in (False, True)]
+
+    def pick(self, tries, limits) -> int:
+        # the variants are one model held to narrower forms: the best validated *plausible*
+        # one, since the wider form fitted outside the effect's physics describes something else
+        ok = [i for i, t in enumerate(tries) if not self.implausible(t[1].physical, limits)]
+        return max(ok or range(len(tries)), key=lambda i: tries[i][0])
+
+    def fits_noise(self) -> bool:
+        # (s²/D)[x] passes the position noise through the resonance: its gains count from the
+        # estimated floor
+        return True
+
+    def simulated(self) -> bool:
+        return False  # the windowed simulation is of the rigid body
+
+    def profile(self, objective, limits):
+        """(ω, ζ): least *validation* RSS of the mode alone fitted on the training record over
+        the grid (the settings' frequencies × :data:`MODE_ZETAS`), then a pattern search in
+        (ln ω, ln ζ) from the best and from the equation-error guess of the mode
+        (:func:`~.._streaming.mode_seed`), within the grid's frequencies and
+        :data:`MODE_ZETA_RANGE`. Each point's columns are exact and carry the mode's free
+        response as two columns refitted on each record.
+
+        Why validation: the columns (s²/D)[x] pass the position noise through the resonance
+        (gain ~1/2ζ), and in closed loop F's columns carry the same noise fed back, so least
+        squares on one record fits that record's noise with them (errors in variables); the
+        validation record's noise is independent. A negative mass ratio is no mode: the search
+        stays where μ > 0."""
+        if self.omega > 0:
+            return self
+        st = objective.problem.st
+        lam = 2 * math.pi * st.filter_hz
+
+        def rss_of(modes, variants) -> dict[bool, np.ndarray]:
+            rss: dict[bool, list] = {v: [] for v in variants}
+            for i in range(0, len(modes), 32):  # a pass each, a chunk of each mode held
+                cols = ModeProfileColumns(modes[i : i + 32], lam, st.dt)
+                for v in variants:
+                    sel = cols.select(slice(None) if v else [0, 2, 3])
+                    c, _, n = objective.fit_with(sel)
+                    r = objective.validate_with(sel, c, 2 if v else 1)
+                    rss[v].append(np.where(c[:, n] > 0, r, np.inf))
+            return {k: np.concatenate(v) for k, v in rss.items()}
+
+        ws = 2 * math.pi * np.asarray(st.mode_grid)
+        memo = objective.problem.memo
+        if ("mode", "coarse") not in memo:  # the coarse grid serves both variants
+            grid = [(float(w), z) for w in ws for z in MODE_ZETAS]
+            memo["mode", "coarse"] = (grid, rss_of(grid, (True, False)))
+        grid, coarse = memo["mode", "coarse"]
+        i = int(np.argmin(coarse[self.input]))
+        starts = [(grid[i], float(coarse[self.input][i]))]
+        if ("mode", "seed") not in memo:
+            rs = objective.train_signals
+            memo["mode", "seed"] = mode_seed(rs.x, rs.F, st.dt, lam, rs.chunk)
+        seed = memo["mode", "seed"]
+        lo, hi = MODE_ZETA_RANGE
+        if seed is not None and ws[0] <= seed[0] <= ws[-1]:
+            q = (seed[0], min(max(seed[1], lo), hi))
+            starts.append((q, float(rss_of([q], (self.input,))[self.input][0])))
+
+        def move(q, i, j, steps):
+            return (
+                min(max(q[0] * math.exp(i * steps[0]), ws[0]), ws[-1]),
+                min(max(q[1] * math.exp(j * steps[1]), lo), hi),
+            )
+
+        steps = (0.5 * math.log(ws[1] / ws[0]), 0.5 * math.log(3.0))
+        search = PatternSearch(MODE_ROUNDS, MODE_STEPS)
+        fn = lambda todo: rss_of(todo, (self.input,))[self.input]  # noqa: E731
+        seen: dict = {}  # successive rings (and bounds) share points
+        found = [search.minimise(fn, q, r, steps, move, seen) for q, r in starts]
+        (w, z), _ = best_so_far(found)
+        return dataclasses.replace(self, omega=float(w), zeta=float(z))
+
+    def physical(self, phys, problem) -> dict:
+        mode = (self.omega, self.zeta)
+        key = ("mode", "deflection", mode)
+        if key not in problem.memo:  # the mode's deflection μ·(s²/D)[x] on validation
+            v = problem.valid
+            ((hx, _),) = mode_signals(v.x, v.F, problem.st.dt, [mode], padded_length(v.n_samples))
+            problem.memo[key] = float(np.std(hx[: v.n_samples]))
+        return {
+            "f_mode": self.omega / (2 * math.pi),
+            "zeta_mode": self.zeta,
+            "deflection": abs(phys.get("mass_ratio", 0.0)) * problem.memo[key],
+        }
+
+    def report(self, phys):
+        out = super().report(phys)
+        if "beta" in phys and phys.get("b"):
+            out["input_share"] = phys["beta"] / phys["b"]
+        return out
+
+    def imitates(self, params):
+        # a heavy mode the input passes through is a delay's look-alike (a delay fits one with
+        # κ ≈ 1, scoring above the delay in open loop)
+        heavy = params.get("mass_ratio", 0.0) > MAX_MODE_MASS
+        return ("delay",) if heavy and params.get("input_share", 0.0) >= HOLD_KAPPA else ()
+
+    def other_way(self, phys, other, lim):
+        # the same resonance both ways: its frequency is the device's, whatever the excitation;
+        # a broadband lag or another frequency the other way is not the resonance
+        z, z_other = phys.get("zeta_mode", 0.0), other.get("zeta_mode", 0.0)
+        if z <= MAX_MODE_ZETA < z_other:
+            return (
+                f"the other way the mode is a broadband lag (ζ {z_other:.3g} above "
+                f"{MAX_MODE_ZETA:g}), not the resonance at ζ {z:.3g}"
+            )
+        f, f_other = phys.get("f_mode", math.nan), other.get("f_mode", math.nan)
+        if not abs(math.log(f_other / f)) <= math.log(MODE_SAME_F):
+            return (
+                f"the other way the mode is at {f_other:.3g} Hz, not {f:.3g} Hz (the same "
+                f"resonance lies within {MODE_SAME_F - 1:.0%} of it from either record)"
+            )
+        return ""
+
+    def implausible(self, phys, lim):
+        return next((why for _, why in self._refusals(phys, lim)), "")
+
+    def unresolved(self, phys, lim):
+        refusals = list(self._refusals(phys, lim))
+        return bool(refusals) and all(small for small, _ in refusals)
+
+    def _refusals(self, phys, lim):
+        """(within the resolution, why) of each test the fit fails, in order."""
+        r = self.report(phys)
+        mu = r.get("mass_ratio", 0)
+        # collocated: κ held at 0 (β ≡ 0), or fitted within HEAVY_MODE_KAPPA of it
+        collocated = abs(r.get("input_share", 0.0)) <= HEAVY_MODE_KAPPA
+        if not 0 < mu <= (MAX_HEAVY_MODE_MASS if collocated else MAX_MODE_MASS):
+            yield (
+                False,
+                (
+                    f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}] (up to "
+                    f"{MAX_HEAVY_MODE_MASS} collocated, |κ| ≤ {HEAVY_MODE_KAPPA})"
+                ),
+            )
+        # the regressors hold x first-order between samples; the equation error this leaves is
+        # ≈ (h²/12)·x⁽⁴⁾, which a mode far above the excitation reproduces with μ/ω² = h²/12
+        # (μ·s²·s²/ω²): a mode that small is the sampling, not the device. That look-alike acts
+        # on x alone (κ = 0): a mode the force passes through (non-collocated) is not it
+        hold = (2 * math.pi * r.get("f_mode", 0.0) * lim.dt) ** 2 / 12
+        through_input = abs(r.get("input_share", 0.0)) >= HOLD_KAPPA
+        if r["mass_ratio"] < MODE_OVER_HOLD * hold and not through_input:
+            why = (
+                f"no flexible mode: mass ratio {r['mass_ratio']:.3g} within {MODE_OVER_HOLD:g}× "
+                f"the sampling's hold error at f_mode ({hold:.3g})"
+            )
+            yield True, why
+        if not -0.5 <= r.get("input_share", 0) <= 1.5:
+            yield False, "no flexible mode: input share outside [−0.5, 1.5]"
+        # on the search's first or last frequency the valley lies beyond it: no resonance
+        # was located
+        f, (f_lo, f_hi) = r.get("f_mode", 0.0), lim.mode_band
+        if not f_lo * (1 + MODE_EDGE) < f < f_hi / (1 + MODE_EDGE):
+            why = (
+                f"no flexible mode: f_mode {f:.3g} Hz on the edge of the searched band "
+                f"[{f_lo:.3g}, {f_hi:.3g}] Hz (no resonance located)"
+            )
+            yield False, why
+        if r.get("zeta_mode", 0.0) > MAX_MODE_ZETA:
+            why = (
+                f"no flexible mode: its damping ratio {r['zeta_mode']:.3g} is above "
+                f"{MAX_MODE_ZETA:g} (a resonance peak below 2×: a broadband lag, not a resonance)"
+            )
+            yield False, why
+        # in open loop no controller feeds the quantisation into F, and the mode's score already
+        # counts from the estimated floor: there a light mode must only stand above the noise;
+        # a heavy one keeps 2× (friction's pre-sliding stiffness lies there)
+        light = mu <= MAX_MODE_MASS
+        over = MODE_OVER_NOISE_OPEN if light and not lim.closed_loop else MODE_OVER_NOISE
+        if r.get("deflection", math.inf) < over * lim.position_noise:
+            why = (
+                f"no flexible mode: its deflection μ·(s²/D)[x] (rms {r['deflection']:.3g} m) "
+                f"is within {over:g}× the position noise ({lim.position_noise:.3g} m)"
+            )
+            yield True, why
+        if why := b_positive(phys):
+            yield False, why

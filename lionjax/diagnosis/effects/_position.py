@@ -1,0 +1,225 @@
+"""Position-dependent dynamics a(x), b(x) (:class:`PositionCandidate`): a polynomial in x over
+the travel, or a step and a bump confined around x₀ (:class:`~lionjax.LocalizedPosition`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from ..._model_effects import (
+    MAX_POSITION_DEGREE,
+    LocalizedPosition,
+    PolynomialPosition,
+    local_values,
+    position_terms,
+    position_values,
+)
+from .._search import GridSearch, PatternSearch
+from .._streaming import FilteredColumns
+from ._base import AbstractCandidate, Design, b_positive
+
+#: Parameters the localized position counts: its four amplitudes and the profiled x₀, w.
+LOCAL_PARAMS = 6
+#: The localized position's (x₀, w) grid: the training positions' LOCAL_RANGE quantiles span R;
+#: widths w = R·LOCAL_WIDTHS, centres across R spaced by max(w, R/LOCAL_SPACING); then a pattern
+#: search in (x₀, ln w) (LOCAL_ROUNDS step halvings, at most LOCAL_STEPS rings) with w kept in
+#: R·LOCAL_W_RANGE.
+LOCAL_RANGE = (0.02, 0.98)
+LOCAL_WIDTHS = (1 / 40, 1 / 12, 1 / 4)
+LOCAL_SPACING = 32
+LOCAL_ROUNDS = 2
+LOCAL_STEPS = 8
+LOCAL_W_RANGE = (1 / 100, 1.0)
+
+
+def _position_raw(x, center, scale, lo, hi, held: bool, k: int, which: int):
+    """Per rows, the degree-``k`` raw signal of :class:`HeldPosition`: ℓξ_cᵏ⁺¹/(k+1) +
+    ℓξ_cᵏ(ξ − ξ_c) (``which`` 0) or its multiplier ξ_cᵏ of F (1), ξ_c = clip(ξ, lo, hi) where
+    ``held``, else ξ."""
+
+    def raw(k0, k1):
+        xi = (x[k0:k1] - center) / scale
+        xic = np.clip(xi, lo, hi) if held else xi
+        gv, mv = position_values(xic, scale, k)
+        return mv if which else gv + scale * mv * (xi - xic)
+
+    return raw
+
+
+class HeldPosition(PolynomialPosition):
+    """:class:`~lionjax.PolynomialPosition` whose raw signals are computed per rows from the
+    record's samples, with a(x), b(x) held at their values at ξ = ``lo`` and ``hi`` beyond
+    them where ``held`` (aₖξ_cᵏẋ = d/dt ℓ(ξ_cᵏ⁺¹/(k+1) + ξ_cᵏ(ξ − ξ_c)) stays exact)."""
+
+    held: bool = False
+    lo: float = -math.inf
+    hi: float = math.inf
+
+    def __init__(self, center, scale, degree, held=False, lo=-math.inf, hi=math.inf):
+        super().__init__(center, scale, degree)
+        self.held, self.lo, self.hi = bool(held), float(lo), float(hi)
+
+    def signals(self, rs) -> dict:
+        x = np.asarray(rs.x, np.float64)
+        F = np.asarray(rs.F, np.float64)
+        c, sc = float(self.center), float(self.scale)
+        out = {}
+        for k in range(1, self.degree + 1):
+            g, f, _ = position_terms(k)
+            m = _position_raw(x, c, sc, self.lo, self.hi, self.held, k, 1)
+            out[g] = (_position_raw(x, c, sc, self.lo, self.hi, self.held, k, 0), "foh")
+            out[f] = (lambda k0, k1, m=m: m(k0, k1) * F[k0:k1], "zoh")
+        return out
+
+
+def _local_raw(x, F, c: float, w: float, j: int):
+    """Raw signal ``j`` of the localized step and bump at (x₀ = ``c``, ``w``): w·log cosh ξ,
+    tanh ξ·F, w·tanh ξ, sech²ξ·F (:func:`~lionjax._model_effects.local_values`), per rows."""
+    i = (0, 2, 1, 3)[j]
+    if j % 2:
+        return lambda k0, k1: local_values(x[k0:k1], c, w)[i] * F[k0:k1]
+    return lambda k0, k1: local_values(x[k0:k1], c, w)[i]
+
+
+class PositionCandidate(AbstractCandidate):
+    """a(x), b(x) polynomial in position, degree 1 … 3 (exact §3-style columns), two parameters
+    per degree, or a step and a bump confined around x₀ of width w (``degree`` 0,
+    :class:`~lionjax.LocalizedPosition`): four parameters, x₀ and w profiled on the training RSS
+    (counted: six). The best validated form is kept; a polynomial with or without a(x), b(x)
+    held at their values at the ends of the training positions beyond them (``held``, tried
+    where validation leaves that range). Reports the polynomial's coefficients of (x − x_c)ᵏ
+    and the expansion point x_c, or the step's and bump's amplitudes with ``x_step`` (x₀) and
+    ``w_step`` (w). ``localized=False``: the polynomials only."""
+
+    localized: bool = True
+    degree: int = 1
+    held: bool = False
+    local: tuple = ()
+    name: ClassVar[str] = "position_dependent"
+    n_params: ClassVar[int] = 2  # per degree
+    units: ClassVar[dict[str, str]] = {
+        "da_dx": "1/(s·m)",
+        "db_dx": "1/(kg·m)",
+        "a_x2": "1/(s·m²)",
+        "b_x2": "1/(kg·m²)",
+        "a_x3": "1/(s·m³)",
+        "b_x3": "1/(kg·m³)",
+        "x_center": "m",
+        "x_lo": "m",
+        "x_hi": "m",
+        "a_step": "1/s",
+        "b_step": "1/kg",
+        "a_bump": "1/s",
+        "b_bump": "1/kg",
+        "x_step": "m",
+        "w_step": "m",
+    }
+
+    def effects(self, st):
+        if self.degree == 0:
+            if not self.local:
+                raise ValueError("PositionCandidate: the localized (x₀, w) is not profiled yet")
+            return (LocalizedPosition(*self.local),)
+        lo, hi = ((r - st.x_center) / st.x_scale for r in st.x_range)
+        return (HeldPosition(st.x_center, st.x_scale, self.degree, self.held, lo, hi),)
+
+    def design(self, d: Design) -> Design:
+        return Design(d.stick, self.held or d.held, d.tau, d.fmax)
+
+    def params(self):
+        return LOCAL_PARAMS if self.degree == 0 else self.n_params * self.degree
+
+    def profiled(self) -> bool:
+        return self.degree != 0 or bool(self.local)
+
+    def variants(self, limits, chosen):
+        # the degree, and whether a(x), b(x) are held constant beyond the training positions:
+        # where validation leaves train's range the polynomial extrapolates, right for a slow
+        # dependence (a tanh wider than the range) and wildly wrong for a saturating one (a
+        # bowl 1 − exp(−d²))
+        out = [
+            dataclasses.replace(self, degree=d, held=held)
+            for held in ((False, True) if limits.outside else (False,))
+            for d in range(1, MAX_POSITION_DEGREE + 1)
+        ]
+        # and the localized step and bump (bounded, so never held): a transition or a dip a
+        # few % of the travel wide, which a cubic over the whole travel cannot follow
+        if self.localized:
+            out.append(dataclasses.replace(self, degree=0, held=False))
+        return out
+
+    def profile(self, objective, limits):
+        """(x₀, w) of the localized step and bump: least training RSS of the candidate alone
+        (the baseline's Gram shared) over the grid of :data:`LOCAL_WIDTHS` and centres, then a
+        pattern search from the best. A narrow dip is invisible from a centre more than a few w
+        away, so the grid's centres are spaced by w down to R/:data:`LOCAL_SPACING`."""
+        if self.degree != 0 or self.local:
+            return self
+        rs = objective.train_signals
+        x = np.asarray(rs.x, np.float64)
+        F = np.asarray(rs.F, np.float64)
+        mask = objective.force_mask
+        if mask is not None:
+            F = F * mask
+        signs = (1.0, -1.0, 1.0, -1.0)  # the step's and the bump's first derivatives, forces
+        lo, hi = (float(q) for q in np.quantile(x, LOCAL_RANGE))
+        R = hi - lo
+        if not R > 0:  # the axis does not move: nothing to localise (the fit says so)
+            return dataclasses.replace(self, local=(lo, max(abs(lo), 1.0) * 1e-3))
+        w_lo, w_hi = (R * f for f in LOCAL_W_RANGE)
+        # points per pass: 4 signals each, (4·m, chunk, 4) float64 held at once
+        per = int(min(16, max(2, 2e8 // (rs.chunk * 4 * 32))))
+
+        def rss_of(points) -> np.ndarray:
+            cols = FilteredColumns(
+                [
+                    [
+                        (_local_raw(x, F, c, w, j), (1.0, 0.0)[j % 2], 1 - j % 2, signs[j])
+                        for j in range(4)
+                    ]
+                    for c, w in points
+                ]
+            )
+            return objective.rss_with(cols)
+
+        grid = []
+        for f in LOCAL_WIDTHS:
+            w = R * f
+            n = int(round(R / max(w, R / LOCAL_SPACING))) + 1
+            grid += [(float(c), w) for c in np.linspace(lo, hi, n)]
+        i, rss = GridSearch(tuple(grid), per, nan_wins=True).minimise(rss_of)
+        (c, w), best = grid[i], float(rss[i])
+        seen = dict(zip(grid, rss.tolist(), strict=True))
+
+        def move(q, i, j, steps):
+            return (
+                min(max(q[0] + i * steps[0], lo), hi),
+                min(max(q[1] * math.exp(j * steps[1]), w_lo), w_hi),
+            )
+
+        steps = (0.5 * max(w, R / LOCAL_SPACING), 0.5 * math.log(2.0))
+        search = PatternSearch(LOCAL_ROUNDS, LOCAL_STEPS)
+        batched = (
+            lambda pts: np.concatenate(  # noqa: E731
+                [rss_of(pts[i : i + per]) for i in range(0, len(pts), per)]
+            )
+        )
+        (c, w), _ = search.minimise(batched, (c, w), best, steps, move, seen)
+        return dataclasses.replace(self, local=(float(c), float(w)))
+
+    def physical(self, phys, problem) -> dict:
+        if self.degree == 0:
+            return {"x_step": self.local[0], "w_step": self.local[1]}
+        out = {"x_center": problem.st.x_center}
+        if self.held:
+            out["x_lo"], out["x_hi"] = problem.st.x_range
+        return out
+
+    def simulation(self, phys, problem) -> dict:
+        return {"x_lo": problem.st.x_range[0], "x_hi": problem.st.x_range[1]} if self.held else {}
+
+    def implausible(self, phys, lim):
+        return b_positive(phys)
