@@ -6,7 +6,8 @@ values, one per index along its dims) or one value for every grid point; it vali
 values, names its dims and labels, and gives the keyword arguments of
 :func:`lionjax.lion_batched` for any set of grid points. :class:`StudyGrid` composes them: the
 dims are the axes' dims in order, a grid point is a C-order index over them, and a chunk of
-grid points becomes one batched call. A new axis is one more Module here.
+grid points becomes one batched call. A new axis is one more Module here, placed in the
+order of :func:`study_grid` (and the argument of :func:`lionjax.studies.study` that feeds it).
 """
 
 from __future__ import annotations
