@@ -1,5 +1,5 @@
 """The per-sample work of the batched kernel, shared by the fused XLA loop
-(:func:`lionjax._batched._kernel`) and the Pallas kernel (:mod:`lionjax._pallas`).
+(:func:`lionjax._batched.kernel._kernel`) and the Pallas kernel (:mod:`lionjax._pallas`).
 
 Layer 1 (core). :class:`_Core` holds one step k → k+1 of every record's filter states, θ (Lion's
 exact or Euler step) and the output accumulators of :mod:`lionjax._outputs`, written on flat

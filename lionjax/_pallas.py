@@ -2,7 +2,7 @@
 lane, a block of records per program (``lj.Execution(kernel="pallas")``).
 
 Layer 1 (core). :func:`pallas_kernel` has the signature of the fused XLA loop
-(:func:`lionjax._batched._split_kernel`) and runs the same per-sample work
+(:func:`lionjax._batched.kernel.split_kernel`) and runs the same per-sample work
 (:class:`lionjax._kernel_core._Core`: the filter maps, the exact step, every accumulator of
 :mod:`lionjax._outputs`), so every option of :func:`lionjax.lion_batched` is supported: fixed
 and auto gain (one per record too), per-record filters and sampling intervals, ``lengths``,
@@ -86,9 +86,10 @@ def _gpu_plugin() -> bool:
 
 
 def _load(ref, scalars: bool, ndim: int):
-    """A ref as :class:`lionjax._batched._Core` indexes it (:func:`lionjax._batched._nested`):
-    nested lists of scalar loads (values shared by the batch; a 0-d value arrives as ``(1,)``)
-    or of ``(rows,)`` lane loads (per-record values, batch last)."""
+    """A ref as :class:`lionjax._kernel_core._Core` indexes it
+    (:func:`lionjax._kernel_core._nested`): nested lists of scalar loads (values shared by the
+    batch; a 0-d value arrives as ``(1,)``) or of ``(rows,)`` lane loads (per-record values,
+    batch last)."""
     if scalars and ndim == 0:
         return ref[0]
     stop = ndim if scalars else ndim - 1
@@ -112,8 +113,8 @@ def _pad_last(a, n: int):
 
 def pallas_kernel(plan, X, shared, per, parts=1, *, rows: int | None = None, interpret=None):
     """The batch through one Pallas kernel; arguments and result as
-    :func:`lionjax._batched._split_kernel` (``parts`` is ignored: the grid of programs replaces
-    the split loops). ``rows``: records per program (default :data:`ROWS_GPU` compiled,
+    :func:`lionjax._batched.kernel.split_kernel` (``parts`` is ignored: the grid of programs
+    replaces the split loops). ``rows``: records per program (default :data:`ROWS_GPU` compiled,
     :data:`ROWS_INTERPRET` in interpret mode). ``interpret``: None (default) chooses by the
     platform the program is lowered for (``jax.lax.platform_dependent``): compiled by Triton
     for ``cuda`` and ``rocm``, interpret mode elsewhere; True or False forces one."""

@@ -8,9 +8,11 @@ import pytest
 from _reference_sim import multisine, simulate
 
 import lionjax as lj
-from lionjax._phi import phi_sym2
+from lionjax.extend import phi_sym2
 
 DT = 1e-3
+#: E(hS) by its series alone while tr(hS) ≤ 1/2 (lionjax.Execution, phi="series")
+SERIES_BOUND = 0.5
 
 
 def _records(n=4, T=3000):
@@ -56,7 +58,7 @@ def test_phi_sym2_against_scipy_expm(scale):
     if small.any():
         fast = np.stack(_phi_series(Z[small, 0, 0], Z[small, 0, 1], Z[small, 1, 1], 14), -1)
         np.testing.assert_allclose(fast, np.array(ref)[small], rtol=1e-14, atol=1e-15)
-        # float32's 8 terms: the truncation bound (1/2)⁸/9! = 1.1e-8 (lionjax._phi.SERIES_BOUND)
+        # float32's 8 terms: the truncation bound (1/2)⁸/9! = 1.1e-8 (at tr Z = SERIES_BOUND)
         f32 = np.stack(_phi_series(Z[small, 0, 0], Z[small, 0, 1], Z[small, 1, 1], 8), -1)
         np.testing.assert_allclose(f32, np.array(ref)[small], rtol=0, atol=1.1e-8)
 
@@ -64,11 +66,11 @@ def test_phi_sym2_against_scipy_expm(scale):
 @pytest.mark.parametrize("unit_dc_gain", [True, False])
 @pytest.mark.parametrize("dt", [1e-4, 1e-3, 2e-2])
 def test_midpoint_basis_maps_equal_the_filter_maps(unit_dc_gain, dt):
-    """The kernel's midpoint basis w = A z (lionjax._batched._midpoint_basis) against the
+    """The kernel's midpoint basis w = A z (_midpoint_basis) against the
     filter's own maps: the same next state (A·next(z) = next_w(Az)) and the same outputs at the
     start, midpoint and end, for random states and inputs, both holds, float64; the midpoint
     rows read w with exact coefficients (1 and −λ)."""
-    from lionjax._batched import _maps, _midpoint_basis
+    from lionjax._kernel_core import _maps, _midpoint_basis
 
     bank = lj.FilterBank.from_poles([-3.0, -5.0, -40.0], unit_dc_gain=unit_dc_gain)
     rng = np.random.default_rng(3)
@@ -258,17 +260,15 @@ def test_fast_path_falls_back_per_record_where_the_series_bound_fails(recs, n_sm
     """Records whose tr(hS) exceeds the series bound are re-run with the closed form — gathered
     into a small batch (2 of 32 records beyond the bound) or the whole batch (2 of 4): the
     result equals Execution(phi="closed") and lj.lion for every record."""
-    from lionjax._phi import SERIES_BOUND as _SERIES_BOUND
-
     # the system is linear: scaled records are records too, with 0.09× the regressors' W²
     scales = [1.0, 1.0] + [0.3] * n_small
     recs = [lj.Record(recs[i % 4].x * s, recs[i % 4].F * s, DT) for i, s in enumerate(scales)]
     batch, _ = lj.stack_records(recs)
     W = [np.asarray(lj.MassDamper().regressors(r, lj.default_bank()).W) for r in recs[:4]]
     peak = [np.max(np.einsum("tip,tip->t", w, w)) for w in W]  # ≥ max tr(W Wᵀ) per record
-    g = 2.0 * _SERIES_BOUND / DT / max(peak[:2])  # beyond the bound for the first two only
-    assert min(DT * g * q for q in peak[:2]) > _SERIES_BOUND
-    assert max(DT * g * q for q in peak[2:]) < 0.5 * _SERIES_BOUND
+    g = 2.0 * SERIES_BOUND / DT / max(peak[:2])  # beyond the bound for the first two only
+    assert min(DT * g * q for q in peak[:2]) > SERIES_BOUND
+    assert max(DT * g * q for q in peak[2:]) < 0.5 * SERIES_BOUND
     fast = lj.lion_batched(lj.MassDamper(), batch, gain=lj.FixedGain(g))
     slow = lj.lion_batched(
         lj.MassDamper(), batch, gain=lj.FixedGain(g), execution=lj.Execution(phi="closed")

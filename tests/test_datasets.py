@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from lionjax._errors import InputError
-from lionjax._record import Record
+from lionjax import InputError, Record
 from lionjax.datasets import EMPS_REFERENCE, emps
 
 T = 24_841

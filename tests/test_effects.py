@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import lionjax as lj
-from lionjax._model_effects import dahl_states, zero_phase_velocity
+from lionjax.extend import dahl_states, zero_phase_velocity
 
 DT = 1e-3
 T = 1201

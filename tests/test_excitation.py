@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import lionjax.twin as lp
-from lionjax._errors import InputError
-from lionjax.twin._excitation import (
+from lionjax import InputError
+from lionjax.twin import (
     PAPER_OPERATING_POINTS,
     PAPER_SINE_SETS,
     PRBS,

@@ -1,4 +1,4 @@
-"""The paper's experiments (lionjax.paper._experiments) against independent references.
+"""The paper's experiments (lionjax.paper) against independent references.
 
 One quick reproduction (``PaperConfig.quick()``, seed 0, all effects) is computed once per
 test run and checked piece by piece:

@@ -10,10 +10,8 @@ import pytest
 import scipy.io
 
 import lionjax as lj
-from lionjax import twin as tw
-from lionjax._errors import InputError
-from lionjax._io import load_record, load_records, parse_columns, save_record
-from lionjax._record import Record
+from lionjax import InputError, Record, load_record, load_records, save_record, twin as tw
+from lionjax.extend import parse_columns
 
 N = 64
 DT = 1e-3

@@ -6,6 +6,7 @@ import pytest
 
 import lionjax as lj
 from lionjax import twin as tw
+from lionjax.extend import gram_lstsq
 
 
 def test_linear_lstsq_matches_numpy():
@@ -24,8 +25,6 @@ def test_linear_lstsq_matches_numpy():
 
 def test_gram_lstsq_matches_numpy_and_linear_lstsq():
     """The streamed path's solve (from ΦᵀΦ, Φᵀy, yᵀy) equals numpy's lstsq and linear_lstsq."""
-    from lionjax._least_squares import gram_lstsq
-
     rng = np.random.default_rng(1)
     Phi = rng.normal(size=(800, 3)) * np.array([1e-2, 1.0, 1e2])
     y = Phi @ np.array([3.0, -1.0, 0.02]) + 0.1 * rng.normal(size=800)
@@ -43,8 +42,6 @@ def test_gram_lstsq_matches_numpy_and_linear_lstsq():
 def test_gram_lstsq_flat_or_indefinite_has_infinite_condition():
     """A zero Gram (a flat record) or a rounding-negative one: condition inf, not NaN; the
     coefficients on the unexcited direction are the minimum-norm 0."""
-    from lionjax._least_squares import gram_lstsq
-
     zero = gram_lstsq(jnp.zeros((2, 2)), jnp.zeros(2), jnp.asarray(0.0), 100)
     assert np.isinf(float(zero.condition))
     np.testing.assert_array_equal(np.asarray(zero.coef), 0.0)

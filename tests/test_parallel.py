@@ -153,7 +153,7 @@ def test_lion_batched_products_full_precision(small32, kernel):
 
 
 def test_diagnosis_filter_products_full_precision():
-    # the diagnosis' chunked filter (lionjax.diagnosis._fit) accumulates over the record too
+    # the diagnosis' chunked filter accumulates over the record too
     from lionjax.diagnosis import _fit
 
     dsc = _fit.Discrete.of(lj.default_bank(), DT)

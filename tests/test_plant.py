@@ -21,8 +21,8 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 import lionjax.twin as lp
-from lionjax._errors import InputError
-from lionjax.twin._excitation import PRBS, SineSum
+from lionjax import InputError
+from lionjax.twin import PRBS, SineSum
 
 jax.config.update("jax_enable_x64", True)
 

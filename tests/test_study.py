@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 import lionjax as lj
-import lionjax.studies._study as study_mod
 from lionjax.cli import main
 
 POLES = [(-8.0, -8.0, -8.0), (-12.0, -12.0, -12.0)]
@@ -90,25 +89,35 @@ def test_study_outputs(result, tmp_path):
     assert payload["dims"] == ["dataset", "gain", "poles"] and len(payload["rows"]) == 8
 
 
-def test_study_interrupt_returns_partial(records, monkeypatch, capsys):
-    real = study_mod.lion_batched
+def test_study_interrupt_returns_partial(records, capsys):
     calls = []
 
-    def flaky(*a, **k):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(*a, **k)
+    class Interrupting(lj.AbstractGain):
+        """AutoGain, interrupted (Ctrl-C) when the study builds the second chunk's gains."""
 
-    monkeypatch.setattr(study_mod, "lion_batched", flaky)
-    # the grid and chunk of the module's `result` (its compiled call is reused): 8 elements in
-    # chunks of 3, interrupted in the second
+        rate: jax.Array
+        uses_data = True
+
+        def __check_init__(self):
+            calls.append(1)
+            if len(calls) == 2:
+                raise KeyboardInterrupt
+
+        @property
+        def batch_shape(self):
+            return tuple(self.rate.shape)
+
+        def __call__(self, R, names):
+            return lj.AutoGain(self.rate)(R, names)
+
+    # the grid and chunk of the module's `result`: 8 elements in chunks of 3, interrupted in the
+    # second
     res = lj.study(
-        lj.MassDamper(), records, gains=[3.0, 10.0], gain=lj.AutoGain, poles=POLES, chunk_size=3
+        lj.MassDamper(), records, gains=[3.0, 10.0], gain=Interrupting, poles=POLES, chunk_size=3
     )
     err = capsys.readouterr().err
     assert "interrupted after 1/3 chunks" in err
-    assert not res.complete
+    assert not res.complete and res.gain_class == "Interrupting"
     done = np.isfinite(res.theta_final).all(axis=-1).ravel()
     np.testing.assert_array_equal(done, [True] * 3 + [False] * 5)
     np.testing.assert_array_equal(res.result.ravel()[3:], -1)

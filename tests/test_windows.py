@@ -1,6 +1,6 @@
-"""The twin's exact-hold mass–damper (lionjax.twin._windows) against independent references:
-lionjax.twin.simulate (diffrax, events) on one window, and scipy's exact ZOH discretisation
-(cont2discrete + dlsim) for windows restarted from arbitrary states."""
+"""The twin's exact-hold mass–damper over windows (the diagnosis' simulation) against
+independent references: lionjax.twin.simulate (diffrax, events) on one window, and scipy's
+exact ZOH discretisation (cont2discrete + dlsim) for windows restarted from arbitrary states."""
 
 import jax.numpy as jnp
 import numpy as np

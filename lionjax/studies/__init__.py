@@ -6,16 +6,13 @@ target, :func:`study_figure` draws either. ``lionjax.study`` is the same functio
 :func:`lionjax.studies.study`.
 """
 
+from ._grid import stack_banks as stack_banks
 from ._plot import (
     study_figure as study_figure,
 )
-from ._study import (
-    StudyRecords as StudyRecords,
-    StudyResult as StudyResult,
-    stack_banks as stack_banks,
-    study as study,
-    study_records as study_records,
-)
+from ._records import StudyRecords as StudyRecords, study_records as study_records
+from ._result import StudyResult as StudyResult
+from ._study import study as study
 from ._tune import (
     TuneObjective as TuneObjective,
     TuneSolution as TuneSolution,

@@ -16,7 +16,7 @@ import numpy as np
 from .._errors import InputError
 from .._estimators import AbstractGain, AutoGain, FixedGain
 from .._plotting import figure
-from ._study import StudyResult
+from ._result import StudyResult
 from ._tune import TuneSolution
 
 

@@ -50,7 +50,9 @@ from .._filters import FilterBank
 from .._models import AbstractModel
 from .._outputs import ConvergenceTime, LSStatistics, TailStatistics
 from .._record import Record
-from ._study import StudyRecords, StudyResult, _as_batch, gain_class, refuse_gain_type
+from ._grid import Records, gain_class, refuse_gain_type
+from ._records import StudyRecords
+from ._result import StudyResult
 
 if TYPE_CHECKING:  # imported where a tuning starts: `import lionjax` stays light
     import optimistix as optx
@@ -346,7 +348,8 @@ def _prepare(
         raise InputError(
             f"{what}: objective must be a lionjax.studies.TuneObjective, got {type(spec).__name__}."
         )
-    batch, lengths, dims, coords = _as_batch(records)
+    rec = Records(records, what=what)
+    batch, lengths, dims = rec.batch, rec.lengths, rec.dims
     T = batch.x.shape[1]
     dt = np.asarray(batch.dt)
     if not np.all(dt == dt[0]):
