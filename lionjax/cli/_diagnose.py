@@ -229,6 +229,8 @@ def _run_one(args) -> int:
         f"simulation, H = {number(out['settings']['window_s'], '.3g')} s), equation error "
         f"{number(base['equation_gap'])} m/s² (noise floor {number(base['noise_floor'], '.3g')})"
     )
+    for why in base.get("qualitatively_wrong", []):
+        print(f"  the baseline is qualitatively wrong: {why}")
     rows = [
         [
             e["name"],
@@ -244,6 +246,9 @@ def _run_one(args) -> int:
     print(f"stack: {', '.join(out['stack']) or '(empty)'}")
     tie = f"; near-tie: {', '.join(out['ambiguous'])}" if out["ambiguous"] else ""
     print(f"verdict: {out['verdict']} (confidence {number(out['confidence'], '.2f')}{tie})")
+    if out.get("inconclusive"):
+        print(f"  the records cannot decide: {out['inconclusive']['reason']}")
+        print(f"  record instead: {out['inconclusive']['advice']}")
     if out["verdict"] in out["final"]["measurement"]:
         print(
             f"  {out['verdict']} is an error of the force sensor, not of the device's dynamics: "
@@ -261,8 +266,10 @@ def _run_one(args) -> int:
             + "); the model extrapolates there — record a training run that covers it"
         )
     fin = out["final"]
+    if not fin.get("result", True):
+        print("final: no usable model — " + "; ".join(fin["qualitatively_wrong"]))
     print(
-        "final: "
+        ("final (not a result): " if not fin.get("result", True) else "final: ")
         + ", ".join(
             f"{k} = {number(v, '.6g')} {fin['units'].get(k, '')}".rstrip()
             for k, v in fin["params"].items()

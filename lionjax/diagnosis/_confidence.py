@@ -61,6 +61,8 @@ def uncounted(run: Run, stk: Stack) -> tuple[dict[str, float], list[str]]:
         if not c.fits_noise() or c.name in held:
             continue
         for form, alone in run.variant_fits.get(c.name, []):
+            if form.search_failed():
+                continue
             sc = run.score_ms(run.base, alone.ms_valid, form.params(), 0.0)
             if not (math.isfinite(alone.ms_valid) and sc > bar):
                 continue
@@ -90,7 +92,8 @@ def _rivals(
     windowed simulation confirms where the baseline is qualitatively wrong (there the equation
     error is no measure), nor in closed loop one whose columns can fit the position noise (they
     fit its path through the controller), nor a fit its candidate knows for a look-alike of the
-    stack's (``imitates``). The rivals of :func:`uncounted` (``blind``) are rivals too."""
+    stack's (``imitates``), nor a fit whose search failed (it located nothing). The rivals of
+    :func:`uncounted` (``blind``) are rivals too."""
     crit = run.crit
     if run.confirmed(stk):
         return {}
@@ -102,6 +105,7 @@ def _rivals(
         if not s.plausible
         and s.size >= crit.min_size
         and s.score > bar
+        and not by_name[s.name].search_failed()
         and not (run.closed_loop and by_name[s.name].fits_noise())
         and not set(by_name[s.name].imitates(s.params)) & held
         and not _holds_stand_in(held, by_name[s.name])
@@ -175,13 +179,64 @@ def _explains(run: Run, stk: Stack, v: Verdict) -> float:
 
 @dataclasses.dataclass(frozen=True)
 class Confidence:
-    verdict: str  # "none" may become "unexplained" (below)
+    verdict: str  # "none" may become "unexplained", either "inconclusive" (:func:`weigh`)
     confidence: float
     weights: dict[str, float]
     ambiguous: list[str]
     detection: float  # the record's detection limit (share of the input's term)
     detection_worst: float  # the largest of its candidates' limits (:func:`_detection`)
     rivals: dict[str, float]  # implausible candidates that beat the stack (:func:`_rivals`)
+    #: why the record cannot decide, and what to record instead (None: it can)
+    inconclusive: dict | None = None
+
+
+#: Least effective sample count of the baseline's validation residual at which the record can
+#: decide: below it a one-parameter effect must remove over a third of the mean square to
+#: reach the threshold (1 − exp(−(threshold + ln N)/N) at N = 30, threshold 10).
+N_EFF_LEAST = 30
+#: Largest detection limit (a share of the input's term b·F/Λ) at which the record can decide:
+#: one that cannot see an effect half as large as the input's own term cannot tell the library's
+#: effects from none.
+DETECTION_MOST = 0.5
+#: Velocity reversals a record needs for friction to be told apart from a constant force.
+REVERSALS_LEAST = 10
+
+
+def inconclusive(run: Run, detection: float) -> dict | None:
+    """Why the records cannot decide whether an effect is there, and what to record instead; or
+    None. The validation residual's effective sample count below :data:`N_EFF_LEAST`, or the
+    detection limit above :data:`DETECTION_MOST`: nothing named is then no evidence of no
+    effect, and a residual with structure no evidence of one outside the library."""
+    n = run.base.n_eff
+    reasons, advice = [], []
+    if n < N_EFF_LEAST:
+        reasons.append(
+            f"the validation residual holds {n:.0f} effective samples (at least {N_EFF_LEAST} "
+            "decide: the residual is slow against the record's length)"
+        )
+        advice.append("record longer, or with an excitation that changes faster")
+    if detection > DETECTION_MOST:
+        reasons.append(
+            f"its detection limit is {detection:.2g} of the input's term b·F (an effect smaller "
+            f"than {DETECTION_MOST:g} of it is named only above it)"
+        )
+    if not reasons:
+        return None
+    lo, hi = run.st.excited
+    v = np.asarray(run.problem.v_valid, np.float64)
+    moving = np.abs(v) > 0.1 * float(np.quantile(np.abs(v), 0.9))
+    s = np.sign(v[moving])
+    reversals = int(np.sum(s[1:] != s[:-1]))
+    if reversals < REVERSALS_LEAST:
+        advice.append(
+            f"reverse direction at least {REVERSALS_LEAST} times (the validation record "
+            f"reverses {reversals} times: friction is then a constant force)"
+        )
+    advice.append(
+        f"excite the band the model is to hold (this record: {lo:.3g}–{hi:.3g} Hz; up to the "
+        f"filter corner {run.st.filter_hz:.3g} Hz and beyond)"
+    )
+    return {"reason": "; ".join(reasons), "advice": "; ".join(advice)}
 
 
 def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) -> float:
@@ -195,6 +250,7 @@ def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) 
             for e in effects
             if not e.plausible
             and e.score > run.crit.threshold
+            and not run.by_name[e.name].search_failed()
             and run.by_name[e.name].unresolved(fitted[e.name].physical, run.limits)
         ),
         default=0.0,
@@ -252,7 +308,8 @@ def weigh(
         # below the threshold) leaves the question open; "no candidate explains it" holds only
         # where train covered what validation holds; a look-alike that explains what the stack
         # leaves is evidence of its own
-        best_share = max([s.share for s in effects if s.score > 0 or s.plausible], default=0.0)
+        evidence = [s for s in effects if not run.by_name[s.name].search_failed()]
+        best_share = max([s.share for s in evidence if s.score > 0 or s.plausible], default=0.0)
         coverage = 1.0 - max(run.outside.values())
         decided = v.decided_by
         against = max([1.0 - best_share, *(t.share for t in decided)])
@@ -265,11 +322,22 @@ def weigh(
         confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
     if verdict != "unexplained":
         confidence *= doubt
+    undecided = inconclusive(run, detection) if not stk.cands else None
+    if undecided is not None:
+        # nothing named on a record that cannot decide: a statement about the record
+        verdict, confidence, ambiguous = "inconclusive", 1.0, []
     readings = list(dict.fromkeys([*_readings(run, effects, stk, verdict), *also]))
-    if readings and verdict not in ("none", "unexplained"):
+    if readings and verdict not in ("none", "unexplained", "inconclusive"):
         # one more reading of the same force: the confidence is shared among them
         ambiguous = list(dict.fromkeys([*(ambiguous or [verdict]), *readings]))
         confidence /= 1 + len(readings)
     return Confidence(
-        verdict, float(confidence), weights, ambiguous, detection, detection_worst, rivals
+        verdict,
+        float(confidence),
+        weights,
+        ambiguous,
+        detection,
+        detection_worst,
+        rivals,
+        undecided,
     )

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ._lstsq import fit_batch, rss_fixed_with_columns, rss_with_columns
+from ._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns
 from ._regressors import columns_of
 
 
@@ -50,6 +50,12 @@ class Objective:
             return float(rss_with_columns(rtr, self.model, cols)[0])
         finally:
             rtr.drop(own)
+
+    def base_residual(self) -> np.ndarray:
+        """ε₁ (T,) of the base structure fitted on the training record."""
+        inp = (0.0, math.inf)
+        theta = fit_batch(self.rtr, self.model, [inp])[0][0]
+        return residual(self.rtr, self.model, theta, inp)
 
     def drop(self, names) -> None:
         """Forget the training record's signals ``names`` (a grid point's, once scored)."""

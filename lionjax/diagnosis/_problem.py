@@ -77,15 +77,14 @@ class Problem:
             streamed, chunk,
         )  # fmt: skip
 
-    def with_window(self, a: float) -> Problem:
-        """The problem with its restart interval H set from the baseline's a [1/s]: the
-        settings' ``window_s``, else the time constant 1/a within [20 dt, 2 s] and short enough
-        that the validation record holds :data:`~._settings.WINDOWS_LEAST` windows (the gap's
-        evidence counts windows)."""
+    def with_window(self, scale: float) -> Problem:
+        """The problem with its restart interval H set from the record's time scale ``scale``
+        [s] (:func:`~._run.time_scale`): the settings' ``window_s``, else the time scale within
+        [20 dt, 2 s] and short enough that the validation record holds
+        :data:`~._settings.WINDOWS_LEAST` windows (the gap's evidence counts windows)."""
         dt, Hs = self.st.dt, self.st.window_s
         if Hs is None:
-            Hs = 1.0 / a if a > 0 else 0.1
-            Hs = min(max(Hs, 20 * dt), 2.0, self.valid.n_samples * dt / WINDOWS_LEAST)
+            Hs = min(max(scale, 20 * dt), 2.0, self.valid.n_samples * dt / WINDOWS_LEAST)
         n = int(round(Hs / dt))
         if n < 2 or n > self.valid.n_samples:
             raise InputError(

@@ -16,6 +16,22 @@ from ._verdict import Verdict
 from ._where import where_findings
 
 
+def qualitatively_wrong(phys: dict[str, float], simulation: str) -> list[str]:
+    """Why a fitted mass–damper is no model of a device, in words (empty where it may be)."""
+    out = []
+    if not phys.get("b", 1.0) > 0:
+        out.append(
+            "b ≤ 0: the force would accelerate the axis against itself (an effect the model "
+            "leaves out dominates the response: a spring stiffer than the filter corner holds, "
+            "friction that sticks the axis)"
+        )
+    if not phys.get("a", 1.0) >= 0:
+        out.append("a < 0: negative damping, the free motion would grow")
+    if simulation != "ok":
+        out.append("its windowed simulation diverges")
+    return out
+
+
 def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
     """The stacked model: its physical parameters and units, gaps and the verdict's tests."""
     cur, base = stk.fit, run.base
@@ -49,6 +65,9 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
         else dict(zip(("remaining_excess_share", "score", "refused"), v.reverse, strict=True)),
     }
     final.update(params)
+    # a final model with b ≤ 0 describes no device: it is reported, never as a result
+    final["qualitatively_wrong"] = qualitatively_wrong(cur.physical, cur.simulation)
+    final["result"] = cur.physical.get("b", 1.0) > 0
     final["structure"] = v.s_final
     final["structure_explained"] = not v.peak_grew
     for t in v.lookalikes.values():  # each look-alike's validated fit beside the stack
@@ -94,6 +113,8 @@ def _baseline(run: Run, v: Verdict) -> dict[str, Any]:
         "condition": base.condition,
         "structure": v.s_base,
         "valid_outside_train": run.outside,
+        # a baseline that is no model of a device, in words (a dominant effect repairs it)
+        "qualitatively_wrong": qualitatively_wrong(base.physical, base.simulation),
     }
 
 
@@ -153,4 +174,5 @@ def report(
         weights=c.weights,
         rivals=c.rivals,
         series=series,
+        inconclusive=c.inconclusive,
     )

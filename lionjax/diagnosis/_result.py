@@ -59,6 +59,9 @@ class Diagnosis:
         final: the stacked model's physical parameters and its ``gap``.
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
         series: validation signals for plotting (not in the JSON).
+        inconclusive: where the verdict is ``inconclusive`` (the records cannot decide whether
+            an effect is there: too few effective samples, or a detection limit above half the
+            input's term), ``{"reason", "advice"}``: why, and what to record instead; else None.
     """
 
     baseline: dict[str, Any]
@@ -75,6 +78,7 @@ class Diagnosis:
     weights: dict[str, float]
     rivals: dict[str, float]
     series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
+    inconclusive: dict[str, str] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The JSON payload (plain Python types; non-finite numbers become ``None``; converted by
@@ -90,6 +94,7 @@ class Diagnosis:
                 "ambiguous": self.ambiguous,
                 "weights": self.weights,
                 "rivals": self.rivals,
+                "inconclusive": self.inconclusive,
                 "final": self.final,
                 "steps": [e.to_json() for e in self.steps],
                 "noise": self.noise,

@@ -18,7 +18,7 @@ from ._problem import ROLES, Problem
 from ._result import EffectScore
 from ._settings import settings
 from ._statistics import _check_memory, _feedback, _position_noise, _robust_diff_std
-from .effects import AbstractCandidate, Limits
+from .effects import AbstractCandidate, Design, Limits
 
 
 @dataclasses.dataclass(frozen=True)
@@ -293,7 +293,7 @@ def prepare(
     chunk = None if isinstance(streamed, bool) or streamed is None else streamed
     streamed = _check_memory(train.n_samples, valid.n_samples, max_memory_gb, streamed)
     problem = Problem.of(train, valid, st, crit, streamed, chunk)
-    problem = problem.with_window(_baseline_a(problem))
+    problem = problem.with_window(time_scale(problem))
     base = fit(problem, ())
     a, b = base.physical["a"], base.physical["b"]
     # noise floor of ε₁ on the validation record (with the encoder's count: else a clean
@@ -344,14 +344,46 @@ def prepare(
     )
 
 
-def _baseline_a(problem: Problem) -> float:
-    """The baseline's a [1/s] (its least squares alone, before its simulation is set)."""
+#: Periods of an oscillation the windowed simulation spans (:func:`time_scale`).
+WINDOW_PERIODS = 4.0
+
+
+def time_scale(problem: Problem) -> float:
+    """The slowest dynamics the records show [s], which the windowed simulation's restart
+    interval spans: the mass–damper's time constant 1/a where its least squares is
+    qualitatively right (a > 0, b > 0); else, where a spring ẍ + aẋ + kx = bF (+ a constant)
+    is (b > 0, bk > 0: the axis oscillates about an equilibrium), :data:`WINDOW_PERIODS` of its
+    damped period or its envelope's time constant 1/(ζωₙ), whichever is shorter (over many
+    periods a simulation from a restart drifts in phase with any error of the frequency, and
+    its gap measures that drift, not the model), or its slowest real pole's time constant when
+    it is overdamped; else 0.1 s."""
+    from .._model_effects import Offset, Spring
+    from .._models import Augmented, MassDamper
     from ._lstsq import fit_batch
 
-    rtr = problem.regressors_of(())[0]
-    model = problem.model(())
-    th = fit_batch(rtr, model, [(0.0, math.inf)])[0][0]
-    return float(model.physical(np.asarray(th, np.float64))["a"])
+    rtr = problem.regressors(Design())[0]
+
+    def physical(effects):
+        model = Augmented(MassDamper(), effects)
+        th = fit_batch(rtr, model, [(0.0, math.inf)])[0][0]
+        return model.physical(np.asarray(th, np.float64))
+
+    ph = physical(())
+    a, b = float(ph["a"]), float(ph["b"])
+    if a > 0 and b > 0:
+        return 1.0 / a
+    ph = physical((Spring(), Offset()))
+    a, b, k = (float(ph[n]) for n in ("a", "b", "k"))
+    if not (b > 0 and b * k > 0):
+        return 0.1
+    wn = math.sqrt(b * k)
+    zeta = a / (2 * wn)
+    if abs(zeta) < 1:
+        period = 2 * math.pi / (wn * math.sqrt(1 - zeta * zeta))
+        envelope = 1 / (abs(zeta) * wn) if zeta != 0 else math.inf
+        return min(WINDOW_PERIODS * period, envelope)
+    slow = wn * (zeta - math.sqrt(zeta * zeta - 1))  # the slowest real pole's rate
+    return 1.0 / slow if slow > 0 else 0.1
 
 
 def _common_range(x_train: np.ndarray, x_valid: np.ndarray) -> tuple[float, float]:

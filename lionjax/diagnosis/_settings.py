@@ -11,6 +11,7 @@ import numpy as np
 from .._errors import InputError
 from .._filters import FilterBank
 from .._record import Record
+from ._statistics import _feedback
 from ._streaming import zero_phase
 
 
@@ -29,6 +30,8 @@ class Settings:
     x_center: float
     x_scale: float
     x_range: tuple[float, float] = (-math.inf, math.inf)  # the training positions' [min, max]
+    #: the band [Hz] the training force excites (:func:`excited_band`)
+    excited: tuple[float, float] = (0.0, math.inf)
 
     def bank(self) -> FilterBank:
         w = 2 * math.pi * self.filter_hz
@@ -46,10 +49,17 @@ MAX_FILTER_HZ = 40.0
 VELOCITY_MIN_HZ = 100.0
 #: Longest delay of the default profile grid [s] (at least 60 samples).
 MAX_DELAY_S = 0.03
-#: Flexible-mode grid: frequencies from MODE_BAND[0]·f_filter to MODE_BAND[1]·f_filter
-#: (below 0.2·f_s).
+#: Flexible-mode grid: frequencies from MODE_BAND[0]·f_filter to MODE_BAND[1]·f_filter (below
+#: 0.2·f_s), and up to MODE_OVER_BAND times the top of the excited band (below MODE_FS·f_s):
+#: a resonance anywhere in the excited band is searched for; MODE_N frequencies per the
+#: factor MODE_BAND[1]/MODE_BAND[0] (a step of 28 %, then refined by the pattern search).
 MODE_BAND = (0.1, 4.0)
 MODE_N = 16
+MODE_OVER_BAND = 1.25
+MODE_FS = 0.4
+#: The share of the training force's power below the excited band's lower edge and above its
+#: upper edge (:func:`excited_band`).
+EXCITED_TAIL = 0.01
 #: Soft-saturation levels in the F_max grid.
 SOFT_N = 15
 #: Shortest stick [s] that counts where the axis sticks (:func:`~._problem.stuck_mask`).
@@ -72,6 +82,10 @@ def settings(
     """
     dt = float(train.dt)
     fs = 1.0 / dt
+    # the band the excitation covers: the force less a controller's answer to the position
+    # (in closed loop F also carries the position noise fed back, broadband)
+    F_ref = _feedback(np.asarray(train.x, np.float64), np.asarray(train.F, np.float64))[1]
+    excited = excited_band(F_ref, dt)
     fh = min(fs / 25.0, MAX_FILTER_HZ) if filter_hz is None else float(filter_hz)
     if not (0 < fh < fs / 2):
         raise InputError(
@@ -111,8 +125,9 @@ def settings(
             "diagnose: the train record's force F is zero everywhere; the input must excite the "
             "axis."
         )
-    f_hi = min(MODE_BAND[1] * fh, 0.2 * fs)
+    f_hi = max(min(MODE_BAND[1] * fh, 0.2 * fs), min(MODE_OVER_BAND * excited[1], MODE_FS * fs))
     f_lo = min(max(MODE_BAND[0] * fh, 0.5), 0.5 * f_hi)
+    n_modes = max(MODE_N, int(math.ceil(MODE_N * math.log(f_hi / f_lo) / math.log(40.0))))
     return Settings(
         dt=dt,
         filter_hz=fh,
@@ -124,8 +139,29 @@ def settings(
         # up to the plausibility limit, 4× the largest force
         fmax_grid=tuple(float(f) for f in fq)
         + tuple(-float(f) for f in np.geomspace(0.5 * fq[0], 4.0 * fq[-1], SOFT_N)),
-        mode_grid=tuple(float(f) for f in np.geomspace(f_lo, f_hi, MODE_N)),
+        mode_grid=tuple(float(f) for f in np.geomspace(f_lo, f_hi, n_modes)),
         x_center=float(np.mean(x)),
         x_scale=float(max(np.std(x), 1e-12)),
         x_range=(float(np.min(x)), float(np.max(x))),
+        excited=excited,
     )
+
+
+def excited_band(F: np.ndarray, dt: float) -> tuple[float, float]:
+    """(f_lo, f_hi) [Hz]: the frequencies below which :data:`EXCITED_TAIL` and above which
+    :data:`EXCITED_TAIL` of the force's power (its mean and linear trend removed) lie, from its
+    periodogram (Hann window): the band the record excites."""
+    n = F.size
+    if n < 16:
+        return 0.0, 0.5 / dt
+    k = np.arange(n)
+    Fd = F - np.polyval(np.polyfit(k, F, 1), k)
+    P = np.abs(np.fft.rfft(Fd * np.hanning(n))) ** 2
+    P[0] = 0.0
+    c = np.cumsum(P)
+    if not c[-1] > 0:
+        return 0.0, 0.5 / dt
+    f = np.fft.rfftfreq(n, dt)
+    lo = f[int(np.searchsorted(c, EXCITED_TAIL * c[-1]))]
+    hi = f[min(int(np.searchsorted(c, (1 - EXCITED_TAIL) * c[-1])), f.size - 1)]
+    return float(lo), float(hi)

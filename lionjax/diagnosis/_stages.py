@@ -65,8 +65,10 @@ def parsimony(run: Run, stk: Stack) -> Stack:
     """A candidate with a simpler stand-in (spring → offset: in closed loop a constant force
     shifts the equilibrium; asymmetric friction → Coulomb + offset: while the axis moves, a
     direction-dependent level is a constant force) is replaced by it unless its own extra
-    parameters are significant on validation data. The stand-in must itself explain the gap
-    (significant where the candidate stood). Where the windowed simulation models both, the
+    parameters are significant on validation data. The stand-in must itself explain the gap:
+    significant, plausible, of practical size, where the candidate stood (its step then carries
+    its own figures, from the stack without the candidate). Where the windowed simulation
+    models both, the
     candidate must not make the simulated gap worse than its stand-in, and with no more
     parameters than it, it must make it better: asymmetric friction with F⁺, F⁻ > 0 and
     Coulomb friction with an offset |F₀| < F_c are one law (levels F_c ∓ F₀), which only the
@@ -81,22 +83,26 @@ def parsimony(run: Run, stk: Stack) -> Stack:
         i = names_now.index(c.name)
         alt = (*stk.cands[:i], *simpler, *stk.cands[i + 1 :])
         f_alt = run.fit(alt)
-        n_simple = run.params(simpler)
         rest = tuple(k for k in stk.cands if k.name != c.name)
         prev = run.fit(rest) if rest else run.base
         cur = stk.fit
-        extra = c.params() - n_simple
+        extra = c.params() - run.params(simpler)
         keep = run.score_of(f_alt, cur, extra, run.floor_of(stk.cands)) > crit.threshold
         if c.simulated() and all(k.simulated() for k in simpler) and math.isfinite(f_alt.gap):
             keep = keep and cur.gap <= (1 + crit.max_worsening) * f_alt.gap
             if extra <= 0:
                 keep = keep and cur.gap < (1 - crit.max_worsening) * f_alt.gap
-        if run.score_of(prev, f_alt, n_simple, run.floor_of(alt)) > crit.threshold and not keep:
+        step = run.assess(prev, f_alt, tuple(simpler), run.floor_of(alt))
+        if step.significant and not keep:
+            # the stand-in's own step: its figures from the stack without the candidate
             j = [s.name for s in stk.steps].index(c.name)
+            why = f"stands in for {c.name} (its own parameters not needed)"
             steps = (
                 *stk.steps[:j],
                 *(
-                    dataclasses.replace(stk.steps[j], name=k.name, params=k.report(f_alt.physical))
+                    dataclasses.replace(
+                        step, name=k.name, params=k.report(f_alt.physical), reason=why
+                    )
                     for k in simpler
                 ),
                 *stk.steps[j + 1 :],

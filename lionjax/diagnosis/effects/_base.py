@@ -204,6 +204,11 @@ class AbstractCandidate(eqx.Module):
         describe the device on these records, whatever its parameters ("" by default)."""
         return ""
 
+    def search_failed(self) -> bool:
+        """Whether its search ended on the edge of what it searched (after widening): its fit
+        located nothing and is no evidence, for it or against another (default False)."""
+        return False
+
     def unresolved(self, phys: dict[str, float], lim: Limits) -> bool:
         """Whether an implausible fit is refused only for lying within the record's resolution
         (its shape is this effect's, its size within the noise or the sampling's error): the

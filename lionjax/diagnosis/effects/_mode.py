@@ -61,6 +61,41 @@ MODE_SAME_F = 1.25
 MODE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 MODE_ROUNDS = 4
 MODE_STEPS = 16
+#: The factor a search that ends on its band's edge is widened by, once.
+MODE_WIDEN = 4.0
+
+
+def _edge(w: float, z: float, band: tuple[float, float]) -> int:
+    """−1 or +1 where the mode (ω [rad/s], ζ) lies on the lower or upper edge of the band
+    [rad/s] (or ζ on its search's upper limit: +1), else 0."""
+    if not w > band[0] * (1 + MODE_EDGE):
+        return -1
+    if not w < band[1] / (1 + MODE_EDGE) or z >= MODE_ZETA_RANGE[1] / (1 + MODE_EDGE):
+        return 1
+    return 0
+
+
+def _seeds(objective, st, lam: float, ws: np.ndarray) -> list[tuple[float, float]]:
+    """Starts of the mode's search besides the coarse grid's best: the equation-error guess of
+    the mode (:func:`~.._streaming.mode_seed`; a lightly damped mode's valley is narrower than
+    the coarse grid's step) and the frequency of the training residual's spectral peak within
+    the band (the resonance the baseline leaves), at ζ 0.03."""
+    memo = objective.problem.memo
+    if ("mode", "seeds") not in memo:
+        rs = objective.train_signals
+        seeds = []
+        seed = mode_seed(rs.x, rs.F, st.dt, lam, rs.chunk)
+        lo, hi = MODE_ZETA_RANGE
+        if seed is not None and ws[0] <= seed[0] <= ws[-1]:
+            seeds.append((seed[0], min(max(seed[1], lo), hi)))
+        r = objective.base_residual()
+        P = np.abs(np.fft.rfft((r - np.mean(r)) * np.hanning(r.size))) ** 2
+        w = 2 * math.pi * np.fft.rfftfreq(r.size, st.dt)
+        inside = (w >= ws[0]) & (w <= ws[-1])
+        if np.any(inside) and np.any(P[inside] > 0):
+            seeds.append((float(w[inside][np.argmax(P[inside])]), 0.03))
+        memo["mode", "seeds"] = seeds
+    return memo["mode", "seeds"]
 
 
 def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
@@ -126,6 +161,9 @@ class FlexibleModeCandidate(AbstractCandidate):
     input: bool = True
     omega: float = 0.0
     zeta: float = 0.0
+    #: the frequencies [Hz] its search covered, and whether it ended on their edge
+    band: tuple = ()
+    failed: bool = False
     name: ClassVar[str] = "flexible_mode"
     n_params: ClassVar[int] = 4
     exact_share: ClassVar[float | None] = 0.98
@@ -155,7 +193,7 @@ class FlexibleModeCandidate(AbstractCandidate):
     def pick(self, tries, limits) -> int:
         # the variants are one model held to narrower forms: the best validated *plausible*
         # one, since the wider form fitted outside the effect's physics describes something else
-        ok = [i for i, t in enumerate(tries) if not self.implausible(t[1].physical, limits)]
+        ok = [i for i, t in enumerate(tries) if not t[2].implausible(t[1].physical, limits)]
         return max(ok or range(len(tries)), key=lambda i: tries[i][0])
 
     def fits_noise(self) -> bool:
@@ -167,18 +205,26 @@ class FlexibleModeCandidate(AbstractCandidate):
         return False  # the windowed simulation is of the rigid body
 
     def profile(self, objective, limits):
-        """(ω, ζ): least *validation* RSS of the mode alone fitted on the training record over
-        the grid (the settings' frequencies × :data:`MODE_ZETAS`), then a pattern search in
-        (ln ω, ln ζ) from the best and from the equation-error guess of the mode
-        (:func:`~.._streaming.mode_seed`), within the grid's frequencies and
-        :data:`MODE_ZETA_RANGE`. Each point's columns are exact and carry the mode's free
-        response as two columns refitted on each record.
+        """(ω, ζ): least *validation* RSS of the mode alone fitted on the training record, the
+        RSS divided by (1 − μ)² (below), over the grid (the settings' frequencies ×
+        :data:`MODE_ZETAS`), then a pattern search in (ln ω, ln ζ) from the best, from the
+        equation-error guess of the mode (:func:`~.._streaming.mode_seed`) and from the
+        spectral peak of the training residual, within the grid's frequencies and
+        :data:`MODE_ZETA_RANGE`. A search that ends on the band's edge is widened once by
+        :data:`MODE_WIDEN` on that side (within 0.1 Hz … 0.45·f_s); one that ends on an edge
+        again failed to locate a resonance (``failed``): its fit is no evidence of anything.
 
         Why validation: the columns (s²/D)[x] pass the position noise through the resonance
         (gain ~1/2ζ), and in closed loop F's columns carry the same noise fed back, so least
         squares on one record fits that record's noise with them (errors in variables); the
-        validation record's noise is independent. A negative mass ratio is no mode: the search
-        stays where μ > 0."""
+        validation record's noise is independent.
+
+        Why (1 − μ)²: above the mode, ẍ − μ·s²h[x] → (1 − μ)ẍ; as μ → 1 the mode's column
+        cancels the acceleration that fixes the equation's scale, and a mode far below the
+        excited band with μ ≈ 1 drives every coefficient, and the residual, towards 0 (the
+        trivial solution of an equation error). Dividing the residual by the acceleration's
+        high-frequency coefficient keeps the criterion in the units of the rigid equation, so
+        such a fit gains nothing; only 0 < μ < 1 is a mode."""
         if self.omega > 0:
             return self
         st = objective.problem.st
@@ -192,7 +238,9 @@ class FlexibleModeCandidate(AbstractCandidate):
                     sel = cols.select(slice(None) if v else [0, 2, 3])
                     c, _, n = objective.fit_with(sel)
                     r = objective.validate_with(sel, c, 2 if v else 1)
-                    rss[v].append(np.where(c[:, n] > 0, r, np.inf))
+                    mu = c[:, n]
+                    ok = (mu > 0) & (mu < 1)
+                    rss[v].append(np.where(ok, r / np.where(ok, 1 - mu, 1.0) ** 2, np.inf))
             return {k: np.concatenate(v) for k, v in rss.items()}
 
         ws = 2 * math.pi * np.asarray(st.mode_grid)
@@ -203,14 +251,32 @@ class FlexibleModeCandidate(AbstractCandidate):
         grid, coarse = memo["mode", "coarse"]
         i = int(np.argmin(coarse[self.input]))
         starts = [(grid[i], float(coarse[self.input][i]))]
-        if ("mode", "seed") not in memo:
-            rs = objective.train_signals
-            memo["mode", "seed"] = mode_seed(rs.x, rs.F, st.dt, lam, rs.chunk)
-        seed = memo["mode", "seed"]
+        fn = lambda todo: rss_of(todo, (self.input,))[self.input]  # noqa: E731
+        for q in _seeds(objective, st, lam, ws):
+            starts.append((q, float(fn([q])[0])))
+        (w, z), r = self._search(fn, starts, ws)
+        band = (float(ws[0]), float(ws[-1]))
+        side = _edge(w, z, band)
+        if side:  # widened once on that side, its new edge then the limit
+            w_max = 2 * math.pi * 0.45 / st.dt
+            lo, hi = band
+            band = (
+                (max(lo / MODE_WIDEN, 2 * math.pi * 0.1), hi)
+                if side < 0
+                else (lo, min(hi * MODE_WIDEN, w_max))
+            )
+            new = np.geomspace(*band, len(ws))
+            wide = [(float(f), zz) for f in new for zz in MODE_ZETAS]
+            rw = fn(wide)
+            k = int(np.argmin(rw))
+            (w, z), r = self._search(fn, [(wide[k], float(rw[k])), ((w, z), r)], new)
+            side = _edge(w, z, band)
+        hz = (band[0] / (2 * math.pi), band[1] / (2 * math.pi))
+        return dataclasses.replace(self, omega=float(w), zeta=float(z), band=hz, failed=bool(side))
+
+    def _search(self, fn, starts, ws):
+        """The best of pattern searches from ``starts`` within the frequencies ``ws``."""
         lo, hi = MODE_ZETA_RANGE
-        if seed is not None and ws[0] <= seed[0] <= ws[-1]:
-            q = (seed[0], min(max(seed[1], lo), hi))
-            starts.append((q, float(rss_of([q], (self.input,))[self.input][0])))
 
         def move(q, i, j, steps):
             return (
@@ -220,11 +286,11 @@ class FlexibleModeCandidate(AbstractCandidate):
 
         steps = (0.5 * math.log(ws[1] / ws[0]), 0.5 * math.log(3.0))
         search = PatternSearch(MODE_ROUNDS, MODE_STEPS)
-        fn = lambda todo: rss_of(todo, (self.input,))[self.input]  # noqa: E731
         seen: dict = {}  # successive rings (and bounds) share points
-        found = [search.minimise(fn, q, r, steps, move, seen) for q, r in starts]
-        (w, z), _ = best_so_far(found)
-        return dataclasses.replace(self, omega=float(w), zeta=float(z))
+        return best_so_far([search.minimise(fn, q, r, steps, move, seen) for q, r in starts])
+
+    def search_failed(self) -> bool:
+        return self.failed
 
     def physical(self, phys, problem) -> dict:
         mode = (self.omega, self.zeta)
@@ -303,13 +369,14 @@ class FlexibleModeCandidate(AbstractCandidate):
             yield True, why
         if not -0.5 <= r.get("input_share", 0) <= 1.5:
             yield False, "no flexible mode: input share outside [−0.5, 1.5]"
-        # on the search's first or last frequency the valley lies beyond it: no resonance
-        # was located
-        f, (f_lo, f_hi) = r.get("f_mode", 0.0), lim.mode_band
-        if not f_lo * (1 + MODE_EDGE) < f < f_hi / (1 + MODE_EDGE):
+        # on the search's first or last frequency (or damping) the valley lies beyond it: no
+        # resonance was located
+        f, (f_lo, f_hi) = r.get("f_mode", 0.0), self.band or lim.mode_band
+        if self.failed or not f_lo * (1 + MODE_EDGE) < f < f_hi / (1 + MODE_EDGE):
             why = (
-                f"no flexible mode: f_mode {f:.3g} Hz on the edge of the searched band "
-                f"[{f_lo:.3g}, {f_hi:.3g}] Hz (no resonance located)"
+                f"no flexible mode: its search ended on the edge of the searched band "
+                f"[{f_lo:.3g}, {f_hi:.3g}] Hz or of ζ (f_mode {f:.3g} Hz, ζ "
+                f"{r.get('zeta_mode', math.nan):.3g}): no resonance located"
             )
             yield False, why
         if r.get("zeta_mode", 0.0) > MAX_MODE_ZETA:
