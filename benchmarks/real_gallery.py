@@ -53,6 +53,8 @@ class Entry:
     expected: str
     accepted: tuple[str, ...]
     load: Callable[[], tuple]
+    #: a "where" finding the EXPECTED.md requires beside the verdict (its ``kind``), or None
+    needs: str | None = None
 
 
 def _shared_data() -> Path | None:
@@ -124,7 +126,7 @@ ENTRIES = (
           ("coulomb_friction", "asymmetric_friction", "inconclusive"),
           lambda: load_npz_pair("lorenz_friction")),
     Entry("odrive_cogging", "unexplained (position_period)", ("unexplained", "inconclusive"),
-          lambda: load_npz_pair("odrive_cogging")),
+          lambda: load_npz_pair("odrive_cogging"), needs="position_period"),
     Entry("silverbox_multisine", "spring", ("spring",),
           lambda: _silverbox("split_test_multisine")),
     Entry("silverbox_arrow", "spring", ("spring",), lambda: _silverbox("split_test_arrow_full")),
@@ -146,6 +148,30 @@ def final_says(d) -> str:
         if w.get("kind") == "position_period":
             out.append(f"position period {w.get('band')}")
     return "; ".join(out)
+
+
+def findings(d) -> list[str]:
+    """What the diagnosis saw, in words, for the note column: the residual's spectral peak, the
+    best-scoring candidate that was refused and why, the detection limit, closed loop."""
+    out = [f"residual peak {w['band']}" for w in d.where if w.get("kind") == "frequency_peak"]
+    refused = [e for e in d.effects if not e.significant and e.score > 10]
+    if refused:
+        e = refused[0]
+        out.append(f"best refused: {e.name} (score {e.score:.3g}; {e.reason})")
+    out.append(f"detection limit {d.noise.get('detection_limit', float('nan')):.3g}")
+    if d.noise.get("closed_loop"):
+        out.append("closed loop")
+    return out
+
+
+def outcome(e: Entry, d) -> str:
+    """``pass`` when the verdict is one the EXPECTED.md accepts (and its required finding is
+    there), else ``FAIL`` with what is missing."""
+    if d.verdict not in e.accepted:
+        return "FAIL"
+    if e.needs and not any(w.get("kind") == e.needs for w in d.where):
+        return f"FAIL (no {e.needs} finding)"
+    return "pass"
 
 
 def run_entry(e: Entry) -> dict:
@@ -180,7 +206,8 @@ def run_entry(e: Entry) -> dict:
         final_units=d.final.get("units", {}),
         final_says=final_says(d),
         shrink=d.final.get("shrink"),
-        outcome="pass" if d.verdict in e.accepted else "FAIL",
+        outcome=outcome(e, d),
+        findings=findings(d),
         warnings=sorted({str(w.message)[:200] for w in caught}),
         diagnosis=d.to_json(),
     )
@@ -204,7 +231,8 @@ def markdown(rows: list[dict], meta: dict) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        note = "; ".join([*r.get("warnings", []), r.get("note", "")]).strip("; ")
+        note = "; ".join([*r.get("findings", []), *r.get("warnings", []), r.get("note", "")])
+        note = note.strip("; ")
         lines.append(
             f"| {r['record']} | {r['expected']} | {r.get('verdict', '—')} | "
             f"{_fmt(r.get('confidence'), '.2f')} | {', '.join(r.get('stack', [])) or '—'} | "
