@@ -36,6 +36,7 @@ import numpy as np
 from ._errors import InputError
 from ._record import JITTER_TOLERANCE, MIN_SAMPLES, Record, resample as _resample
 from ._tables import atomic_path, check_output
+from ._units import check_units
 
 logger = logging.getLogger(__name__)
 
@@ -445,6 +446,7 @@ def load_record(
     jitter_tolerance: float = JITTER_TOLERANCE,
     min_samples: int = MIN_SAMPLES,
     dtype=None,
+    units: str = "linear",
 ) -> Record:
     """Read one record from a CSV, NPZ or MATLAB ``.mat`` file.
 
@@ -466,6 +468,8 @@ def load_record(
             mean interval.
         min_samples: fewest samples accepted.
         dtype: array dtype of the record (default: JAX's default float).
+        units: ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad], F [N·m]), kept on the
+            record (:attr:`Record.units`) for its checks and reports.
 
     Returns:
         A :class:`Record` with ``x``, ``F`` of shape ``(T,)``, ``dt`` and ``t0`` from ``t``
@@ -479,6 +483,7 @@ def load_record(
         ImportError: for a ``.mat`` file when scipy is not installed (``pip install lionjax[mat]``).
     """
     p = _check_path(path)
+    check_units(units)
     names = _check_columns(columns)
     extras = _check_extras(extras, names)
     if force_scale is not None and not (_is_real(force_scale) and force_scale != 0):
@@ -520,6 +525,7 @@ def load_record(
                 jitter_tolerance=tolerance,
                 min_samples=min_samples,
                 dtype=dtype,
+                units=units,
             )
         except InputError as e:
             raise InputError(f"{e}{note}") from None
@@ -556,7 +562,7 @@ def load_record(
                 f"interval of 't', {mean_dt!r} s (tolerance {jitter_tolerance:.2%}). Fix or "
                 "remove 'dt'."
             )
-        record = Record(record.x, record.F, stored_dt, record.t0, record.extras)
+        record = Record(record.x, record.F, stored_dt, record.t0, record.extras, units=units)
     return record
 
 

@@ -1,4 +1,5 @@
-"""A uniformly sampled record of one device axis: position x [m] and force F [N]."""
+"""A uniformly sampled record of one device axis: position x [m] and force F [N], or, for a
+rotary axis, angle x [rad] and torque F [N·m]."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._errors import InputError
+from ._units import check_units
 
 #: Largest accepted relative deviation of any sampling interval from the mean interval.
 JITTER_TOLERANCE = 1e-3
@@ -27,6 +29,9 @@ class Record(eqx.Module):
         dt: sampling interval, shape ``()`` [s].
         t0: time of the first sample, shape ``()`` [s].
         extras: further measured signals a model may use, each shape ``(T,)``.
+        units: ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad], F [N·m]); the same
+            method either way (ẍ + aẋ = bF, b = 1/J for a rotor), only the units that the checks
+            and the reports name change (:mod:`lionjax._units`). A static field.
 
     Build one from raw samples with :meth:`Record.from_samples`, which checks the samples
     (finite, strictly increasing uniform time) and names the first bad index. The constructor
@@ -38,6 +43,7 @@ class Record(eqx.Module):
     dt: Float[Array, "*batch"]
     t0: Float[Array, "*batch"]
     extras: dict[str, Float[Array, "*batch T"]]
+    units: str = eqx.field(static=True)
 
     def __init__(
         self,
@@ -46,12 +52,15 @@ class Record(eqx.Module):
         dt: ArrayLike,
         t0: ArrayLike = 0.0,
         extras: Mapping[str, ArrayLike] | None = None,
+        *,
+        units: str = "linear",
     ):
         self.x = jnp.asarray(x)
         self.F = jnp.asarray(F)
         self.dt = jnp.asarray(dt, dtype=self.x.dtype)
         self.t0 = jnp.asarray(t0, dtype=self.x.dtype)
         self.extras = {k: jnp.asarray(v) for k, v in (extras or {}).items()}
+        self.units = check_units(units, "Record: units")
 
     def __check_init__(self):
         if self.x.shape != self.F.shape:
@@ -144,7 +153,7 @@ class Record(eqx.Module):
         n = T // r
         x = self.x[..., : n * r : r]
         F = jnp.mean(self.F[..., : n * r].reshape(*self.F.shape[:-1], n, r), axis=-1)
-        return Record(x, F, self.dt * r, self.t0)
+        return Record(x, F, self.dt * r, self.t0, units=self.units)
 
     @classmethod
     def from_samples(
@@ -158,6 +167,7 @@ class Record(eqx.Module):
         jitter_tolerance: float = JITTER_TOLERANCE,
         min_samples: int = MIN_SAMPLES,
         dtype=None,
+        units: str = "linear",
     ) -> Record:
         """Check raw samples and build a :class:`Record`.
 
@@ -169,6 +179,7 @@ class Record(eqx.Module):
             extras: further signals, each shape ``(T,)``.
             source: how to name the data in error messages (a file name, say).
             dtype: array dtype (default: JAX's default float, float64 under ``jax_enable_x64``).
+            units: ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad], F [N·m]).
 
         Raises:
             InputError: naming ``source``, the column and the first bad index, for: wrong
@@ -233,6 +244,7 @@ class Record(eqx.Module):
             dt,
             ta[0],
             ext,
+            units=units,
         )
 
 

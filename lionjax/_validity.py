@@ -77,6 +77,7 @@ from ._errors import RESULTS, DataWarning, FilterSpeedWarning, InputError, resul
 from ._filters import FilterBank
 from ._record import Record
 from ._solution_tools import default_transient, is_traced
+from ._units import unit
 
 # ----------------------------------------------------------------------------------------------
 # Bounds
@@ -104,7 +105,7 @@ RAW_WINDOW = 8
 #: most SPIKE_MAX_COUNT of them, is an isolated spike (a warning).
 SPIKE_RATIO = 1e5
 SPIKE_MAX_COUNT = 3
-#: Units warnings: |x| above X_UNITS_BOUND [m] looks like millimetres; dt in
+#: Units warnings: |x| above X_UNITS_BOUND [m] looks like millimetres (linear records only); dt in
 #: [MS_DT_RANGE] s with at least MS_MIN_SAMPLES samples and under 1 m of travel looks like a
 #: time column in milliseconds (a 1 kHz device read as 1 Hz).
 X_UNITS_BOUND = 10.0
@@ -289,7 +290,8 @@ def check_record(record: Record, what: str, *, warn: bool = True) -> None:
                 f"{what}: column {name!r} is out of range: |{name}| = {abs(float(flat[r, k])):.3g}"
                 f" at {rec}index {k} exceeds {bound:.3g}, beyond which the regressors' squares "
                 f"overflow {a.dtype} (an overflow, not a lack of excitation). Check the "
-                f"column's units and scaling ({'m' if name == 'x' else 'N'} expected)."
+                f"column's units and scaling ({unit('m' if name == 'x' else 'N', record.units)} "
+                "expected)."
             )
     if warn and record.x.ndim == 1:
         for message in sanity_messages(record):
@@ -304,7 +306,10 @@ def sanity_messages(record: Record) -> list[str]:
     T = x.size
     out = []
     xmax = float(np.max(np.abs(x)))
-    if xmax > X_UNITS_BOUND:
+    length = unit("m", record.units)
+    # A rotor turns without bound (a motor at 3000 rpm passes 300 rad a second), so no angle is
+    # implausible in itself: the millimetre check is for linear axes only.
+    if record.units == "linear" and xmax > X_UNITS_BOUND:
         out.append(
             f"column 'x' reaches |x| = {xmax:.4g} m; lionjax expects metres: is x in "
             "millimetres? Divide it by 1000 (or convert to metres) before identifying."
@@ -312,7 +317,7 @@ def sanity_messages(record: Record) -> list[str]:
     travel = float(np.max(x) - np.min(x))
     if MS_DT_RANGE[0] <= dt <= MS_DT_RANGE[1] and T >= MS_MIN_SAMPLES and 0 < travel < 1.0:
         out.append(
-            f"dt = {dt:g} s with {T} samples ({T * dt / 3600:.3g} h) and {travel:.3g} m of "
+            f"dt = {dt:g} s with {T} samples ({T * dt / 3600:.3g} h) and {travel:.3g} {length} of "
             "travel: is the time column in milliseconds (a 1 kHz record read as 1 Hz)? "
             "lionjax expects t in seconds; divide t by 1000."
         )

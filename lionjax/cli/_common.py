@@ -12,6 +12,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from .._errors import IdentificationError, InputError
+from .._units import UNIT_SYSTEMS
 
 #: The file the current step reads (set by :func:`about`): errors and warnings name it.
 CURRENT_FILE: contextvars.ContextVar[str | None] = contextvars.ContextVar(
@@ -123,3 +124,14 @@ def number(v, fmt: str = ".4g", missing: str = "—") -> str:
     if v is None or (isinstance(v, float | np.floating) and np.isnan(v)):
         return missing
     return format(v, fmt)
+
+
+def add_units_argument(group) -> None:
+    """``--units linear|rotary``: the unit system of the records (Record.units)."""
+    group.add_argument(
+        "--units",
+        choices=UNIT_SYSTEMS,
+        default="linear",
+        help="x in m and F in N (linear, default), or x in rad and F in N·m (rotary): the "
+        "units the checks and the reports state",
+    )

@@ -24,7 +24,7 @@ import dataclasses
 from .._errors import IdentificationError, InputError
 from .._plotting import FIGURE_SUFFIXES
 from .._tables import check_output, write_json
-from ._common import about, cli_words, format_table, number
+from ._common import about, add_units_argument, cli_words, format_table, number
 
 NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: which unmodelled effect, where, how much it explains"
@@ -82,6 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--columns", help="map column names, e.g. t=time,x=pos,F=force")
     g.add_argument("--force-scale", type=float, help="multiply F by this (e.g. N/V)")
     g.add_argument("--resample", action="store_true", help="resample a non-uniform record (linear)")
+    add_units_argument(g)
 
 
 def _streamed(args) -> bool | None:
@@ -105,7 +106,11 @@ def _load(path, args):
 
     columns = lj.extend.parse_columns(args.columns) if args.columns else None
     return lj.load_record(
-        path, columns=columns, force_scale=args.force_scale, resample=args.resample
+        path,
+        columns=columns,
+        force_scale=args.force_scale,
+        resample=args.resample,
+        units=args.units,
     )
 
 
@@ -159,7 +164,12 @@ def _run_pairs(args) -> int:
         pairs,
         candidates=library,
         progress=True,
-        load={"columns": columns, "force_scale": args.force_scale, "resample": args.resample},
+        load={
+            "columns": columns,
+            "force_scale": args.force_scale,
+            "resample": args.resample,
+            "units": args.units,
+        },
         filter_hz=args.filter_hz,
         window_s=args.window,
         max_memory_gb=args.max_memory_gb,
@@ -225,9 +235,11 @@ def _run_one(args) -> int:
     base = out["baseline"]
     print(
         f"baseline ẍ + aẋ = bF: a = {number(base['params']['a'], '.6g')} 1/s, b = "
-        f"{number(base['params']['b'], '.6g')} 1/kg; gap {number(base['gap'])} m (windowed "
-        f"simulation, H = {number(out['settings']['window_s'], '.3g')} s), equation error "
-        f"{number(base['equation_gap'])} m/s² (noise floor {number(base['noise_floor'], '.3g')})"
+        f"{number(base['params']['b'], '.6g')} {base['units']['b']}; gap "
+        f"{number(base['gap'])} {base['gap_units']} (windowed simulation, H = "
+        f"{number(out['settings']['window_s'], '.3g')} s), equation error "
+        f"{number(base['equation_gap'])} {base['equation_gap_units']} (noise floor "
+        f"{number(base['noise_floor'], '.3g')})"
     )
     for why in base.get("qualitatively_wrong", []):
         print(f"  the baseline is qualitatively wrong: {why}")
@@ -274,7 +286,7 @@ def _run_one(args) -> int:
             f"{k} = {number(v, '.6g')} {fin['units'].get(k, '')}".rstrip()
             for k, v in fin["params"].items()
         )
-        + f"; gap {number(fin['gap'])} m"
+        + f"; gap {number(fin['gap'])} {base['gap_units']}"
     )
     if args.json:
         write_json(args.json, out)

@@ -25,7 +25,8 @@ import numpy as np
 
 from .._errors import InputError
 from .._tables import check_output, write_json
-from ._common import about, float_list, format_table
+from .._units import unit
+from ._common import about, add_units_argument, float_list, format_table
 
 NAME = "identify"
 HELP = (
@@ -84,6 +85,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--columns", help="map column names, e.g. t=time,x=pos,F=force")
     g.add_argument("--force-scale", type=float, help="multiply F by this (e.g. 1.75, or N/V)")
     g.add_argument("--resample", action="store_true", help="resample a non-uniform record (linear)")
+    add_units_argument(g)
 
 
 def settings(args, dt=None):
@@ -137,7 +139,11 @@ def load(args):
 
     columns = lj.extend.parse_columns(args.columns) if args.columns else None
     return lj.load_record(
-        args.data, columns=columns, force_scale=args.force_scale, resample=args.resample
+        args.data,
+        columns=columns,
+        force_scale=args.force_scale,
+        resample=args.resample,
+        units=args.units,
     )
 
 
@@ -187,7 +193,14 @@ def identify(record, args) -> dict:
         std = lion_std(np.array(list(out["params"].values())), ls)
         out["std"] = dict(zip(out["params"], std.tolist(), strict=True))
         out["std_method"] = STD_AT_LION
+    out["units"] = record.units
+    out["param_units"] = {n: param_unit(n, record.units) for n in out["params"]}
     return out
+
+
+def param_unit(name: str, units: str = "linear") -> str:
+    """The unit of the identified parameter ``name`` (``b_1`` as ``b``) in ``units``."""
+    return unit(UNITS.get(name.split("_")[0], ""), units)
 
 
 #: How ``identify --method lion`` states its uncertainty (printed and in the JSON).
@@ -218,9 +231,8 @@ def print_result(out: dict) -> None:
     lion = out["method"] == "lion"
     rows = []
     for name, value in out["params"].items():
-        unit = UNITS.get(name.split("_")[0], "")
         std = out.get("std", {}).get(name)
-        rows.append([name, value, std, unit])
+        rows.append([name, value, std, out["param_units"][name]])
     title = (
         f"{out['file']}: {out['model']} by {out['method']}, {out['n_samples']} samples at "
         f"{1 / out['dt']:.6g} Hz"
@@ -303,7 +315,11 @@ def load_many(paths: list[Path], args) -> list:
         try:
             records.append(
                 lj.load_record(
-                    p, columns=columns, force_scale=args.force_scale, resample=args.resample
+                    p,
+                    columns=columns,
+                    force_scale=args.force_scale,
+                    resample=args.resample,
+                    units=args.units,
                 )
             )
         except InputError as e:
@@ -338,7 +354,7 @@ def run_many(args) -> int:
     res = lj.identify_batch(
         model, records, method=method, labels=[str(p) for p in paths], bank=bank
     )
-    print_many(res)
+    print_many(res, args.units)
     if args.json:
         res.to_json(args.json)
         print(f"wrote {args.json}")
@@ -357,7 +373,7 @@ def run_many(args) -> int:
     return 0
 
 
-def print_many(res) -> None:
+def print_many(res, units: str = "linear") -> None:
     names = list(res.names)
     headers = ["file", "samples", "dt [s]", *names]
     if res.method == "lion":
@@ -377,11 +393,11 @@ def print_many(res) -> None:
         if res.method == "ls"
         else f"Lion's estimator (exact step; t_conv: within {100 * res.tolerance:g} % of LS)"
     )
-    units = ", ".join(f"{n} [{UNITS.get(n.split('_')[0], '')}]" for n in names)
+    stated = ", ".join(f"{n} [{param_unit(n, units)}]" for n in names)
     print(
         format_table(
             headers,
             rows,
-            f"{len(rows)} records: {res.model} by {how}, in one batched call; {units}",
+            f"{len(rows)} records: {res.model} by {how}, in one batched call; {stated}",
         )
     )

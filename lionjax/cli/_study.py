@@ -27,7 +27,7 @@ import numpy as np
 from .._errors import IdentificationError, InputError, result_message
 from .._plotting import FIGURE_SUFFIXES, save_figure
 from .._tables import check_output, write_json
-from ._common import float_list, format_table
+from ._common import add_units_argument, float_list, format_table
 
 NAME = "study"
 HELP = "map convergence time, bias and noise of Lion's estimator over gains × filter poles"
@@ -71,6 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="start of the tuning: gain, pole magnitude p [rad/s] (default: the grid's centre)",
     )
     p.add_argument("--kappa", type=float, default=1.0, help="price of noise κ [s] (default 1)")
+    add_units_argument(p)
     p.add_argument(
         "--tune-transient",
         type=float,
@@ -108,7 +109,7 @@ def _records(args):
                 "with DATA files. Drop one or the other."
             )
         paths = args.data[0] if len(args.data) == 1 else args.data
-        loaded = lj.load_records(paths)
+        loaded = lj.load_records(paths, units=args.units)
         return [r for _, r in loaded], [p.name for p, _ in loaded]
     if args.operating_points or args.noise_seeds:
         ops = None

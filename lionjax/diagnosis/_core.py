@@ -131,7 +131,8 @@ def diagnose(
     the confidence, the precision).
 
     Arguments:
-        train: training record (x [m], F [N], uniform dt).
+        train: training record (x [m], F [N], uniform dt; or x [rad], F [N·m] with
+            ``units="rotary"``, :attr:`lionjax.Record.units`, which the report's units follow).
         valid: validation record (default: ``train`` — then nothing is validated; pass one).
         candidates: the effect library (default :data:`DEFAULT_CANDIDATES`: ``offset``,
             ``coulomb_friction``, ``spring``, ``delay``, ``saturation``,
@@ -171,6 +172,11 @@ def diagnose(
         ``final``, ``steps``, ``noise``, ``settings``).
     """
     valid = _check_records(train, valid)
+    if valid.units != train.units:
+        raise InputError(
+            f"diagnose: the training record is {train.units} and the validation record "
+            f"{valid.units} (Record.units); load both in the same units."
+        )
     if criteria is not None and not isinstance(criteria, Criteria):
         raise InputError(
             f"diagnose: argument 'criteria' must be a lionjax.diagnosis.Criteria, got "
@@ -215,7 +221,7 @@ def _pipeline(run) -> Diagnosis:
     confidence = weigh(
         run, effects, stk, verdict, uncounted(run, stk), unresolved(run, fitted, effects)
     )
-    return report(run, effects, stk, verdict, confidence)
+    return report(run, effects, stk, verdict, confidence).in_units(run.problem.train.units)
 
 
 __all__ = ["diagnose"]

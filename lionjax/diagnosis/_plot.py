@@ -9,6 +9,11 @@ import numpy as np
 
 from .._errors import InputError
 from .._plotting import figure, save_figure
+from .._units import unit
+
+#: (scale, label) of the position and of the simulation error in each unit system: a linear
+#: axis in mm and µm, a rotary one in rad and mrad.
+_SCALES = {"linear": ((1e3, "mm"), (1e6, "µm")), "rotary": ((1.0, "rad"), (1e3, "mrad"))}
 
 
 def plot_diagnosis(diagnosis, path: str | Path):
@@ -39,11 +44,12 @@ def plot_diagnosis(diagnosis, path: str | Path):
     a = fig.add_subplot(top[0])
     e = fig.add_subplot(top[1], sharex=a)
     dt = float(t[1] - t[0]) if t.size > 1 else 1.0
-    a.plot(t[:n], s["x"][:n] * 1e3, "k", lw=1.2, label="measured")
-    a.plot(t[:n], (s["x"][:n] + s["sim_base"]) * 1e3, "C1", lw=0.8, label="model (baseline)")
-    a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * 1e3, "C0", lw=0.8, label="augmented model")
+    (kx, ux), (ke, ue) = _SCALES[diagnosis.units]
+    a.plot(t[:n], s["x"][:n] * kx, "k", lw=1.2, label="measured")
+    a.plot(t[:n], (s["x"][:n] + s["sim_base"]) * kx, "C1", lw=0.8, label="model (baseline)")
+    a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * kx, "C0", lw=0.8, label="augmented model")
     a.set(
-        ylabel="x [mm]",
+        ylabel=f"x [{ux}]",
         title=f"validation: windowed simulation, restart every {float(s['H']):.0f} samples "
         f"({float(s['H']) * dt:.3g} s)",
     )
@@ -51,16 +57,20 @@ def plot_diagnosis(diagnosis, path: str | Path):
     # matplotlib's "best" place searches every point (slow, and it warns, on long records)
     loc = "best" if t.size <= 100_000 else "upper right"
     a.legend(fontsize=8, loc=loc)
-    e.plot(t[:n], s["sim_base"] * 1e6, "C1", lw=0.6, label="baseline − measured")
-    e.plot(t[:n], s["sim_final"] * 1e6, "C0", lw=0.6, label="augmented − measured")
-    e.set(xlabel="t [s]", ylabel="sim. error [µm]")
+    e.plot(t[:n], s["sim_base"] * ke, "C1", lw=0.6, label="baseline − measured")
+    e.plot(t[:n], s["sim_final"] * ke, "C0", lw=0.6, label="augmented − measured")
+    e.set(xlabel="t [s]", ylabel=f"sim. error [{ue}]")
     e.legend(fontsize=7, loc=loc)
     a = ax[0, 1]
     a.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")
     a.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
     floor = diagnosis.noise["equation_floor"]
     a.axhspan(-floor, floor, color="0.85", label="noise floor (±1σ)")
-    a.set(xlabel="t [s]", ylabel="ε₁ [m/s²]", title="filtered equation error")
+    a.set(
+        xlabel="t [s]",
+        ylabel=f"ε₁ [{unit('m/s²', diagnosis.units)}]",
+        title="filtered equation error",
+    )
     a.legend(fontsize=8, loc=loc)
     a = ax[1, 0]
     bands = [w for w in diagnosis.where if w.get("share") is not None and "fraction" in w]

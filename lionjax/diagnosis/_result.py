@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from .._tables import jsonable
+from .._units import check_units, convert_units, unit
 from ..twin._windows import WINDOW_PARAMETERS
 
 
@@ -62,6 +63,9 @@ class Diagnosis:
         inconclusive: where the verdict is ``inconclusive`` (the records cannot decide whether
             an effect is there: too few effective samples, or a detection limit above half the
             input's term), ``{"reason", "advice"}``: why, and what to record instead; else None.
+        units: the records' unit system, ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad],
+            F [N·m]): the units every figure and text of the diagnosis states
+            (:meth:`in_units`).
     """
 
     baseline: dict[str, Any]
@@ -79,6 +83,29 @@ class Diagnosis:
     rivals: dict[str, float]
     series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
     inconclusive: dict[str, str] | None = None
+    units: str = "linear"
+
+    def in_units(self, units: str) -> Diagnosis:
+        """The same diagnosis stated in the unit system ``units`` (``"linear"`` or
+        ``"rotary"``): the unit of every parameter, gap and "where" band a linear diagnosis
+        states, rewritten by :func:`lionjax._units.unit` (m → rad, N → N·m, 1/kg → 1/(kg·m²),
+        N/m → N·m/rad …). The numbers are unchanged: they are in the record's own units.
+        """
+        if check_units(units) == self.units:
+            return self
+        if self.units != "linear":
+            raise ValueError(f"in_units: a diagnosis in {self.units!r} units is already restated")
+        where = [
+            {**w, "band": unit(w["band"], units)} if isinstance(w.get("band"), str) else w
+            for w in self.where
+        ]
+        return dataclasses.replace(
+            self,
+            baseline=convert_units(self.baseline, units),
+            final=convert_units(self.final, units),
+            where=where,
+            units=units,
+        )
 
     def to_json(self) -> dict[str, Any]:
         """The JSON payload (plain Python types; non-finite numbers become ``None``; converted by
@@ -99,6 +126,7 @@ class Diagnosis:
                 "steps": [e.to_json() for e in self.steps],
                 "noise": self.noise,
                 "settings": self.settings,
+                "units": self.units,
             }
         )
 

@@ -1,0 +1,130 @@
+"""Package the gallery's measured records small: ``<name>/train.npz`` and ``<name>/valid.npz``.
+
+Each file holds ``t`` [s], ``x`` [rad or m], ``F`` [the input's own unit] (float64, uniform
+``t``) and the strings ``x_unit``, ``F_unit`` and ``units`` (``"rotary"`` or ``"linear"``).
+What is done to each source (splits, unit conversion, decimation) is stated here and in the
+record's PROVENANCE.md; the source files themselves come from the repositories and commits
+that PROVENANCE.md names (they are not part of this repository).
+
+Usage::
+
+    python benchmarks/real/package.py NAME SOURCE_DIR [--out benchmarks/real]
+
+``SOURCE_DIR`` holds the source files under the names PROVENANCE.md gives.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+
+def _save(out: Path, name: str, split: str, t, x, F, *, x_unit, F_unit, units) -> None:
+    t = np.asarray(t, dtype=np.float64)
+    d = np.diff(t)
+    if not np.all(d > 0) or np.max(np.abs(d - d.mean())) > 1e-6 * d.mean():
+        raise ValueError(f"{name}/{split}: t is not uniform")
+    folder = out / name
+    folder.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        folder / f"{split}.npz",
+        t=t,
+        x=np.asarray(x, dtype=np.float64),
+        F=np.asarray(F, dtype=np.float64),
+        x_unit=np.str_(x_unit),
+        F_unit=np.str_(F_unit),
+        units=np.str_(units),
+    )
+
+
+def _hold_decimate(x, F, r: int):
+    """x sampled at the block starts, F averaged over each block (the held input)."""
+    n = len(x) // r
+    return np.asarray(x)[: n * r : r], np.asarray(F)[: n * r].reshape(n, r).mean(axis=1)
+
+
+def motorbench(src: Path, out: Path, side: str) -> None:
+    """FdiTools motor bench: MultisineTypeA.mat → train, MultisineTypeB.mat → valid.
+
+    fs = 2500 Hz, 20 periods of 2500 samples; the first period (transient) is dropped and the
+    next 10 are kept, then x is sampled and iq averaged over pairs (1250 Hz). side "motor": x =
+    theta_mx; side "load": x = −theta_my (the sign the source's own scripts use).
+    """
+    import scipy.io as sio
+
+    name = f"motorbench_{side}"
+    for split, fname in (("train", "MultisineTypeA.mat"), ("valid", "MultisineTypeB.mat")):
+        d = sio.loadmat(src / fname, squeeze_me=True)
+        fs, n = int(d["fs"]), int(d["nrofs"])
+        keep = slice(n, 11 * n)
+        x = d["theta_mx"][keep] if side == "motor" else -d["theta_my"][keep]
+        x, F = _hold_decimate(x.astype(float), d["iq_adx"][keep].astype(float), 2)
+        t = np.arange(x.size) * (2.0 / fs)
+        _save(out, name, split, t, x, F, x_unit="rad", F_unit="A", units="rotary")
+
+
+def lorenz(src: Path, out: Path) -> None:
+    """Lorenz rotary axis, 1 kHz: Lorenz_Jm_1.txt → train, Lorenz_Fc_1.txt → valid.
+
+    Columns: Pos [rad], Vel [rad/s], PosCmd [rad], VelCmd [rad/s], TorCtrl [N·m]; all 10 000
+    samples kept.
+    """
+    for split, fname in (("train", "Lorenz_Jm_1.txt"), ("valid", "Lorenz_Fc_1.txt")):
+        d = np.loadtxt(src / fname)
+        t = np.arange(d.shape[0]) * 1e-3
+        _save(
+            out,
+            "lorenz_friction",
+            split,
+            t,
+            d[:, 0],
+            d[:, 4],
+            x_unit="rad",
+            F_unit="N·m",
+            units="rotary",
+        )
+
+
+def odrive(src: Path, out: Path) -> None:
+    """ODrive slow-velocity runs without anti-cogging: nocomp_0.npy → train, nocomp_1.npy →
+    valid.
+
+    Rows: host time [s] (polled, 1.7–4.7 ms apart), encoder.pos_estimate [counts, 8192 per
+    revolution], Iq_measured [A]. Kept: 0.5 s ≤ t < 9.9 s (nocomp_1 starts with the previous
+    run's end position and a jump to zero); both signals averaged over uniform 5 ms bins
+    (t = bin centres); x in rad = counts·2π/8192.
+    """
+    for split, fname in (("train", "nocomp_0.npy"), ("valid", "nocomp_1.npy")):
+        t, pos, iq = np.load(src / fname)
+        edges = np.arange(0.5, 9.9 + 1e-9, 5e-3)
+        k = np.digitize(t, edges) - 1
+        ok = (k >= 0) & (k < edges.size - 1)
+        nb = edges.size - 1
+        cnt = np.bincount(k[ok], minlength=nb)
+        if np.any(cnt == 0):
+            raise ValueError(f"odrive/{split}: an empty 5 ms bin")
+        x = np.bincount(k[ok], pos[ok], nb) / cnt * (2 * np.pi / 8192)
+        F = np.bincount(k[ok], iq[ok], nb) / cnt
+        tc = edges[:-1] + 2.5e-3
+        _save(out, "odrive_cogging", split, tc, x, F, x_unit="rad", F_unit="A", units="rotary")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("name", choices=["motorbench", "lorenz_friction", "odrive_cogging"])
+    p.add_argument("source", type=Path)
+    p.add_argument("--out", type=Path, default=Path(__file__).parent)
+    a = p.parse_args()
+    if a.name == "motorbench":
+        motorbench(a.source, a.out, "motor")
+        motorbench(a.source, a.out, "load")
+    elif a.name == "lorenz_friction":
+        lorenz(a.source, a.out)
+    else:
+        odrive(a.source, a.out)
+
+
+if __name__ == "__main__":
+    main()

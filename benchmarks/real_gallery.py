@@ -1,0 +1,285 @@
+"""The real-data gallery: `lionjax.diagnose` (defaults) on measured records of real benches.
+
+Each record has a pre-registered expectation, ``benchmarks/real/<name>/EXPECTED.md``, written
+from its source's physics before the first run and never changed after (a disagreement goes in
+the note column), and a ``PROVENANCE.md`` (source, commit, licence, what was done to the data).
+The script diagnoses every record with the default settings and writes one table:
+
+    PYTHONPATH=<checkout> python benchmarks/real_gallery.py [--only NAME,...] [--out DIR]
+
+→ ``DIR/<date>_real_gallery.md`` and ``.json`` (default ``benchmarks/results``): record,
+expected, verdict, confidence, stack, baseline a and b, what the final model says (the natural
+frequency of a spring, the mode's frequency, the friction level, the position period of a
+periodic residual), runtime, outcome (``pass``: the verdict is one the EXPECTED.md accepts)
+and a note (the warnings the diagnosis raised, the record's refusal).
+
+Records and where their data is read:
+
+- ``silverbox_multisine``, ``silverbox_arrow``: ``shared/data/silverbox/`` beside the
+  checkout (searched in the checkout's parent folders, or ``$LIONJAX_SHARED_DATA``), official
+  splits train_val → test_multisine / test_arrow_full.
+- ``emps``: ``lionjax.datasets.emps()`` (package data).
+- the others: ``<name>/train.npz`` and ``valid.npz`` (keys ``t``, ``x``, ``F``, ``units``) in
+  ``$LIONJAX_REAL_DATA``, ``benchmarks/real/`` or ``shared/data/gallery/`` beside the checkout;
+  ``benchmarks/real/package.py`` builds them from the source files named in PROVENANCE.md.
+  A record whose data is absent is listed as such and not diagnosed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import math
+import os
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REAL = HERE / "real"
+
+
+@dataclasses.dataclass(frozen=True)
+class Entry:
+    """One gallery record: its loader and the verdicts its EXPECTED.md accepts."""
+
+    name: str
+    expected: str
+    accepted: tuple[str, ...]
+    load: Callable[[], tuple]
+    #: a "where" finding the EXPECTED.md requires beside the verdict (its ``kind``), or None
+    needs: str | None = None
+
+
+def _shared_data() -> Path | None:
+    env = os.environ.get("LIONJAX_SHARED_DATA")
+    if env:
+        return Path(env)
+    for parent in HERE.parents:
+        if (parent / "shared" / "data").is_dir():
+            return parent / "shared" / "data"
+    return None
+
+
+def _silverbox(split: str):
+    import lionjax as lj
+
+    root = _shared_data()
+    path = None if root is None else root / "silverbox" / "silverbox_SNLS80mV.npz"
+    if path is None or not path.is_file():
+        raise FileNotFoundError("shared/data/silverbox/silverbox_SNLS80mV.npz not found")
+    d = np.load(path)
+    dt = float(d["dt"])
+
+    def part(key):
+        a, b = (int(v) for v in d[key])
+        return lj.Record(d["position"][a:b], d["force"][a:b], dt, float(d["t"][a]))
+
+    return part("split_train_val"), part(split), "linear"
+
+
+def _emps():
+    import lionjax as lj
+
+    return lj.datasets.emps("estimation"), lj.datasets.emps("validation"), "linear"
+
+
+def _npz_folder(name: str) -> Path | None:
+    roots = [os.environ.get("LIONJAX_REAL_DATA"), REAL]
+    shared = _shared_data()
+    if shared is not None:
+        roots.append(shared / "gallery")
+    for root in roots:
+        if root and (Path(root) / name / "train.npz").is_file():
+            return Path(root) / name
+    return None
+
+
+def load_npz_pair(name: str):
+    """(train, valid, units) of a packaged gallery record (FileNotFoundError where absent)."""
+    import lionjax as lj
+
+    folder = _npz_folder(name)
+    if folder is None:
+        raise FileNotFoundError(f"{name}/train.npz not found (see {name}/PROVENANCE.md)")
+    out = []
+    for split in ("train", "valid"):
+        d = np.load(folder / f"{split}.npz")
+        units = str(d["units"])
+        kw = {"units": units} if "units" in lj.Record.__dataclass_fields__ else {}
+        out.append(lj.Record.from_samples(d["t"], d["x"], d["F"], source=f"{name}/{split}", **kw))
+    return out[0], out[1], units
+
+
+ENTRIES = (
+    Entry("motorbench_motor", "flexible_mode", ("flexible_mode",),
+          lambda: load_npz_pair("motorbench_motor")),
+    Entry("motorbench_load", "flexible_mode", ("flexible_mode",),
+          lambda: load_npz_pair("motorbench_load")),
+    Entry("lorenz_friction", "coulomb_friction",
+          ("coulomb_friction", "asymmetric_friction", "inconclusive"),
+          lambda: load_npz_pair("lorenz_friction")),
+    Entry("odrive_cogging", "unexplained (position_period)", ("unexplained", "inconclusive"),
+          lambda: load_npz_pair("odrive_cogging"), needs="position_period"),
+    Entry("silverbox_multisine", "spring", ("spring",),
+          lambda: _silverbox("split_test_multisine")),
+    Entry("silverbox_arrow", "spring", ("spring",), lambda: _silverbox("split_test_arrow_full")),
+    Entry("emps", "coulomb_friction + offset", ("coulomb_friction", "asymmetric_friction"), _emps),
+)  # fmt: skip
+
+
+def final_says(d) -> str:
+    """The final model's figures that carry its physics, in words."""
+    p = d.final.get("params", {})
+    u = d.final.get("units", {})
+    out = []
+    if "k" in p and p.get("b") is not None and p["k"] is not None and p["b"] * p["k"] > 0:
+        out.append(f"spring f_n = {math.sqrt(p['b'] * p['k']) / (2 * math.pi):.4g} Hz")
+    for k in ("f_mode", "zeta_mode", "mass_ratio", "Fc", "Fc_pos", "Fc_neg", "F0", "tau"):
+        if p.get(k) is not None:
+            out.append(f"{k} = {p[k]:.4g} {u.get(k, '')}".rstrip())
+    for w in d.where:
+        if w.get("kind") == "position_period":
+            out.append(f"position period {w.get('band')}")
+    return "; ".join(out)
+
+
+def findings(d) -> list[str]:
+    """What the diagnosis saw, in words, for the note column: the residual's spectral peak, the
+    best-scoring candidate that was refused and why, the detection limit, closed loop."""
+    out = [f"residual peak {w['band']}" for w in d.where if w.get("kind") == "frequency_peak"]
+    refused = [e for e in d.effects if not e.significant and e.score > 10]
+    if refused:
+        e = refused[0]
+        out.append(f"best refused: {e.name} (score {e.score:.3g}; {e.reason})")
+    out.append(f"detection limit {d.noise.get('detection_limit', float('nan')):.3g}")
+    if d.noise.get("closed_loop"):
+        out.append("closed loop")
+    return out
+
+
+def outcome(e: Entry, d) -> str:
+    """``pass`` when the verdict is one the EXPECTED.md accepts (and its required finding is
+    there), else ``FAIL`` with what is missing."""
+    if d.verdict not in e.accepted:
+        return "FAIL"
+    if e.needs and not any(w.get("kind") == e.needs for w in d.where):
+        return f"FAIL (no {e.needs} finding)"
+    return "pass"
+
+
+def run_entry(e: Entry) -> dict:
+    import lionjax as lj
+
+    row = {"record": e.name, "expected": e.expected, "accepted": list(e.accepted)}
+    try:
+        train, valid, units = e.load()
+    except FileNotFoundError as err:
+        return {**row, "outcome": "no data", "note": str(err)}
+    row["units"] = units
+    row["samples"] = [int(train.n_samples), int(valid.n_samples)]
+    row["dt"] = float(train.dt)
+    start = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            d = lj.diagnose(train, valid)
+        except lj.InputError as err:
+            row.update(outcome="refused", note=str(err), runtime_s=time.perf_counter() - start)
+            return row
+    row["runtime_s"] = time.perf_counter() - start
+    base = d.baseline["params"]
+    row.update(
+        verdict=d.verdict,
+        confidence=float(d.confidence),
+        stack=list(d.stack),
+        ambiguous=list(d.ambiguous),
+        baseline_a=base.get("a"),
+        baseline_b=base.get("b"),
+        final_params=d.final.get("params", {}),
+        final_units=d.final.get("units", {}),
+        final_says=final_says(d),
+        shrink=d.final.get("shrink"),
+        outcome=outcome(e, d),
+        findings=findings(d),
+        warnings=sorted({str(w.message)[:200] for w in caught}),
+        diagnosis=d.to_json(),
+    )
+    return row
+
+
+def _fmt(v, spec=".4g") -> str:
+    return "—" if v is None else format(v, spec)
+
+
+def markdown(rows: list[dict], meta: dict) -> str:
+    lines = [
+        "# Real-data gallery",
+        "",
+        f"{meta['date']}, commit {meta['commit']}, `lj.diagnose` with default settings, "
+        f"{meta['cpus']} CPU(s). Expected verdicts: `benchmarks/real/<record>/EXPECTED.md` "
+        "(pre-registered). Produced by `benchmarks/real_gallery.py`.",
+        "",
+        "| record | expected | verdict | confidence | stack | baseline a [1/s] | baseline b "
+        "| final model says | runtime [s] | outcome | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        note = "; ".join([*r.get("findings", []), *r.get("warnings", []), r.get("note", "")])
+        note = note.strip("; ")
+        lines.append(
+            f"| {r['record']} | {r['expected']} | {r.get('verdict', '—')} | "
+            f"{_fmt(r.get('confidence'), '.2f')} | {', '.join(r.get('stack', [])) or '—'} | "
+            f"{_fmt(r.get('baseline_a'))} | {_fmt(r.get('baseline_b'))} | "
+            f"{r.get('final_says', '') or '—'} | {_fmt(r.get('runtime_s'), '.0f')} | "
+            f"{r['outcome']} | {note.replace('|', '/') or '—'} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--only", help="comma-separated record names (default: all)")
+    p.add_argument("--out", type=Path, default=HERE / "results")
+    a = p.parse_args(argv)
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    names = None if a.only is None else set(a.only.split(","))
+    entries = [e for e in ENTRIES if names is None or e.name in names]
+    if names is not None and len(entries) != len(names):
+        known = ", ".join(e.name for e in ENTRIES)
+        p.error(f"--only: unknown record(s) {sorted(names - {e.name for e in entries})}; {known}")
+    rows = []
+    for e in entries:
+        row = run_entry(e)
+        rows.append(row)
+        print(
+            f"{e.name}: {row.get('verdict', row['outcome'])} "
+            f"({_fmt(row.get('confidence'), '.2f')}) {row['outcome']}",
+            flush=True,
+        )
+    import subprocess
+
+    commit = subprocess.run(
+        ["git", "-C", str(HERE), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    ).stdout.strip()
+    meta = {"date": datetime.date.today().isoformat(), "commit": commit, "cpus": os.cpu_count()}
+    a.out.mkdir(parents=True, exist_ok=True)
+    stem = a.out / f"{meta['date']}_real_gallery"
+    from lionjax._tables import jsonable
+
+    stem.with_suffix(".json").write_text(json.dumps(jsonable({**meta, "rows": rows}), indent=1))
+    stem.with_suffix(".md").write_text(markdown(rows, meta))
+    print(f"wrote {stem}.md and .json", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
