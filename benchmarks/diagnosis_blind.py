@@ -78,6 +78,11 @@ Classes → accepted answer:
                                saturation+coulomb_friction+offset (the command beyond F_max
                                on one side on at most 80 % of each record's samples, else a
                                new setup, as for an aim: ``saturated_share``)
+    saturation_triple        → all three names in ``d.stack``: saturation+coulomb_friction+offset
+                               drawn as the class ``triple`` drew it before its redraw rule
+                               (its command may stay beyond F_max on one side on most of a
+                               record, where F_max and the offset are not separable): kept and
+                               reported on its own
     quadratic_drag           → ``unexplained`` (``quadratic_drag`` with ``--candidates``, above)
                                drag −c₂·v|v|, c₂·v_rms/C log-uniform prior [0.05, 2]
     force_sensor_line        → ``force_sensor_line`` or ``unexplained``   logged F = applied F +
@@ -143,7 +148,7 @@ ARTEFACTS = ("force_sensor_line", "force_sensor_drift")
 #: passes a candidate of that name, else as ``unexplained``
 OWN_NAME_WITH_CANDIDATES = (*OUT_OF_LIBRARY, "quadratic_drag")
 #: appended after the classes above so that no existing class' seeds move
-NEW = (*DOMINANT, "triple", "quadratic_drag", *ARTEFACTS)
+NEW = (*DOMINANT, "triple", "quadratic_drag", *ARTEFACTS, "saturation_triple")
 CLASSES = ("none", *LIBRARY, *TWO, *OUT_OF_LIBRARY, *NEW)
 #: the triples of class ``triple`` (drawn uniformly); the first runs open loop (the issue's case)
 TRIPLES = (
@@ -171,6 +176,7 @@ SHAPES = {
     "quadratic_drag": {"twin": ("quadratic",), "scipy": ("quadratic",)},
     "force_sensor_line": {"twin": ("line",), "scipy": ("line",)},
     "force_sensor_drift": {"twin": ("ramp",), "scipy": ("ramp",)},
+    "saturation_triple": {"twin": ("held",), "scipy": ("held",)},
 }
 BAND = (0.02, 0.80)
 #: response-change band of the dominant classes
@@ -1007,6 +1013,8 @@ def make_case(
         names = str(rng.choice(TRIPLES)).split("+")
         if "+".join(names) in OPEN_LOOP_TRIPLES:
             setup_kw["closed"] = False
+    elif cls == "saturation_triple":  # the class triple drew before its redraw: kept whole
+        names = "saturation+coulomb_friction+offset".split("+")
     elif cls == "stiction_dominant":  # open loop, slow input: the axis sticks
         # no random steps: at a low band a record holds only a few levels, so the share stuck
         # jumps between them and the change from ~0.7 to 1 (all levels below break-away)
@@ -1023,7 +1031,7 @@ def make_case(
         runs = [simulate(st, draws, j) for j in range(2)]
         # a saturation beside other effects must leave the applied force varying
         shares = _saturated_shares(draws, [F for _, F, _, _ in runs])
-        held = shares is None or max(shares) <= SATURATED_MOST
+        held = shares is None or max(shares) <= SATURATED_MOST or cls == "saturation_triple"
         if (all(d.in_aim() for d in draws) and held) or setups >= SETUP_DRAWS:
             break
     recs, changes, v_eff = [], [], []
@@ -1086,7 +1094,7 @@ def make_case(
         "response_change_train": changes[0],
         "truth": [d.name for d in draws],
     }
-    if cls == "triple":
+    if cls in ("triple", "saturation_triple"):
         info["shape"] = "+".join(names) + " / " + info["shape"]
         if shares is not None:  # each record's share of samples beyond F_max, on one side
             info["saturated_share"] = shares
@@ -1134,7 +1142,7 @@ def is_correct(
         return verdict in ("coulomb_friction", "asymmetric_friction")
     if cls in TWO:
         return set(cls.split("+")) <= set(rank[:3])
-    if cls == "triple":
+    if cls in ("triple", "saturation_triple"):
         if len(set(truth)) != 3:
             raise ValueError(f"class triple needs its three effect names, got truth={truth!r}")
         have = set(stack) | ({"offset"} if "spring" in stack else set())
@@ -1157,7 +1165,7 @@ def verdict_right(cls: str, verdict: str | None, correct: bool, truth: Sequence[
     force and `asymmetric_friction` for Coulomb friction."""
     if verdict is None:
         return False
-    if cls not in TWO and cls != "triple":
+    if cls not in TWO and cls not in ("triple", "saturation_triple"):
         return correct
     ok = set(truth)
     if "spring" in ok:
@@ -1289,6 +1297,9 @@ def _evidence(d) -> dict:
         "periodic": final.get("periodic_lookalike"),
         "noise_ratio": (base["equation_gap"] / base["noise_floor"]) if base else None,
         "valid_outside_train": base.get("valid_outside_train"),
+        "detection_limit": getattr(d, "noise", {}).get("detection_limit"),
+        "n_effective": getattr(d, "noise", {}).get("n_effective"),
+        "inconclusive": getattr(d, "inconclusive", None),
     }
 
 
@@ -1441,11 +1452,15 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
     single = [r for r in scored if r["class"] in LIBRARY]
     two = [r for r in scored if r["class"] in TWO]
     triples = [r for r in scored if r["class"] == "triple"]
+    # the class the triple drew before its redraw (a command saturated on one side on most of
+    # a record): kept and reported on its own
+    restored = [r for r in scored if r["class"] == "saturation_triple"]
+    inconclusive = [r for r in scored if r["verdict"] == "inconclusive"]
     ool = [r for r in scored if r["class"] in OUT_OF_LIBRARY]
     ool_art = [r for r in scored if r["class"] in (*OWN_NAME_WITH_CANDIDATES, *ARTEFACTS)]
     dominant = [r for r in scored if r["class"] in DOMINANT]
     clean = [r for r in scored if r["class"] == "none"]
-    named = [r for r in clean if r["verdict"] not in (None, "none", "unexplained")]
+    named = [r for r in clean if r["verdict"] not in (None, "none", "unexplained", "inconclusive")]
     confident = [r for r in scored if np.isfinite(r["confidence"]) and r["confidence"] >= 0.9]
     confident_wrong = [
         {
@@ -1522,6 +1537,7 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
         "top1_single": _acc(single)["accuracy"],
         "two_effect_both_in_top3": _acc(two)["accuracy"],
         "triple_all_in_stack": _acc(triples)["accuracy"],
+        "saturation_triple_all_in_stack": _acc(restored)["accuracy"],
         "out_of_library_unexplained": _acc(ool)["accuracy"],
         "out_of_library_or_artefact": _acc(ool_art)["accuracy"],
         "dominant_top1": _acc(dominant)["accuracy"],
@@ -1535,6 +1551,8 @@ def summarise(rows: list[dict], classes: Sequence[str] = CLASSES) -> dict:
             "single_top1": _acc(single),
             "pairs_both_in_top3": _acc(two),
             "triples_all_in_stack": _acc(triples),
+            "saturation_triple_all_in_stack": _acc(restored),
+            "inconclusive": _share(len(inconclusive), len(scored)),
             "out_of_library_or_artefact_unexplained_or_own_name": _acc(ool_art),
             "dominant_top1": _acc(dominant),
             # the records whose draw holds its band (and neither record stuck throughout)
@@ -1652,6 +1670,7 @@ def print_summary(out: dict, fh=sys.stdout) -> None:
         "top1_single",
         "two_effect_both_in_top3",
         "triple_all_in_stack",
+        "saturation_triple_all_in_stack",
         "out_of_library_unexplained",
         "out_of_library_or_artefact",
         "dominant_top1",
