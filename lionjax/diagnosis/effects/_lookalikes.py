@@ -38,6 +38,8 @@ PERIOD_OVER_NOISE = 10.0
 PERIOD_BINS = 4096
 PERIOD_OVERSAMPLE = 8
 PERIOD_PEAKS = 6
+#: The family-wise level at which a force periodic in position is reported in ``where``.
+FINDING_ALPHA = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -249,7 +251,9 @@ class PeriodicLookalike(AbstractLookalike):
     ``Criteria.periodic_score_factor`` times the threshold, removes ``min_share`` of what the
     stack leaves and holds at least ``periodic_over_stack`` of the stack's own evidence (a
     remainder small beside a dominant named effect is no rival). Not tried on a stack with an
-    input map."""
+    input map. It is reported in ``where`` (``position_period``) where it overrules, or where its
+    likelihood ratio is beyond what the best of the searched periods reaches on noise at the
+    family-wise level :data:`FINDING_ALPHA`."""
 
     name: ClassVar[str] = "periodic_lookalike"
     n_params: ClassVar[int] = 3
@@ -260,9 +264,9 @@ class PeriodicLookalike(AbstractLookalike):
     def test(self, run, stk) -> LookalikeTest:
         cur, crit = stk.fit, run.crit
         if cur.design.maps_input:
-            ms, period = math.inf, math.nan
+            ms, period, cycles = math.inf, math.nan, 0.0
         else:
-            ms, period = self.fitted(run.problem, stk.fit.structure)
+            ms, period, cycles = self.fitted(run.problem, stk.fit.structure)
         score = run.score_ms(cur, ms, 3, 0.0) if math.isfinite(ms) and ms > 0 else -math.inf
         # its validated fit bounds the floor, as every validated fit does
         lo2 = min(run.fit_floor**2, ms)
@@ -282,8 +286,13 @@ class PeriodicLookalike(AbstractLookalike):
                 "significant": better,
             }
         }
+        # found: its likelihood ratio n·ln(MS/MS_p) (score + 3·ln n) beyond what the best of the
+        # searched periods reaches on noise at the family-wise level FINDING_ALPHA: a χ²₂ per
+        # independent period, about one per cycle searched (P(max > c) ≈ K·e^{−c/2})
+        lr = score + 3 * math.log(cur.n_eff) if math.isfinite(score) else -math.inf
+        found = lr > 2 * math.log(max(cycles, 1.0) / FINDING_ALPHA)
         finding = None
-        if better:
+        if better or found:
             finding = {
                 "kind": "position_period",
                 "band": f"period {period:.4g} m",
@@ -291,14 +300,16 @@ class PeriodicLookalike(AbstractLookalike):
                 "share": share,
                 "score": score,
                 "note": "a force periodic in position (cogging; not in the library) fitted with "
-                "the stack: share = its part of the excess validation error the stack leaves",
+                "the stack: share = its part of the excess validation error the stack leaves; "
+                + ("it overrules the stack" if better else "found, too small to overrule it"),
             }
         return LookalikeTest(
             ms, overrules=better, overrules_none=better, share=share, final=final, finding=finding
         )
 
-    def fitted(self, problem, structure) -> tuple[float, float]:
-        """(validated mean square of ε₁, period p [m]) of the structure with the look-alike.
+    def fitted(self, problem, structure) -> tuple[float, float, float]:
+        """(validated mean square of ε₁, period p [m], the cycles its screen searched) of the
+        structure with the look-alike.
 
         κ is found on the *training* record in two stages. A screen (:func:`_period_screen`)
         ranks every κ at once; its :data:`PERIOD_PEAKS` highest peaks (and their neighbours 1/16
@@ -315,7 +326,7 @@ class PeriodicLookalike(AbstractLookalike):
         R = max(float(np.max(problem.train.x)), float(np.max(problem.valid.x))) - x_lo
         sx = _position_noise(np.asarray(problem.valid.x))
         k_hi = min(PERIOD_CYCLES[1], R / max(PERIOD_OVER_NOISE * sx, 1e-300))
-        out = (math.inf, math.nan)
+        out = (math.inf, math.nan, 0.0)
         if k_hi > PERIOD_CYCLES[0]:
 
             def columns(regs: Regressors, ks) -> FilteredColumns:
@@ -343,7 +354,8 @@ class PeriodicLookalike(AbstractLookalike):
                     r = rss_fixed_with_columns(
                         rva, model, columns(rva, ks[i : i + 1]), coef[i : i + 1], 2
                     )
-                    out = (float(r[0]) / problem.valid.n_samples, R / float(ks[i]))
+                    ms = float(r[0]) / problem.valid.n_samples
+                    out = (ms, R / float(ks[i]), k_hi - PERIOD_CYCLES[0])
             except TooWide:
                 pass
         problem.memo[key] = out
