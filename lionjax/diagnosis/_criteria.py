@@ -7,7 +7,7 @@ import equinox as eqx
 from .._errors import InputError
 
 #: A windowed simulation whose rms error exceeds this many times the validation record's
-#: position range has diverged (:attr:`~._structures.Fitted.simulation`).
+#: position range has diverged (:attr:`~._fit.Fitted.simulation`).
 DIVERGED = 100.0
 
 

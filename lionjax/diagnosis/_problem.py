@@ -38,7 +38,7 @@ class Problem:
         H: the windowed simulation's restart interval [samples].
         x_start, v_start: its start states at every validation sample [m], [m/s];
             ``state_hz`` the band they are estimated in (:func:`~._statistics._start_states`).
-        stuck: (train, valid) (T,) True where the axis sticks (:func:`stuck`).
+        stuck: (train, valid) (T,) True where the axis sticks (:func:`stuck_mask`).
         limits: what plausibility is judged against (set once the baseline is fitted).
         streamed: whether the records are read in chunks (else each in one); ``chunk``: the
             chunk length where given.

@@ -1,5 +1,5 @@
 """The record in chunks: the diagnosis' filters with their states carried from chunk to chunk,
-and column sources whose products a streamed fit accumulates (:class:`~._streamed.Streamed`).
+and column sources whose products a chunked fit accumulates (:class:`~._regressors.Regressors`).
 
 A long record's filtered signals, designs and profile columns are never held whole: every
 product the fits read (Grams, cross products with a profile's columns, a validation residual's
@@ -285,7 +285,7 @@ class FreeRows:
 
 
 def input_map(F: np.ndarray, dt: float, tau: float, fmax: float, k0: int, k1: int) -> np.ndarray:
-    """Rows [k0, k1) of u = sat_Fmax(F(t − τ)) (:func:`~._fit._apply_input`'s formula: τ/dt =
+    """Rows [k0, k1) of u = sat_Fmax(F(t − τ)) (:func:`~._lstsq.apply_input`'s formula: τ/dt =
     n + φ, F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1], F before the record = F[0]; F_max < 0
     the soft saturation)."""
     T = F.shape[0]

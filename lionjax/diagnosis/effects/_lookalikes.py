@@ -227,7 +227,7 @@ class DragLookalike(AbstractLookalike):
 
 def _rival(run, stk, ms: float, k: int) -> float | None:
     """A look-alike's score from the baseline (its ``k`` parameters; the same N_eff and fitted
-    floor as the stack's joint score, :meth:`Run.joint`), where it has fewer parameters than
+    floor as the stack's joint score, :meth:`~.._run.Run.joint`), where it has fewer parameters than
     the stack and scores above the stack's joint score; None otherwise, or against a stack the
     windowed simulation confirms where the baseline is qualitatively wrong (there the equation
     error is no measure)."""
