@@ -18,7 +18,7 @@ from ._regressors import RecordSignals, Regressors
 from ._settings import STICK_MIN_S, WINDOWS_LEAST, Settings
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
 from ._streaming import chunk_length, zero_phase
-from .effects import Design, Limits
+from .effects import Design, Limits, design_of
 
 #: How messages name the two records (the command line puts the file names in).
 ROLES = {
@@ -154,8 +154,6 @@ class Problem:
 
     def regressors_of(self, structure) -> tuple[Regressors, Regressors]:
         """The regressors of a structure's design."""
-        from ._fit import design_of
-
         return self.regressors(design_of(structure))
 
     def train_regressors(self) -> list[Regressors]:

@@ -231,3 +231,11 @@ class AbstractCandidate(eqx.Module):
 def b_positive(phys) -> str:
     """ "b ≤ 0" where the fitted b is not positive, else ""."""
     return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
+
+
+def design_of(structure) -> Design:
+    """A structure's design: every candidate's change folded in, in order."""
+    d = Design()
+    for c in structure:
+        d = c.design(d)
+    return d
