@@ -149,12 +149,12 @@ def diagnose(
             largest stack; defaults 10, 0.3, 0.005, 1.5, 3); where given, they replace those
             fields of ``criteria``.
         max_memory_gb: host memory [GB] the diagnosis may take (default: this machine's
-            physical memory). In memory its peak grows with the records' padded lengths (about
-            3.6 kB per padded sample of each record above 2¹⁸, 6.5 kB below, where designs are
-            cached); streamed, by their raw per-sample signals only
-            (:func:`~lionjax.diagnosis._fit.memory_estimate`). Records that would need more get
-            an :class:`~lionjax.InputError` before anything is computed, not an out-of-memory
-            kill, naming the least decimation that fits (:func:`decimation_for`,
+            physical memory). In one chunk its peak grows with the records' padded lengths (about
+            6.5 kB per padded sample of each record: the filtered signals and designs are
+            kept); streamed, by their raw per-sample signals only (about 1.2 GB plus 160 B per
+            sample: :func:`~lionjax.diagnosis._lstsq.memory_estimate`). Records that would need
+            more get an :class:`~lionjax.InputError` before anything is computed, not an
+            out-of-memory kill, naming the least decimation that fits (:func:`decimation_for`,
             :meth:`lionjax.Record.decimate`).
         criteria: every other threshold (default :class:`~lionjax.diagnosis.Criteria`()).
         streamed: read the records in chunks of 2¹⁶ samples (or of ``streamed`` samples, an

@@ -7,59 +7,51 @@ import equinox as eqx
 from .._errors import InputError
 
 #: A windowed simulation whose rms error exceeds this many times the validation record's
-#: position range has diverged (:attr:`~._structures.Fitted.simulation`).
+#: position range has diverged (:attr:`~._fit.Fitted.simulation`).
 DIVERGED = 100.0
 
 
 class Criteria(eqx.Module):
-    """Every threshold the diagnosis decides by (defaults: the values it is tested with).
+    """Every threshold the diagnosis decides by (defaults: the values it is tested with);
+    docs/method.md, "Diagnosis", states the rule each one sets and why it holds.
 
     Significance of one candidate (all must hold):
         threshold: score (validated log-likelihood gain minus the BIC penalty) above which an
-            effect is significant.
+            effect is significant: a likelihood ratio of e⁵ ≈ 150 to 1.
         min_share: least fraction of the excess gap (above the noise floor, in mean square) an
             effect must remove to be named.
         min_share_deep: ``min_share`` for an effect added to a stack of two or more: what two
-            effects leave holds both shapes' misfit, which no candidate removes (Stribeck or
-            Dahl friction fitted as Coulomb's), so a third effect's share of it is smaller
-            (held-out triples: Coulomb friction under a delay and a spring, score 53, share
-            0.24; a delay under Dahl friction and an offset, score 70, share 0.25).
+            effects leave holds both shapes' misfit, which no candidate removes, so a third
+            effect's share of it is smaller.
         min_size: least size of a named effect: the rms of ε₁ it removes on validation over the
-            rms of the input's term b·F/Λ there (0.5 %): with a precise encoder and no noise, a
-            spring of 10⁻⁵ of the force is statistically significant and of no consequence.
+            rms of the input's term b·F/Λ there (0.5 %): with a precise encoder and no noise, an
+            effect of 10⁻⁵ of the force is statistically significant and of no consequence.
         max_worsening: largest relative growth of the windowed-simulation gap a simulated
-            candidate may cause and still be named (the simulation's own bias from held
-            nonlinear terms stays well inside it).
+            candidate may cause and still be named (the simulation's own bias from nonlinear
+            terms held over a sample stays well inside it).
         later_sim_share: an effect added to a stack (not the first) that the windowed
             simulation models may instead remove at least this share of the stack's simulated
-            gap: what the first effect leaves is mostly its own misfit, which the equation error
-            shows and no candidate removes (held-out triple, open loop: under a 15 ms delay,
-            asymmetric friction for Stribeck friction with an offset removed 20 % of the excess
-            equation error, score 94, and 78 % of the simulated gap).
+            gap: what the first effect leaves is mostly its own misfit, which the equation
+            error keeps and no candidate removes.
         dominant_sim_share: where the baseline is qualitatively wrong (a ≤ 0 or b ≤ 0), the least
             share of the simulated gap a simulated candidate must remove in place of
-            ``min_share`` of the equation error (a spring at 36 Hz above a 17.5 Hz filter corner,
-            baseline a = −0.24, b = −0.009, removed 78 % of the simulated gap and 23 % of the
-            excess equation error).
-
+            ``min_share`` of the equation error (the equation error of such a baseline is the
+            whole response, no measure of an effect).
         stuck_share: on a record whose axis sticks for at least this share of the validation
-            samples (``noise["stuck_share"]``), friction is refused for its simulated gap only
-            where its simulation diverges: the simulated smoothed sign without static friction
-            slides where the axis stuck, and a mass–damper fitted to a sticking record predicts
-            little motion (held-out stiction records at 2–2.4 F_c, sticking 70 %, where Coulomb
-            friction removed 100 % of the excess equation error at a score of 128, were refused
-            so).
+            samples, friction is refused for its simulated gap only where its simulation
+            diverges: the simulated smoothed sign, without static friction, slides where the
+            axis stuck.
 
     The stack:
         max_effects: largest stack, in effects: a candidate another stacked one contains (an
             offset beside a spring) takes no place.
         pair_from: where no candidate is significant alone on the stack, pairs are tried as
             one step: the pair_from·(pair_from − 1)/2 compatible pairs of the highest summed
-            scores among the 2·pair_from best plausible candidates (effects that hide each other:
-            a spring under a 15 ms delay, neither significant alone); where none is either and
-            the stack stays above floor_factor × the floor, every compatible pair of device
-            candidates, then the pair_from best pairs each with a third, and one removing
-            explained_full of the excess is stacked. 0: no pair is tried.
+            scores among the 2·pair_from best plausible candidates (effects that hide each
+            other, neither significant alone); where none is either and the stack stays above
+            floor_factor × the floor, every compatible pair of device candidates, then the
+            pair_from best pairs each with a third, and one removing explained_full of the
+            excess is stacked. 0: no pair is tried.
 
     The verdict:
         floor_factor: the gap is "at the noise floor" (``baseline["at_noise_floor"]``) when ε₁'s
@@ -73,31 +65,27 @@ class Criteria(eqx.Module):
             structure: the verdict is ``unexplained``.
         explained_full: share of the excess gap a stack must remove to earn full confidence
             (and above which a line it leaves sharpened is at the noise level).
-        dead_zone_lookalike_gain: friction (a candidate with ``dead_zone_lookalike``) is
-            implausible where a dead zone's input in its place, on the same structure, lowers
-            the validated mean square by more than this many times what friction lowers it
-            (held-out dead zones: 1.36–15; friction records vetoed at 1.03–1.21 by a bare
-            comparison: stiction in stick–slip and a friction small under a delay, where the
-            force's sign and the velocity's nearly agree).
+        dead_zone_lookalike_gain: friction is implausible where a dead zone's input in its
+            place, on the same structure, lowers the validated mean square by more than this
+            many times what friction lowers it (friction acts with the sign of the velocity, a
+            dead zone with the sign of the force; where the two signs nearly agree — stick–slip,
+            a small friction under a delay — the two fits come within 25 % of each other).
         dead_zone_lookalike_share: a named stack is ``unexplained`` where the dead zone's
             look-alike on the baseline structure validates below this share of its mean square.
         drag_lookalike_share: a named stack is ``unexplained`` where a force quadratic in the
             velocity on the baseline structure validates below this share of its mean square
-            (drag records were named ``saturation`` at 0.58 and 0.63).
+            (drag lowers the response to the largest forces as a saturation does).
         periodic_score_factor: the position-periodic look-alike overrules the stack when its
             validated score is above this many times ``threshold`` (and it removes
-            ``min_share`` of the excess the stack leaves): it is searched over a family of some
-            1000 periods, not one shape, and on a closed-loop Coulomb record at 10 kHz one at 67
-            cycles scored 15; the drawn cogging records of development scored 175–1950.
+            ``min_share`` of the excess the stack leaves): it is the best of a family of some
+            1000 periods, not one shape, so its score carries a multiplicity of ln 1000 ≈ 7
+            and more.
         periodic_over_stack: ... and when its score is at least this share of the evidence
             the stack holds over the baseline (its steps' scores): a force periodic in position
-            small beside a dominant named effect is a remainder, not a rival (held-out
-            dominant springs and stiction were ``unexplained`` at 0.63–0.94 for a periodic
-            remainder scoring 0.02–0.23 of the stack's; cogging and dead zones that a library
-            effect took in part scored 0.99–4.0 of it).
+            small beside a dominant named effect is a remainder, not a rival.
         feedback_share: share of the force's innovation explained by the position just
-            measured above which a record is taken as closed loop (held-out records: ≤ 0.17 on
-            63 open loops, ≥ 0.33 on the 61 of 73 closed loops whose controller's answer shows).
+            measured above which a record is taken as closed loop (:func:`~._statistics._feedback`:
+            in open loop the measured position predicts nothing new about F).
 
     The confidence:
         tie_ratio: near-tie: a name whose BIC weight is at least 1/tie_ratio of the verdict's is

@@ -247,7 +247,7 @@ def mode_signals(
     under a zero-order hold, through :func:`mode_bank` and
     :func:`mode_output`, on bucketed shapes: each mode's x and F
     through its own filter, modes in batches of :data:`MODE_BUCKETS`
-    (:meth:`~lionjax.diagnosis._mode.ModeColumns.signals` calls it)."""
+    (:meth:`~lionjax.diagnosis.effects.ModeColumns.signals` calls it)."""
     T = np.asarray(record_x).size
     xp, Fp = edge_pad(record_x, Tp), edge_pad(record_F, Tp)
     out = []
@@ -264,7 +264,7 @@ def mode_signals(
 
 
 def mode_free_responses(modes, dt: float, T: int, k0: int = 0) -> np.ndarray:
-    """(m, 2, T) :func:`mode_free_response` of each mode (ω [rad/s], ζ) in ``modes`` (m, 2), in
+    """(m, 2, T) :func:`mode_free_responses` of each mode (ω [rad/s], ζ) in ``modes`` (m, 2), in
     one pass (the mode profile asks for a few hundred); rows k0 … T − 1 (a streamed chunk's)."""
     modes = np.asarray(modes, np.float64).reshape(-1, 2)
     w, z = modes[:, :1], modes[:, 1:]
@@ -277,7 +277,7 @@ def mode_free_responses(modes, dt: float, T: int, k0: int = 0) -> np.ndarray:
 @jax.jit
 def _seed_discretes(lam, dt) -> Discrete:
     """Two exact sampled filters of Λ₅ = (s + λ)⁵ (a batch, leading axis): outputs
-    λ⁵s^k/Λ₅ for k = 1…4 (x's) and k = 0…3 (F's), for :func:`mode_seed`."""
+    λ⁵s^k/Λ₅ for k = 1…4 (x's) and k = 0…3 (F's), for :func:`~._streaming.mode_seed`."""
     p = jnp.full((5,), -lam + 0j)
     bank = FilterBank.from_poles(p)
     Phi, G0, G1 = bank.discretise(dt)
@@ -289,14 +289,14 @@ def _seed_discretes(lam, dt) -> Discrete:
 
 
 def seed_design(X, Fv):
-    """(A (T, 6), y (T,)) of :func:`mode_seed`'s fit from the filtered x (s¹…s⁴) and F
+    """(A (T, 6), y (T,)) of :func:`~._streaming.mode_seed`'s fit from the filtered x (s¹…s⁴) and F
     (s⁰…s³), (T, 4) each."""
     A = np.stack([-X[:, 2], -X[:, 1], -X[:, 0], Fv[:, 2], Fv[:, 1], Fv[:, 0]], 1)
     return A, X[:, 3]
 
 
 def seed_mode(c) -> tuple[float, float] | None:
-    """(ω, ζ) of :func:`mode_seed`'s coefficients ``c`` (6,), or None."""
+    """(ω, ζ) of :func:`~._streaming.mode_seed`'s coefficients ``c`` (6,), or None."""
     c1, c2, c3, _, c5, c6 = (float(v) for v in c)
     with np.errstate(all="ignore"):
         r = c5 / c6

@@ -20,15 +20,7 @@ from ..twin._windows import WINDOW_PARAMETERS
 from ._criteria import DIVERGED
 from ._lstsq import apply_input, fit_batch, residual, simulate_windows
 from ._statistics import _n_eff
-from .effects import Design, SimulatedForce
-
-
-def design_of(structure) -> Design:
-    """The structure's design: every candidate's change folded in, in order."""
-    d = Design()
-    for c in structure:
-        d = c.design(d)
-    return d
+from .effects import Design, SimulatedForce, design_of
 
 
 @dataclasses.dataclass(frozen=True)

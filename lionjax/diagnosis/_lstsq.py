@@ -27,8 +27,8 @@ Compilation. Every compiled program here sees only *bucketed* shapes and *traced
   are solved in batches of :data:`GRID`. So one program fits every candidate and every stack,
   and the solve (on (P + 1)² Grams) does not depend on the record length at all;
 - batches come in a few sizes: signals filtered 1 … 32 at a time
-  (:data:`~._streaming.BATCHES`), modes 1, 2 or 4 (:data:`MODE_BUCKETS`), F-dependent slots 1,
-  2 or 4 (:data:`~._regressors.K_BUCKETS`).
+  (:data:`~._streaming.BATCHES`), modes 1, 2 or 4 (:data:`~._filtering.MODE_BUCKETS`),
+  F-dependent slots 1, 2 or 4 (:data:`~._regressors.K_BUCKETS`).
 """
 
 from __future__ import annotations
@@ -63,12 +63,12 @@ GRID_PASS = 16
 BYTES_PER_SAMPLE_CACHED = 6_500
 
 
-#: Padded lengths above this are diagnosed streamed (:class:`~._streamed.Streamed`) unless the
-#: caller says otherwise: in memory a diagnosis of records of up to 2¹⁷ samples peaks below
-#: 2 GB (1.25–1.64 GB measured at 10⁵ training samples), one of 2¹⁸ up to 2.7 GB; streamed, about
-#: 1.1 GB whatever the length, at up to twice the time (a friction record of 2 × 5·10⁵ samples:
-#: 198 s and 1.21 GB streamed, 104 s and 3.86 GB in memory). The blind benchmark's records (at
-#: most 2¹⁶ padded samples) are diagnosed in memory.
+#: Padded lengths above this are diagnosed streamed (in chunks: :class:`~._regressors.Regressors`)
+#: unless the caller says otherwise: in memory a diagnosis of records of up to 2¹⁷ samples peaks
+#: below 2 GB (1.25–1.64 GB measured at 10⁵ training samples), one of 2¹⁸ up to 2.7 GB; streamed,
+#: about 1.1 GB whatever the length, at up to twice the time (a friction record of 2 × 5·10⁵
+#: samples: 198 s and 1.21 GB streamed, 104 s and 3.86 GB in memory). The blind benchmark's records
+#: (at most 2¹⁶ padded samples) are diagnosed in memory.
 STREAM_ABOVE = 1 << 17
 #: Host memory a streamed diagnosis holds per sample of each record [bytes], over
 #: :data:`STREAM_FIXED`: its raw per-sample signals (x, F, v̂, the start states, the stick
@@ -173,8 +173,9 @@ def apply_input(F, dt, tau, fmax) -> np.ndarray:
 
 @jax.jit
 def _gram_fits(G, n_rows):
-    """:func:`lionjax.gram_lstsq` (the package's one solve, from normal-equation statistics) on
-    each augmented Gram G = [W | y]ᵀ[W | y] of a batch: coef, RSS, (WᵀW)⁻¹, condition."""
+    """:func:`lionjax.extend.gram_lstsq` (the package's one solve, from normal-equation
+    statistics) on each augmented Gram G = [W | y]ᵀ[W | y] of a batch: coef, RSS, (WᵀW)⁻¹,
+    condition."""
     P = G.shape[-1] - 1
     fit = jax.vmap(gram_lstsq, in_axes=(0, 0, 0, None))(
         G[:, :P, :P], G[:, :P, P], G[:, P, P], n_rows
@@ -184,7 +185,7 @@ def _gram_fits(G, n_rows):
 
 def solve_grams(G: np.ndarray, n_rows: int):
     """coef, RSS, Gram inverse and condition of min ‖Wc + y‖² for each augmented Gram
-    G = [W | y]ᵀ[W | y] (leading batch), by :func:`lionjax.gram_lstsq` in float64 whether or
+    G = [W | y]ᵀ[W | y] (leading batch), by :func:`lionjax.extend.gram_lstsq` in float64 whether or
     not the caller enabled ``jax_enable_x64`` (the RSS feeds likelihood ratios, and a float32
     Gram would lose the small singular values). The batch is padded to a multiple of
     :data:`GRID` with identity systems, so one compiled program serves every grid length."""
@@ -199,7 +200,7 @@ def solve_grams(G: np.ndarray, n_rows: int):
 def _solve_small_grams(g: np.ndarray, n_rows: int):
     """:func:`solve_grams` of augmented Grams g (m, j + 1, j + 1), j ≤ P_MAX, each placed in
     the solver's fixed size (P_MAX + 1)² with unit diagonals in the unused slots (the Gram of
-    unit columns outside the record, as :meth:`Regressors.gram` places them): one
+    unit columns outside the record, as :meth:`Regressors.design_gram` places them): one
     compiled program whatever j. The coefficients' first j slots are g's."""
     m, j = g.shape[0], g.shape[-1] - 1
     G = np.broadcast_to(np.eye(P_MAX + 1), (m, P_MAX + 1, P_MAX + 1)).copy()
@@ -227,7 +228,8 @@ def _solve_grid(regs: Regressors, model: AbstractModel, inputs):
 
 def _gram_from_blocks(G0: np.ndarray, C: np.ndarray, D: np.ndarray, O: np.ndarray) -> np.ndarray:
     """Augmented Grams (m, P + 1, P + 1) of a fixed design's Gram G0 with K columns placed by
-    the one-hot O (K, P + 1), from their blocks C = VᵀA and D = VᵀV (:func:`_cross_blocks`)."""
+    the one-hot O (K, P + 1), from their blocks C = VᵀA and D = VᵀV
+    (:func:`~._regressors._cross_blocks`)."""
     OC = np.einsum("kp,mkq->mpq", O, C)
     return G0 + OC + np.swapaxes(OC, 1, 2) + np.einsum("kp,mkl,lq->mpq", O, D, O)
 
@@ -348,7 +350,7 @@ def simulate_windows(
     side (``span``: the least power of two ≥ H): H, dt and the parameters are traced, so one
     program serves every record of a bucket whose windows share that power of two. Each window
     starts from the estimated state (x_start, v_start) at its first sample. ``extra``: an
-    optional force term ``extra(x, v, u, t)`` [N] (:class:`~._force_effects.SimulatedForce`,
+    optional force term ``extra(x, v, u, t)`` [N] (:class:`~.effects.SimulatedForce`,
     elementwise in its arguments), with t = t0 + k·dt.
     """
     T = int(np.asarray(u).shape[0])

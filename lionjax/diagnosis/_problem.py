@@ -18,7 +18,7 @@ from ._regressors import RecordSignals, Regressors
 from ._settings import STICK_MIN_S, WINDOWS_LEAST, Settings
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
 from ._streaming import chunk_length, zero_phase
-from .effects import Design, Limits
+from .effects import Design, Limits, design_of
 
 #: How messages name the two records (the command line puts the file names in).
 ROLES = {
@@ -38,7 +38,7 @@ class Problem:
         H: the windowed simulation's restart interval [samples].
         x_start, v_start: its start states at every validation sample [m], [m/s];
             ``state_hz`` the band they are estimated in (:func:`~._statistics._start_states`).
-        stuck: (train, valid) (T,) True where the axis sticks (:func:`stuck`).
+        stuck: (train, valid) (T,) True where the axis sticks (:func:`stuck_mask`).
         limits: what plausibility is judged against (set once the baseline is fitted).
         streamed: whether the records are read in chunks (else each in one); ``chunk``: the
             chunk length where given.
@@ -153,8 +153,6 @@ class Problem:
 
     def regressors_of(self, structure) -> tuple[Regressors, Regressors]:
         """The regressors of a structure's design."""
-        from ._fit import design_of
-
         return self.regressors(design_of(structure))
 
     def train_regressors(self) -> list[Regressors]:

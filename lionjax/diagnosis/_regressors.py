@@ -336,7 +336,7 @@ class Regressors:
         """G = AᵀA of the design (P_MAX + 1)² plus a unit diagonal in the unused slots (the Gram
         of unit columns outside the record: the solver's system keeps one size, and the unused
         coefficients come out 0), except the ``n_free`` slots after the structure's columns,
-        left 0 for :func:`~._fit.rss_with_columns` to fill. Cached per structure (it is small):
+        left 0 for :func:`~._lstsq.rss_with_columns` to fill. Cached per structure (it is small):
         the τ and F_max profiles and the flexible mode's (ω, ζ) profile reuse it."""
 
         def make():
@@ -371,7 +371,7 @@ class Regressors:
 
     def added_columns(self, model, base):
         """A :class:`~._streaming.ColumnSource` of the columns ``model`` adds to ``base``, for
-        :func:`~._fit.rss_with_columns` on ``base``; None where it adds more than columns of
+        :func:`~._lstsq.rss_with_columns` on ``base``; None where it adds more than columns of
         its own signals (an F-dependent column, initial-state columns) or lacks one of
         ``base``'s."""
         have = set(model_key(base))

@@ -8,12 +8,12 @@ from typing import Any
 import numpy as np
 
 from ._confidence import Confidence
-from ._fit import design_of
 from ._result import _UNITS, Diagnosis, EffectScore
 from ._run import Run, shrink
 from ._stack import Stack
 from ._verdict import Verdict
 from ._where import where_findings
+from .effects import design_of
 
 
 def qualitatively_wrong(phys: dict[str, float], simulation: str) -> list[str]:

@@ -68,7 +68,7 @@ STICK_MIN_S = 0.01
 
 #: Least number of windows the validation record holds for the windowed simulation (the
 #: window is the baseline's time constant 1/a unless that is longer): the gap's evidence
-#: counts windows (:meth:`~._stages.Run.sim_score`).
+#: counts windows (:meth:`~._run.Run.sim_score`).
 WINDOWS_LEAST = 8
 
 

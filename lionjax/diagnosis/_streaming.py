@@ -1,5 +1,5 @@
 """The record in chunks: the diagnosis' filters with their states carried from chunk to chunk,
-and column sources whose products a streamed fit accumulates (:class:`~._streamed.Streamed`).
+and column sources whose products a chunked fit accumulates (:class:`~._regressors.Regressors`).
 
 A long record's filtered signals, designs and profile columns are never held whole: every
 product the fits read (Grams, cross products with a profile's columns, a validation residual's
@@ -285,7 +285,7 @@ class FreeRows:
 
 
 def input_map(F: np.ndarray, dt: float, tau: float, fmax: float, k0: int, k1: int) -> np.ndarray:
-    """Rows [k0, k1) of u = sat_Fmax(F(t − τ)) (:func:`~._fit._apply_input`'s formula: τ/dt =
+    """Rows [k0, k1) of u = sat_Fmax(F(t − τ)) (:func:`~._lstsq.apply_input`'s formula: τ/dt =
     n + φ, F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1], F before the record = F[0]; F_max < 0
     the soft saturation)."""
     T = F.shape[0]
@@ -404,39 +404,6 @@ def mode_seed(x, F, dt: float, lam: float, chunk: int):
     G = M[:6, :6] / np.outer(scale, scale)
     c = np.linalg.lstsq(G, M[:6, 6] / scale, rcond=None)[0] / scale
     return seed_mode(c)
-
-
-@jax.jit
-def _dahl_chunk(d, zs, zeta0):
-    def step(zeta, dk):
-        s = jnp.sign(dk)
-        zeta = s + (zeta - s) * jnp.exp(-jnp.abs(dk) / zs)
-        return zeta, zeta
-
-    end, out = jax.lax.scan(step, zeta0, d)
-    return out.T, end
-
-
-def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
-    """(m, T) :func:`~lionjax._model_effects.dahl_states` of v̂ at the distances ``zs``, chunk
-    by chunk (the states carried; distances in batches of 1, 2, 4 or 8)."""
-    v = np.asarray(v, np.float64)
-    T, zs = v.size, np.asarray(zs, np.float64)
-    out = np.empty((zs.size, T))
-    for i in range(0, zs.size, 8):
-        part = zs[i : i + 8]
-        b = next(b for b in (1, 2, 4, 8) if b >= part.size)
-        zp = np.concatenate([part, np.repeat(part[-1:], b - part.size)])
-        zeta = np.zeros(b)
-        for k0, k1 in spans(T, chunk):
-            prev = v[k0 - 1 : k1 - 1] if k0 else np.concatenate([v[:1], v[: k1 - 1]])
-            d = 0.5 * (v[k0:k1] + prev) * dt
-            if k0 == 0:
-                d[0] = 0.0
-            Z, zeta = _dahl_chunk(_pad_rows(d, chunk), zp, zeta)
-            out[i : i + part.size, k0:k1] = np.asarray(Z)[: part.size, : k1 - k0]
-            zeta = np.asarray(zeta)
-    return out
 
 
 def zero_phase_chunked(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CHUNK):

@@ -8,6 +8,7 @@ from ._base import (
     AbstractCandidate as AbstractCandidate,
     Design as Design,
     Limits as Limits,
+    design_of as design_of,
 )
 from ._force_effect import (
     ForceColumns as ForceColumns,

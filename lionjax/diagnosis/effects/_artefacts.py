@@ -4,7 +4,7 @@ A sensor error is not dynamics: the measured force F_meas = F + s(t) carries a t
 never felt. The model sees ẍ + aẋ = b·F_meas − b·s, so s appears in the equation error like a
 force, and without a candidate of its own it is given a mechanical name (a mains line at 50 Hz
 can be named ``flexible_mode``: the mode's columns (s²/D)[F] pass a narrow band around the
-line). Each candidate here is a :class:`~._force_effects.ForceEffect` with
+line). Each candidate here is a :class:`~._force_effect.ForceEffect` with
 ``acts_on = "measurement"``: its columns are estimated from each record's own F, and the windowed
 simulation subtracts the fitted s from the input.
 

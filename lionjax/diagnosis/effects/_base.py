@@ -4,7 +4,7 @@ design (:class:`Design`), and what its fitted parameters are judged against (:cl
 A candidate is an immutable Module. Its fields are its *resolved* nonlinear parameters and
 variant (a flexible mode's ω and ζ, friction's form, a saturation's shape): :meth:`variants`
 and :meth:`profile` return new candidates, and a structure — a tuple of candidates — is fitted
-by the pure :func:`lionjax.diagnosis._problem.fit`. The pipeline asks a candidate what it adds
+by the pure :func:`lionjax.diagnosis._fit.fit`. The pipeline asks a candidate what it adds
 and how it is judged; it never asks what kind of candidate it is.
 """
 
@@ -153,7 +153,7 @@ class AbstractCandidate(eqx.Module):
         return {}
 
     def simulation(self, phys: dict[str, float], problem) -> dict[str, Any]:
-        """Its term in the windowed simulation (:func:`~.._problem.simulate`): parameters
+        """Its term in the windowed simulation (:func:`~.._fit.simulate`): parameters
         ``{name: value}`` of the simulator, or ``"extra"`` (a force term) and ``"du"`` (a
         correction to the input). Default: none (its fitted parameters reach the simulator by
         their names)."""
@@ -236,3 +236,11 @@ class AbstractCandidate(eqx.Module):
 def b_positive(phys) -> str:
     """ "b ≤ 0" where the fitted b is not positive, else ""."""
     return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
+
+
+def design_of(structure) -> Design:
+    """A structure's design: every candidate's change folded in, in order."""
+    d = Design()
+    for c in structure:
+        d = c.design(d)
+    return d

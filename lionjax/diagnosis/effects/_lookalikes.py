@@ -24,7 +24,7 @@ from .._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_colum
 from .._regressors import Regressors, TooWide
 from .._statistics import _position_noise
 from .._streaming import FilteredColumns, Filters
-from ._base import AbstractCandidate, Design
+from ._base import AbstractCandidate, Design, design_of
 from ._friction import AbstractFriction
 
 #: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
@@ -126,8 +126,6 @@ class VelocityDrag(AbstractEffect):
 def _validated_ms(problem, structure, extra, inp, design: Design | None = None) -> float:
     """Validated mean square of ε₁ of ``structure`` with the effects ``extra`` added (input map
     ``inp`` = (τ, F_max)), fitted on the training record."""
-    from .._fit import design_of
-
     rtr, rva = problem.regressors(design or design_of(structure))
     model = problem.model(structure)
     model = Augmented(MassDamper(), (*model.effects, *extra))
@@ -229,7 +227,7 @@ class DragLookalike(AbstractLookalike):
 
 def _rival(run, stk, ms: float, k: int) -> float | None:
     """A look-alike's score from the baseline (its ``k`` parameters; the same N_eff and fitted
-    floor as the stack's joint score, :meth:`Run.joint`), where it has fewer parameters than
+    floor as the stack's joint score, :meth:`~.._run.Run.joint`), where it has fewer parameters than
     the stack and scores above the stack's joint score; None otherwise, or against a stack the
     windowed simulation confirms where the baseline is qualitatively wrong (there the equation
     error is no measure)."""

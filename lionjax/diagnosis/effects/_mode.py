@@ -109,7 +109,7 @@ class ModeColumns(AbstractEffect):
     (module docstring); parameters μ (mass ratio) and β = κ·b. With ``input=False`` the
     collocated mode alone (κ = 0: the h_x column and μ only). Its signals are the mode's
     exact stages on the diagnosis filter's outputs (hold ``"mode"``:
-    :meth:`~.._regressors.Regressors.add_mode`), and it adds the mode's free response to the
+    :attr:`~.._regressors.Regressors.derived`), and it adds the mode's free response to the
     refitted initial-state columns."""
 
     acts_on_force: ClassVar[bool] = False  # μ multiplies an acceleration: not divided by b
