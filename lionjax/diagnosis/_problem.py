@@ -79,7 +79,7 @@ class Problem:
 
     def with_window(self, scale: float) -> Problem:
         """The problem with its restart interval H set from the record's time scale ``scale``
-        [s] (:func:`~._run.time_scale`): the settings' ``window_s``, else the time scale within
+        [s] (:func:`~._run.dynamics`): the settings' ``window_s``, else the time scale within
         [20 dt, 2 s] and short enough that the validation record holds
         :data:`~._settings.WINDOWS_LEAST` windows (the gap's evidence counts windows)."""
         dt, Hs = self.st.dt, self.st.window_s

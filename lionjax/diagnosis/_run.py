@@ -293,7 +293,16 @@ def prepare(
     chunk = None if isinstance(streamed, bool) or streamed is None else streamed
     streamed = _check_memory(train.n_samples, valid.n_samples, max_memory_gb, streamed)
     problem = Problem.of(train, valid, st, crit, streamed, chunk)
-    problem = problem.with_window(time_scale(problem))
+    scale, f_osc = dynamics(problem)
+    if filter_hz is None and f_osc > st.filter_hz:
+        # a dominant oscillation above the corner is weighed by the filter's tail alone
+        # ((f_c/f)³ of it), which biases its fitted frequency towards the corner: the corner
+        # moves up to it (at most OSCILLATION_CORNER·f_s)
+        fh = min(f_osc, OSCILLATION_CORNER / st.dt)
+        st = settings(train, filter_hz=fh, window_s=window_s)
+        problem = Problem.of(train, valid, st, crit, streamed, chunk)
+        scale, _ = dynamics(problem)
+    problem = problem.with_window(scale)
     base = fit(problem, ())
     a, b = base.physical["a"], base.physical["b"]
     # noise floor of ε₁ on the validation record (with the encoder's count: else a clean
@@ -344,19 +353,21 @@ def prepare(
     )
 
 
-#: Periods of an oscillation the windowed simulation spans (:func:`time_scale`).
+#: Periods of an oscillation the windowed simulation spans (:func:`dynamics`).
 WINDOW_PERIODS = 4.0
+#: Highest filter corner a dominant oscillation moves it to, as a share of f_s.
+OSCILLATION_CORNER = 1 / 8
 
 
-def time_scale(problem: Problem) -> float:
-    """The slowest dynamics the records show [s], which the windowed simulation's restart
-    interval spans: the mass–damper's time constant 1/a where its least squares is
-    qualitatively right (a > 0, b > 0); else, where a spring ẍ + aẋ + kx = bF (+ a constant)
-    is (b > 0, bk > 0: the axis oscillates about an equilibrium), :data:`WINDOW_PERIODS` of its
-    damped period or its envelope's time constant 1/(ζωₙ), whichever is shorter (over many
-    periods a simulation from a restart drifts in phase with any error of the frequency, and
-    its gap measures that drift, not the model), or its slowest real pole's time constant when
-    it is overdamped; else 0.1 s."""
+def dynamics(problem: Problem) -> tuple[float, float]:
+    """(the slowest dynamics the records show [s], which the windowed simulation's restart
+    interval spans; the frequency [Hz] of a dominant oscillation, or 0). The mass–damper's time
+    constant 1/a where its least squares is qualitatively right (a > 0, b > 0); else, where a
+    spring ẍ + aẋ + kx = bF (+ a constant) is (b > 0, bk > 0: the axis oscillates about an
+    equilibrium), :data:`WINDOW_PERIODS` of its damped period or its envelope's time constant
+    1/(ζωₙ), whichever is shorter (over many periods a simulation from a restart drifts in
+    phase with any error of the frequency, and its gap measures that drift, not the model), or
+    its slowest real pole's time constant when it is overdamped; else 0.1 s."""
     from .._model_effects import Offset, Spring
     from .._models import Augmented, MassDamper
     from ._lstsq import fit_batch
@@ -371,19 +382,19 @@ def time_scale(problem: Problem) -> float:
     ph = physical(())
     a, b = float(ph["a"]), float(ph["b"])
     if a > 0 and b > 0:
-        return 1.0 / a
+        return 1.0 / a, 0.0
     ph = physical((Spring(), Offset()))
     a, b, k = (float(ph[n]) for n in ("a", "b", "k"))
     if not (b > 0 and b * k > 0):
-        return 0.1
+        return 0.1, 0.0
     wn = math.sqrt(b * k)
     zeta = a / (2 * wn)
     if abs(zeta) < 1:
-        period = 2 * math.pi / (wn * math.sqrt(1 - zeta * zeta))
+        wd = wn * math.sqrt(1 - zeta * zeta)
         envelope = 1 / (abs(zeta) * wn) if zeta != 0 else math.inf
-        return min(WINDOW_PERIODS * period, envelope)
+        return min(WINDOW_PERIODS * 2 * math.pi / wd, envelope), wd / (2 * math.pi)
     slow = wn * (zeta - math.sqrt(zeta * zeta - 1))  # the slowest real pole's rate
-    return 1.0 / slow if slow > 0 else 0.1
+    return (1.0 / slow if slow > 0 else 0.1), 0.0
 
 
 def _common_range(x_train: np.ndarray, x_valid: np.ndarray) -> tuple[float, float]:
