@@ -9,6 +9,14 @@ redistribute outside the project without checking the licence).
 
 Published inverse dynamic model (IDIM): τ = M q̈ + Fv q̇ + Fc sgn(q̇) + offset. In lionjax's form
 (docs/method.md, "Effects") ẍ + a ẋ = b (F + F0 − Fc sgn ẋ) with a = Fv/M, b = 1/M and F0 = −offset.
+
+Silverbox — an analogue electronic circuit built as a mass–damper with a hardening spring,
+m·ÿ + d·ẏ + (a + b·y²)·y = u, "position" y and "force" u voltages, f_s = 610.35 Hz, 131,072
+samples (the SNLS80mV record). Cite: T. Wigren and J. Schoukens, "Three free data sets for
+development and benchmarking in nonlinear system identification", ECC 2013, pp. 2933–2938.
+Origin, hashes and the benchmark's official splits are in
+``lionjax/datasets/silverbox/PROVENANCE.md`` (no licence is stated for the data: public
+benchmark data, cite the paper).
 """
 
 from __future__ import annotations
@@ -20,7 +28,7 @@ from .._errors import InputError
 from .._io import load_record
 from .._record import Record
 
-__all__ = ["EMPS_REFERENCE", "EMPSAsymmetricReference", "EMPSReference", "emps"]
+__all__ = ["EMPS_REFERENCE", "EMPSAsymmetricReference", "EMPSReference", "emps", "silverbox"]
 
 _EMPS_FILES = {
     "estimation": "emps_estimation.npz",
@@ -119,3 +127,41 @@ def emps(split: str = "estimation", *, dtype=None) -> Record:
         return load_record(
             path, columns={"x": "position", "F": "force"}, extras=extras, dtype=dtype
         )
+
+
+#: The Silverbox benchmark's official splits (PROVENANCE.md): sample ranges [start, stop).
+SILVERBOX_SPLITS = {
+    "train": "split_train_val",
+    "test_multisine": "split_test_multisine",
+    "test_arrow": "split_test_arrow_full",
+}
+
+
+def silverbox(split: str = "train", *, dtype=None) -> Record:
+    """Load one official split of the Silverbox benchmark (module docstring) as a
+    :class:`~lionjax.Record`: ``x`` the output voltage y [V] (the "position"), ``F`` the input
+    voltage u [V] (the "force"), dt = 2¹⁴/10⁷ s.
+
+    Arguments:
+        split: ``"train"`` (the multisine part's first 75 %, samples 40650–105711),
+            ``"test_multisine"`` (its last 25 %, 105712–127399) or ``"test_arrow"`` (the filtered
+            noise of growing amplitude, 100–40574).
+        dtype: array dtype (default: JAX's default float; use float64 for identification).
+
+    Raises:
+        InputError: for an unknown ``split``.
+    """
+    import numpy as np
+
+    if split not in SILVERBOX_SPLITS:
+        raise InputError(
+            f"split: expected one of {', '.join(map(repr, SILVERBOX_SPLITS))}, got {split!r}."
+        )
+    resource = importlib.resources.files(__name__).joinpath("silverbox", "silverbox_SNLS80mV.npz")
+    with importlib.resources.as_file(resource) as path, np.load(path) as d:
+        a, b = (int(v) for v in d[SILVERBOX_SPLITS[split]])
+        x = np.asarray(d["position"][a:b], np.float64)
+        F = np.asarray(d["force"][a:b], np.float64)
+        dt = float(d["dt"])
+    t = dt * np.arange(a, b)
+    return Record.from_samples(t, x, F, source=f"Silverbox ({split})", dtype=dtype)
