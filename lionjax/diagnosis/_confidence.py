@@ -194,37 +194,25 @@ class Confidence:
 #: decide: below it a one-parameter effect must remove over a third of the mean square to
 #: reach the threshold (1 − exp(−(threshold + ln N)/N) at N = 30, threshold 10).
 N_EFF_LEAST = 30
-#: Largest detection limit (a share of the input's term b·F/Λ) at which the record can decide
-#: by itself: one that cannot see an effect half as large as the input's own term decides only
-#: where a candidate of the library shows above that limit.
-DETECTION_MOST = 0.5
 #: Velocity reversals a record needs for friction to be told apart from a constant force.
 REVERSALS_LEAST = 10
 
 
-def inconclusive(run: Run, detection: float, effects: list[EffectScore]) -> dict | None:
+def inconclusive(run: Run, detection: float, decided: bool) -> dict | None:
     """Why the records cannot decide whether an effect is there, and what to record instead; or
-    None. The validation residual's effective sample count below :data:`N_EFF_LEAST`, or the
-    detection limit above :data:`DETECTION_MOST` with no plausible candidate as large as it
-    (then none of the library's effects could be seen at the sizes it fits): nothing named is
-    then no evidence of no effect, and a residual with structure no evidence of one outside
-    the library."""
+    None. The validation residual's effective sample count below :data:`N_EFF_LEAST` (its
+    evidence too coarse: nothing named is then no evidence of no effect, and a residual with
+    structure no evidence of one outside the library), unless a look-alike explains the gap
+    (``decided``: the record shows that effect)."""
     n = run.base.n_eff
-    reasons, advice = [], []
-    if n < N_EFF_LEAST:
-        reasons.append(
-            f"the validation residual holds {n:.0f} effective samples (at least {N_EFF_LEAST} "
-            "decide: the residual is slow against the record's length)"
-        )
-        advice.append("record longer, or with an excitation that changes faster")
-    shown = any(e.size >= detection for e in effects if e.plausible)
-    if detection > DETECTION_MOST and not shown:
-        reasons.append(
-            f"its detection limit is {detection:.2g} of the input's term b·F, and no candidate of "
-            "the library shows above it"
-        )
-    if not reasons:
+    if decided or not n < N_EFF_LEAST:
         return None
+    reasons = [
+        f"the validation residual holds {n:.0f} effective samples (at least {N_EFF_LEAST} decide: "
+        "the residual is slow against the record's length), and its detection limit is "
+        f"{detection:.2g} of the input's term b·F"
+    ]
+    advice = ["record longer, or with an excitation that changes faster"]
     lo, hi = run.st.excited
     v = np.asarray(run.problem.v_valid, np.float64)
     moving = np.abs(v) > 0.1 * float(np.quantile(np.abs(v), 0.9))
@@ -325,7 +313,7 @@ def weigh(
         confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
     if verdict != "unexplained":
         confidence *= doubt
-    undecided = inconclusive(run, detection, effects) if not stk.cands else None
+    undecided = inconclusive(run, detection, bool(v.decided_by)) if not stk.cands else None
     if undecided is not None:
         # nothing named on a record that cannot decide: a statement about the record
         verdict, confidence, ambiguous = "inconclusive", 1.0, []
