@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from .._errors import InputError
+from ._filtering import P_MAX
 from ._fit import Fitted
 from ._objective import Objective
 from ._run import Run
@@ -31,6 +32,20 @@ def resolve(run: Run, cand: AbstractCandidate, base: tuple = ()) -> AbstractCand
     return out
 
 
+def _alone(run: Run, cand: AbstractCandidate) -> Fitted:
+    """``cand`` fitted alone on the baseline; an :class:`~lionjax.InputError` where its columns
+    alone make a design wider than the diagnosis fits (a candidate of too many parameters)."""
+    f = run.try_fit((cand,))
+    if f is None:
+        raise InputError(
+            f"diagnose: candidate {cand.name!r} ({type(cand).__name__}) has too many columns: "
+            f"with the mass–damper's a and b and the filter's initial-state columns, its design "
+            f"alone is wider than the {P_MAX} columns a diagnosis fits; give it fewer "
+            f"parameters."
+        )
+    return f
+
+
 def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
     """Every candidate alone on the baseline, in each of its forms
     (:meth:`~.effects.AbstractCandidate.variants`, each profiled), the form kept by the
@@ -43,7 +58,7 @@ def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
         tries = []
         for v in c.variants(run.limits, tuple(resolved.values())):
             v = resolve(run, v)
-            f = run.fit((v,))
+            f = _alone(run, v)
             lo = run.floor if v.fits_noise() else 0.0
             tries.append((run.score_of(run.base, f, v.params(), lo), f, v))
         variant_fits[c.name] = [(v, f) for _, f, v in tries]
