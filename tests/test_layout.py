@@ -200,7 +200,7 @@ PRIVATE_IMPORTS = {
         "where the command line keeps its compilation cache under each environment (XDG, "
         "LIONJAX_CACHE_DIR, switched off); a command shows only that it reuses one"
     ),
-    ("test_diagnose_many.py", "cli._heap.keep_freed_memory"): (
+    ("test_diagnose_many.py", "cli._heap"): (
         "the command line's heap tunable, counted in page faults of a fresh process; no "
         "command's output shows how the heap returns memory"
     ),
