@@ -75,6 +75,7 @@ from lionjax.diagnosis._search import (
 )
 from lionjax.diagnosis._settings import settings
 from lionjax.diagnosis._statistics import (
+    _check_memory,
     _feedback,
     _lattice_step,
     _robust_diff_std,
@@ -548,19 +549,6 @@ def test_long_record_helpers_in_chunks(monkeypatch):
     _close(ref, line_in(F, t, 50.2, dt), 1e-10)
 
 
-def test_dahl_states_in_chunks():
-    """Dahl's pre-sliding states of a velocity record at three distances, read in chunks of
-    700 samples (the states carried between chunks, distances batched) against the core's one
-    scan over the whole record (lionjax.extend.dahl_states): 1e-12."""
-    rng = np.random.default_rng(6)
-    dt, T = 1e-3, 5003
-    v = 0.02 * np.sin(2 * np.pi * 0.9 * np.arange(T) * dt) + 1e-3 * rng.standard_normal(T)
-    zs = [1e-6, 3e-5, 2e-4]
-    with jax.enable_x64(True):
-        ref = np.asarray(dahl_states(jnp.asarray(v), dt, np.asarray(zs)))
-    _close(ref, dahl_chunked(v, dt, zs, 700), 1e-12)
-
-
 # ----------------------------------------------------------------------------------------------
 # Least squares
 
@@ -703,7 +691,8 @@ def test_grams_fits_and_residuals_in_chunks(problems):
     """A structure with an offset, Coulomb friction (its forces masked where the axis sticks), a
     position-dependent a(x), b(x) (an F-dependent column) and a delay/saturation input map:
     the Gram, the fits over an input grid (coefficients and RSS) and the validation residual,
-    in chunks of 512 samples against one chunk, 1e-9 (the Gram 1e-10)."""
+    in chunks of 512 samples against one chunk: the Gram 1e-10, the fits 1e-8, the residuals
+    1e-9."""
     structure = (
         OffsetCandidate(),
         CoulombCandidate(stick=True),
@@ -783,6 +772,19 @@ def test_period_screen_and_mode_seed_in_chunks(problems):
     assert (a is None) == (b is None)
     if a is not None:
         _close(a, b, 1e-6)
+
+
+def test_dahl_states_in_chunks(problems):
+    """Dahl's pre-sliding states of a friction record's v̂ (the axis sticks and reverses) at
+    three distances, read in chunks of 700 samples (the states carried between chunks,
+    distances batched) against the core's one scan over the whole record
+    (lionjax.extend.dahl_states): 1e-12."""
+    one = problems[0]
+    v, dt = np.asarray(one.v_train, np.float64), one.st.dt
+    zs = [1e-6, 3e-5, 2e-4]
+    with jax.enable_x64(True):
+        ref = np.asarray(dahl_states(jnp.asarray(v), dt, np.asarray(zs)))
+    _close(ref, dahl_chunked(v, dt, zs, 700), 1e-12)
 
 
 def test_mode_seed_lands_in_a_narrow_valley(monkeypatch):
@@ -873,6 +875,11 @@ def test_memory_estimate_in_one_chunk_and_in_chunks():
     assert streamed_by_default(6_000_000, 1_200_000)
     assert memory_estimate(6_000_000, 1_200_000) < 3e9
     assert memory_estimate(6_000_000, 1_200_000, streamed=False) > 30e9
+    # diagnose's check: read in chunks, such records fit 3 GB; in one chunk they are refused,
+    # the message pointing to the chunks
+    assert _check_memory(6_000_000, 1_200_000, 3.0) is True
+    with pytest.raises(lj.InputError, match="streamed=True"):
+        _check_memory(6_000_000, 1_200_000, 3.0, False)
     assert memory_estimate(20_000, 20_000) == 6500 * 2 * 2**15
     assert memory_estimate(6_000_000, 6_000_000, streamed=False) == 3600 * 2 * 2**23
     assert memory_estimate(6_000_000, 6_000_000) == STREAM_FIXED + BYTES_PER_SAMPLE_STREAMED * 12e6
