@@ -869,7 +869,8 @@ def test_memory_estimate_in_one_chunk_and_in_chunks():
     budget before computing; the figures are measured, benchmarks/results/): in one chunk
     6.5 kB per padded sample of each record (its filtered signals and designs kept); in chunks
     the process' 1.2 GB and 160 B per raw sample. Records above 2¹⁷ padded samples are read in
-    chunks by default: a 10-minute record at 10 kHz needs under 3 GB so, 38 GB in one chunk.
+    chunks by default: a 10-minute record at 10 kHz (and a 2-minute one) needs under 3 GB so,
+    68 GB in one chunk.
     The longest records that fit a budget, against the formulas."""
     assert not streamed_by_default(100_000, 20_000)
     assert streamed_by_default(6_000_000, 1_200_000)
@@ -881,13 +882,13 @@ def test_memory_estimate_in_one_chunk_and_in_chunks():
     with pytest.raises(lj.InputError, match="streamed=True"):
         _check_memory(6_000_000, 1_200_000, 3.0, False)
     assert memory_estimate(20_000, 20_000) == 6500 * 2 * 2**15
-    assert memory_estimate(6_000_000, 6_000_000, streamed=False) == 3600 * 2 * 2**23
+    assert memory_estimate(6_000_000, 6_000_000, streamed=False) == 6500 * 2 * 2**23
     assert memory_estimate(6_000_000, 6_000_000) == STREAM_FIXED + BYTES_PER_SAMPLE_STREAMED * 12e6
-    # the estimate is per padded sample, cached up to 2¹⁸ and not above: at 3.8 GB two records
-    # of 2¹⁹ (3600·2·2¹⁹ = 3.77 GB) fit, at 3.5 GB two of 2¹⁸ (6500·2·2¹⁸ = 3.41 GB)
-    assert longest_records(3.8e9, streamed=False) == 2**19 - 20
-    assert longest_records(0.01e9) == 0
+    # in one chunk per padded sample, at every length: at 3.5 GB two records of 2¹⁸ fit
+    # (6500·2·2¹⁸ = 3.41 GB), at 7 GB two of 2¹⁹ (6.82 GB); padded_length pads n + 20
     assert longest_records(3.5e9, streamed=False) == 2**18 - 20
+    assert longest_records(7.0e9, streamed=False) == 2**19 - 20
+    assert longest_records(0.01e9) == 0
     # in chunks (by default above 2¹⁷ padded samples), far longer records fit
     n = longest_records(3.8e9)
     assert n == (3.8e9 - STREAM_FIXED) // (2 * BYTES_PER_SAMPLE_STREAMED) and n > 2**22

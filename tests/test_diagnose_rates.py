@@ -91,12 +91,12 @@ def test_no_motion_is_a_clear_input_error():
 
 
 def test_records_too_long_for_the_memory_are_refused_before_computing(tmp_path, capsys):
-    """The in-memory diagnosis's peak host memory grows with the padded length (measured: 6.5 kB
-    per padded sample of each record with the designs cached, up to 2¹⁸; 3.6 kB above): records
+    """The diagnosis' peak host memory in one chunk grows with the padded length (measured: 6.5 kB
+    per padded sample of each record, its filtered signals and designs kept): records
     that would need more than ``max_memory_gb`` (default: the machine's memory) get an
     InputError naming the need, the limit, the least decimation that fits (``decimation_for``)
     and the longest records that fit, before anything is computed. A 10-minute record at
-    10 kHz, padded to 2²³, would need 60 GB in memory; it is streamed by default, estimated by
+    10 kHz, padded to 2²³, would need 109 GB in one chunk; it is streamed by default, estimated by
     its raw samples (the estimate's formulas: test_diagnose_kernels.py)."""
     t = np.arange(20_000) / 1000.0
     rec = lj.Record(0.01 * np.sin(2 * np.pi * 0.7 * t), np.cos(2 * np.pi * 0.7 * t), 1e-3)
