@@ -2,8 +2,8 @@
 by chunk with the filters' states carried, against each record read in one chunk
 (``streamed=False``: one recursion over the padded record, products of whole designs): the
 same verdict and stack, the confidence within 0.02 (the issue's agreement; measured within
-2e-13 on 43 development records). Chunks of 1024 samples, far shorter than the records, carry
-the states across dozens of chunk edges. The chunked kernels against one pass at 1e-8 to 1e-12:
+2e-13 on 43 development records). Chunks of 1024 samples, shorter than the records, carry the
+states across 2 to 13 chunk edges. The chunked kernels against one pass at 1e-8 to 1e-12:
 test_diagnose_kernels.py."""
 
 import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
@@ -36,7 +36,7 @@ def test_diagnosis_in_chunks_agrees_with_one_chunk(cls, source):
     i = blind.CLASSES.index(cls)
     seed = 300_000_000 + 1000 * i + blind.SOURCES.index(source)
     tr, va, _ = blind.make_case(cls, seed, source=source)
-    assert min(tr.n_samples, va.n_samples) > 4 * CHUNK
+    assert min(tr.n_samples, va.n_samples) > 2 * CHUNK  # three chunks or more
     _agree(lj.diagnose(tr, va, streamed=False), lj.diagnose(tr, va, streamed=CHUNK))
 
 
