@@ -24,7 +24,12 @@ def resolve(run: Run, cand: AbstractCandidate, base: tuple = ()) -> AbstractCand
     with ``base`` on the training record; an :class:`~lionjax.InputError` where the search
     returns something else than the candidate's own class."""
     out = cand.profile(Objective(run.problem, base), run.limits)
-    if not isinstance(out, type(cand)) or out.name != cand.name:
+    # the candidate's own class, or one it derives from (a subclass may search its parent's
+    # grid), of the same name
+    kin = isinstance(out, type(cand)) or (
+        isinstance(out, AbstractCandidate) and isinstance(cand, type(out))
+    )
+    if not kin or out.name != cand.name:
         raise InputError(
             f"{type(cand).__name__}.profile must return a {type(cand).__name__} "
             f"(name {cand.name!r}), got {out!r}."
