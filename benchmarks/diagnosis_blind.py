@@ -1738,12 +1738,11 @@ def _json_default(o):
 
 
 def streamed(train, valid, chunk: int, **kw):
-    """``lj.diagnose(train, valid, streamed=True, **kw)`` in chunks of ``chunk`` samples."""
+    """``lj.diagnose(train, valid, streamed=chunk, **kw)``: the records read in chunks of
+    ``chunk`` samples."""
     import lionjax as lj
-    from lionjax.diagnosis import _streaming
 
-    _streaming.CHUNK = chunk
-    return lj.diagnose(train, valid, streamed=True, **kw)
+    return lj.diagnose(train, valid, streamed=chunk, **kw)
 
 
 def main(argv=None) -> None:
@@ -1770,7 +1769,7 @@ def main(argv=None) -> None:
         "--streamed",
         type=int,
         metavar="CHUNK",
-        help="diagnose streamed (lj.diagnose(..., streamed=True)) in chunks of CHUNK samples "
+        help="diagnose streamed (lj.diagnose(..., streamed=CHUNK)) in chunks of CHUNK samples "
         "(a power of two; chunks shorter than the records carry the filters' states across "
         "their edges): the streamed path's verdicts, for comparison with an in-memory run",
     )

@@ -1,7 +1,10 @@
 """lionjax.diagnose: friction (stick, negative levels, a dead zone's look-alike), stacking a
 second effect, stand-ins and saturation shapes, on held-out records."""
 
+from typing import ClassVar
+
 import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -89,14 +92,30 @@ def test_hard_clip_found_between_sparse_force_quantiles():
     assert d.final["soft"] == 0.0 and d.final["Fmax"] == pytest.approx(clip, rel=0.01)
 
 
-def test_widest_stack_fits(monkeypatch):
+class HighForces(lj.diagnosis.ForceEffect):
+    """Sines and cosines of time at four frequencies far above the filter corner (0.23 to 0.31
+    of the sample rate of the cogging record below, 1.40 kHz): eight columns, which fit alone
+    and beside one effect, and are too many beside a spring and a cubic a(x), b(x) (their 8
+    columns, a and b, the filter's 3 initial-state columns: 21 of the design's 18)."""
+
+    name: ClassVar[str] = "high_forces"
+    parameters: ClassVar[tuple[str, ...]] = tuple(f"h{j}" for j in range(8))
+
+    def basis(self, x, v, F, t):
+        w = 2 * np.pi * np.array([322.1, 339.7, 418.3, 436.9])
+        return tuple(f(wk * t) for wk in w for f in (jnp.sin, jnp.cos))
+
+
+@pytest.mark.slow
+def test_widest_stack_fits():
     """Cogging (lionjax's twin, 1.40 kHz) stacks a spring and a cubic a(x), b(x) (8 columns),
     then tries the flexible mode on them: 12 columns and 5 refitted initial-state ones, wider
     than the design held (16) — the run crashed. The default library's widest stack fits; a
-    structure wider than the design is skipped, not raised (the old width: the same stack).
-    (The localized step and bump, 4 columns, takes the cubic's place on this record: the
-    polynomial-only candidate keeps the widest stack.)"""
-    from lionjax.diagnosis import DEFAULT_CANDIDATES, PositionCandidate, _fit
+    structure wider than the design is skipped, not raised: a candidate of 8 columns
+    (:class:`HighForces`) tried on that stack leaves the same stack. (The localized step and
+    bump, 4 columns, takes the cubic's place on this record: the polynomial-only candidate
+    keeps the widest stack.)"""
+    from lionjax.diagnosis import DEFAULT_CANDIDATES, PositionCandidate
 
     cands = tuple(
         PositionCandidate(localized=False) if c.name == "position_dependent" else c
@@ -106,8 +125,7 @@ def test_widest_stack_fits(monkeypatch):
     d = lj.diagnose(train, valid, candidates=cands)
     assert d.stack[:2] == ["spring", "position_dependent"]
     assert "a_x3" in next(e for e in d.effects if e.name == "position_dependent").params
-    monkeypatch.setattr(_fit, "P_MAX", 16)
-    assert lj.diagnose(train, valid, candidates=cands).stack == d.stack
+    assert lj.diagnose(train, valid, candidates=(*cands, HighForces())).stack == d.stack
 
 
 def test_friction_fitted_slightly_negative_in_one_direction():

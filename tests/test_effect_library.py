@@ -8,6 +8,7 @@ import math
 import pathlib
 import sys
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from _reference_sim import forced_axis
@@ -166,6 +167,46 @@ def test_parameter_names_may_not_collide(drag):
         lj.diagnose(*drag, candidates=(Stiff(),))
     with pytest.raises(lj.InputError, match="candidates"):
         lj.diagnose(*drag, candidates=("spring",))
+
+
+def test_a_profile_of_the_wrong_type_is_refused(drag):
+    """A user's ``profile`` returns the effect with its nonlinear parameters resolved: another
+    class (or a bare value) is refused with an InputError naming the class and what it
+    returned, before anything is fitted with it."""
+
+    def resolved(returned):
+        class Resolved(Cogging):
+            def profile(self, rss, limits):
+                return returned
+
+        return Resolved()
+
+    for returned, says in ((QuadraticDrag(), "QuadraticDrag"), (0.004, "0.004")):
+        with pytest.raises(
+            lj.InputError, match=rf"Resolved\.profile must return a Resolved.*{says}"
+        ):
+            lj.diagnose(*drag, candidates=(resolved(returned),))
+
+
+def test_a_candidate_of_too_many_parameters_is_refused(drag):
+    """The diagnosis fits designs of at most 18 columns: a candidate whose columns alone, with
+    a, b and the filter's 3 initial-state columns, exceed them (14 parameters) is refused with
+    an InputError naming it; 13 fit."""
+
+    def sines(n):
+        class Sines(lj.diagnosis.ForceEffect):
+            name = "sines"
+            parameters = tuple(f"s{j}" for j in range(n))
+
+            def basis(self, x, v, F, t):
+                return tuple(jnp.sin(2 * np.pi * (100.0 + 10.0 * j) * t) for j in range(n))
+
+        return Sines()
+
+    with pytest.raises(lj.InputError, match=r"candidate 'sines' \(Sines\) has too many columns"):
+        lj.diagnose(*drag, candidates=(sines(14),))
+    d = lj.diagnose(*drag, candidates=(sines(13),))
+    assert [e.name for e in d.effects] == ["sines"] and len(d.effects[0].params) == 13
 
 
 def test_example_uses_the_public_api_only():

@@ -150,16 +150,3 @@ def test_lion_batched_products_full_precision(small32, kernel):
         ),
         small32,
     )
-
-
-def test_diagnosis_filter_products_full_precision():
-    # the diagnosis' chunked filter accumulates over the record too
-    from lionjax.diagnosis import _fit
-
-    dsc = _fit.Discrete.of(lj.default_bank(), DT)
-    dsc = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), dsc)
-    u = jnp.linspace(0.0, 1.0, 256, dtype=jnp.float32)
-    # none at all: the recursion's products are unrolled multiply-adds
-    # (lionjax._linalg.matvec_unrolled); test_walker_catches_default_precision shows the walker
-    # finds dots
-    assert _assert_highest(lambda v: _fit._filt(dsc, v, 1.0), u) == []

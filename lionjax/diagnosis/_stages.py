@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from .._errors import InputError
+from ._filtering import P_MAX
 from ._fit import Fitted
 from ._objective import Objective
 from ._run import Run
@@ -23,12 +24,31 @@ def resolve(run: Run, cand: AbstractCandidate, base: tuple = ()) -> AbstractCand
     with ``base`` on the training record; an :class:`~lionjax.InputError` where the search
     returns something else than the candidate's own class."""
     out = cand.profile(Objective(run.problem, base), run.limits)
-    if not isinstance(out, type(cand)) or out.name != cand.name:
+    # the candidate's own class, or one it derives from (a subclass may search its parent's
+    # grid), of the same name
+    kin = isinstance(out, type(cand)) or (
+        isinstance(out, AbstractCandidate) and isinstance(cand, type(out))
+    )
+    if not kin or out.name != cand.name:
         raise InputError(
             f"{type(cand).__name__}.profile must return a {type(cand).__name__} "
             f"(name {cand.name!r}), got {out!r}."
         )
     return out
+
+
+def _alone(run: Run, cand: AbstractCandidate) -> Fitted:
+    """``cand`` fitted alone on the baseline; an :class:`~lionjax.InputError` where its columns
+    alone make a design wider than the diagnosis fits (a candidate of too many parameters)."""
+    f = run.try_fit((cand,))
+    if f is None:
+        raise InputError(
+            f"diagnose: candidate {cand.name!r} ({type(cand).__name__}) has too many columns: "
+            f"with the mass–damper's a and b and the filter's initial-state columns, its design "
+            f"alone is wider than the {P_MAX} columns a diagnosis fits; give it fewer "
+            f"parameters."
+        )
+    return f
 
 
 def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
@@ -43,7 +63,7 @@ def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
         tries = []
         for v in c.variants(run.limits, tuple(resolved.values())):
             v = resolve(run, v)
-            f = run.fit((v,))
+            f = _alone(run, v)
             lo = run.floor if v.fits_noise() else 0.0
             tries.append((run.score_of(run.base, f, v.params(), lo), f, v))
         variant_fits[c.name] = [(v, f) for _, f, v in tries]
