@@ -107,6 +107,7 @@ import jax
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .._data_checks import check_diagnosis_data
 from .._errors import InputError
 from .._record import Record
 from .._validity import check_record
@@ -166,6 +167,7 @@ def _check_excites(nm: str, rec: Record) -> None:
 
 def _check_records(train: Record, valid: Record | None) -> Record:
     """The validation record (``train`` when None), or an :class:`~lionjax.InputError`."""
+    check_diagnosis_data(train, valid, ROLES)  # glitches, a pair in different units
     for nm, rec in (("train", train), ("valid", valid)):
         if rec is not None and not isinstance(rec, Record):
             raise InputError(
