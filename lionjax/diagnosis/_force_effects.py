@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from collections.abc import Callable, Sequence
 from typing import ClassVar
 
@@ -45,6 +44,7 @@ from .._models import AbstractEffect, Column
 from .._record import Record
 from ._candidates import AbstractCandidate, Context, Limits
 from ._streaming import zero_phase
+from ._user_checks import check_definitions, checked_basis, checked_grid
 
 #: Golden-section steps of :meth:`ForceEffect.profile`'s refinement (the bracket shrinks by
 #: 0.618 per step: 16 steps leave 5·10⁻⁴ of the grid's spacing).
@@ -100,9 +100,7 @@ class ForceEffect(AbstractCandidate):
         ``rss(effect)``; with one nonlinear parameter, then refined by a golden-section search
         between that point's neighbours on the grid (:data:`REFINE_STEPS` more fits). Override
         for another search (it returns a new, immutable Module)."""
-        grid = list(self.grid(limits))
-        if not grid:
-            raise ValueError(f"{type(self).__name__}.grid() returned no Module to search.")
+        grid = checked_grid(self, self.grid(limits))  # a user's mistake named (docs/effects.md)
         if len(grid) == 1:
             return grid[0]
         values = np.asarray([rss(g) for g in grid], np.float64)
@@ -192,21 +190,10 @@ class ForceColumns(AbstractEffect):
     def signals(self, record: Record) -> dict:
         x = jnp.asarray(record.x)
         v = _velocity(record, self.omega)
-        phis = self.effect.record_basis(record, v)
-        names = signal_names(self.effect)
-        if len(phis) != len(names):
-            raise ValueError(
-                f"{type(self.effect).__name__}: basis returned {len(phis)} functions for the "
-                f"{len(names)} parameters {self.effect.parameters}; return one per parameter."
-            )
+        phis = checked_basis(self.effect, record, v)  # a user's mistake named (docs/effects.md)
         out = {}
-        for n, phi in zip(names, phis, strict=True):
+        for n, phi in zip(signal_names(self.effect), phis, strict=True):
             phi = np.asarray(jnp.broadcast_to(jnp.asarray(phi, jnp.float64), x.shape))
-            if not np.all(np.isfinite(phi)):
-                raise ValueError(
-                    f"{type(self.effect).__name__}.basis gave non-finite values on the record; "
-                    "it must be finite wherever the record goes."
-                )
             # a correction of the measured F is held as F is (zero order); a force of the
             # state, as x is (first order)
             out[n] = (phi, "zoh" if self.effect.acts_on == "measurement" else "foh")
@@ -278,26 +265,6 @@ def simulation_terms(
 
 
 def check_library(candidates: Sequence[AbstractCandidate], reserved: Sequence[str]) -> None:
-    """Raise ``ValueError`` naming the problem when a ForceEffect of ``candidates`` is not
-    usable: no parameters, a parameter name the diagnosis already reports, a repeated one."""
-    seen: dict[str, str] = {}
-    for c in candidates:
-        if not isinstance(c, ForceEffect):
-            continue
-        nm = type(c).__name__
-        if not isinstance(getattr(c, "parameters", None), tuple) or not c.parameters:
-            raise ValueError(f"{nm}: 'parameters' must be a non-empty tuple of names.")
-        if c.acts_on not in ("device", "measurement"):
-            raise ValueError(f"{nm}: acts_on must be 'device' or 'measurement', got {c.acts_on!r}.")
-        for p in (*c.parameters, *c.nonlinear):
-            if p in reserved:
-                raise ValueError(
-                    f"{nm}: parameter name {p!r} is one the diagnosis already reports "
-                    f"({', '.join(sorted(set(reserved)))}); rename it."
-                )
-            if p in seen:
-                raise ValueError(f"{nm}: parameter name {p!r} is also {seen[p]}'s; rename it.")
-            seen[p] = nm
-        for f in c.nonlinear:
-            if not isinstance(getattr(c, f, None), numbers.Real):
-                raise ValueError(f"{nm}: nonlinear parameter {f!r} must be a real field.")
+    """Raise :class:`~lionjax.InputError` naming the candidate, the rule of docs/effects.md and
+    the fix when a ForceEffect of ``candidates`` is not usable (:mod:`._user_checks`)."""
+    check_definitions(candidates, reserved)

@@ -745,7 +745,12 @@ def check_candidates(candidates: Sequence[Any], reserved) -> tuple[AbstractCandi
         )
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
-        raise InputError(f"diagnose: candidate names repeat: {names}.")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise InputError(
+            f"diagnose: argument 'candidates': the name(s) {dup} are used by more than one "
+            f"candidate ({', '.join(type(c).__name__ for c in candidates if c.name in dup)}); "
+            "give each candidate its own name (a candidate added twice: pass it once)."
+        )
     try:
         check_library(candidates, reserved)
     except ValueError as e:

@@ -1,0 +1,332 @@
+"""Checks of an effect of one's own (a :class:`~._force_effects.ForceEffect`) when it is loaded
+and when its basis and grid are first evaluated: a mistake in it is an
+:class:`~lionjax.InputError` naming the candidate, the rule of ``docs/effects.md`` it breaks and
+the fix, never an "internal error" of lionjax.
+
+Three moments:
+
+- **loaded** (:func:`check_definitions`, from :func:`~._force_effects.check_library`): the class
+  variables (``name``, ``parameters``, ``nonlinear``, ``units``, ``acts_on``) and a ``basis``
+  (or, for a measurement effect, a ``record_basis``) of its own;
+- **grid** (:func:`checked_grid`, from :meth:`~._force_effects.ForceEffect.profile`): at least
+  one Module, each an instance of the candidate's class;
+- **basis** (:func:`checked_basis`, from :class:`~._force_effects.ForceColumns`, wherever the basis
+  is evaluated on a record): a tuple of one array per parameter, each of the record's shape (or
+  a scalar), real and finite; and, the first time per class, the basis traced as the compiled
+  windowed simulation calls it (arrays of shape (W,), the Module's float fields traced too), so
+  NumPy or Python control flow on the arguments is refused before the diagnosis runs.
+
+The built-in candidates (modules under ``lionjax.``) are trusted: an error in them is lionjax's.
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import InputError
+
+#: The rules of docs/effects.md ("Rules for a good candidate", "What a candidate is"), quoted.
+RULES = {
+    "finite": "Finite everywhere the record goes: the basis is evaluated at every recorded "
+    "sample and at every simulated state; avoid 1/x, log |v| and unbounded growth, smooth a "
+    "sign with jnp.tanh",
+    "jnp": "jax.numpy, elementwise: basis is called on whole records and on single steps "
+    "inside the compiled simulation; use jnp functions, no NumPy on the arguments, no Python "
+    "if on their values, nothing that reads neighbouring samples",
+    "one_each": "Return exactly one array per name in parameters, as a tuple: "
+    "return (phi_1, phi_2, …), each of the shape of x",
+    "grid": "grid(limits) returns the Modules the profile searches, one per grid point, each an "
+    "instance of the candidate's class (e.g. [Cogging(float(p)) for p in periods]), at least "
+    "one",
+    "class_variables": "name, parameters and units are class variables: name a str, "
+    "parameters a non-empty tuple of str (one per basis function), units a dict of a unit "
+    "for each parameter and nonlinear field",
+    "names": "Names of one's own: a parameter name may not be one the diagnosis already "
+    "reports, nor another candidate's",
+}
+
+#: Samples of each traced argument in the first-evaluation probe (a few simulated windows).
+PROBE_WINDOWS = 4
+#: Classes whose basis has been traced (the probe runs once per class).
+_PROBED: set[type] = set()
+
+
+def is_users(candidate) -> bool:
+    """Whether ``candidate`` is a user's (its class defined outside lionjax)."""
+    return not type(candidate).__module__.startswith("lionjax.")
+
+
+def _refuse(candidate, what: str, rule: str, fix: str, prefix: str = "diagnose: ") -> InputError:
+    """The InputError naming the candidate, what it did, the rule and the fix (``prefix``: ""
+    where :func:`~._stages.check_candidates` adds its own)."""
+    nm = type(candidate).__name__
+    name = getattr(candidate, "name", None)
+    who = f"candidate {name!r} ({nm})" if isinstance(name, str) else f"candidate {nm}"
+    return InputError(f"{prefix}{who}: {what}. Rule (docs/effects.md): {RULES[rule]}. Fix: {fix}.")
+
+
+def _overrides(candidate, method: str) -> bool:
+    from ._force_effects import ForceEffect
+
+    return getattr(type(candidate), method) is not getattr(ForceEffect, method)
+
+
+def check_definitions(candidates: Sequence, reserved: Sequence[str]) -> None:
+    """The class variables of every ForceEffect of ``candidates`` (loaded), and that no
+    parameter name is reserved (``reserved``: the names the diagnosis reports) or another's.
+    The messages start with the candidate (the caller names the argument)."""
+    from ._force_effects import ForceEffect
+
+    refuse = lambda *args: _refuse(*args, prefix="")
+
+    seen: dict[str, str] = {}
+    for c in candidates:
+        if not isinstance(c, ForceEffect):
+            continue
+        nm = type(c).__name__
+        name = getattr(c, "name", None)
+        if not isinstance(name, str) or not name:
+            raise refuse(c, f"name is {name!r}", "class_variables", 'name: ClassVar[str] = "…"', "")
+        params = getattr(c, "parameters", None)
+        if (
+            not isinstance(params, tuple)
+            or not params
+            or not all(isinstance(p, str) and p for p in params)
+        ):
+            raise refuse(
+                c,
+                f"parameters is {params!r}",
+                "class_variables",
+                'parameters: ClassVar[tuple[str, ...]] = ("c1",), one name per basis function',
+            )
+        nonlinear = getattr(c, "nonlinear", ())
+        if not isinstance(nonlinear, tuple) or not all(isinstance(f, str) for f in nonlinear):
+            raise refuse(
+                c,
+                f"nonlinear is {nonlinear!r}",
+                "class_variables",
+                'nonlinear: ClassVar[tuple[str, ...]] = ("period",), fields of the Module',
+            )
+        for f in nonlinear:
+            if isinstance(getattr(c, f, None), bool) or not isinstance(
+                getattr(c, f, None), numbers.Real
+            ):
+                raise refuse(
+                    c,
+                    f"nonlinear parameter {f!r} is {getattr(c, f, None)!r}, not a real field",
+                    "class_variables",
+                    f"declare it as a field with a default, e.g. {f}: float = 1e-3",
+                )
+        units = getattr(c, "units", None)
+        missing = [
+            p for p in (*params, *nonlinear) if not isinstance(units, Mapping) or p not in units
+        ]
+        if missing:
+            raise refuse(
+                c,
+                f"units gives no unit for {', '.join(missing)}",
+                "class_variables",
+                'units: ClassVar[dict[str, str]] = {"' + missing[0] + '": "N", …}',
+            )
+        if c.acts_on not in ("device", "measurement"):
+            raise refuse(
+                c,
+                f"acts_on is {c.acts_on!r}",
+                "class_variables",
+                "leave it out (an effect on the device) or set it to 'measurement' (an error of "
+                "the force sensor)",
+            )
+        method = "basis" if c.acts_on == "device" else "record_basis"
+        if not (_overrides(c, "basis") or _overrides(c, "record_basis")):
+            raise refuse(
+                c,
+                f"it defines no {method}",
+                "jnp",
+                "define basis(self, x, v, F, t) returning one jnp array per parameter",
+            )
+        if len(set(params)) != len(params):
+            dup = sorted({p for p in params if params.count(p) > 1})
+            raise refuse(c, f"parameter name(s) {dup} repeat", "names", "name each one once")
+        for p in (*params, *nonlinear):
+            if p in reserved:
+                raise refuse(
+                    c,
+                    f"parameter name {p!r} is one the diagnosis already reports "
+                    f"({', '.join(sorted(set(reserved)))})",
+                    "names",
+                    "rename it",
+                )
+            if p in seen:
+                raise refuse(
+                    c, f"parameter name {p!r} is also {seen[p]}'s", "names", "rename one of them"
+                )
+            seen[p] = nm
+
+
+def checked_grid(candidate, grid) -> list:
+    """``candidate.grid(limits)`` as a list, or an InputError: not a sequence, empty, or holding
+    something that is not an instance of the candidate's class."""
+    cls = type(candidate)
+    if not is_users(candidate):
+        return list(grid)
+    if isinstance(grid, eqx.Module | str | bytes) or not hasattr(grid, "__iter__"):
+        raise _refuse(
+            candidate,
+            f"grid returned a {type(grid).__name__}, not a list of Modules",
+            "grid",
+            f"return [{cls.__name__}(…) for each grid point]",
+        )
+    pts = list(grid)
+    if not pts:
+        raise _refuse(
+            candidate,
+            "grid returned no Module to search",
+            "grid",
+            "return at least one point (build the grid from limits, e.g. limits.x_range); "
+            "without nonlinear parameters leave grid out",
+        )
+    bad = next((g for g in pts if not isinstance(g, cls)), None)
+    if bad is not None:
+        field = candidate.nonlinear[0] if candidate.nonlinear else "value"
+        raise _refuse(
+            candidate,
+            f"grid returned a {type(bad).__name__} ({bad!r}) among its {len(pts)} points, "
+            f"not a {cls.__name__}",
+            "grid",
+            f"return Modules, e.g. [{cls.__name__}({field}=float(v)) for v in values]",
+        )
+    return pts
+
+
+def _values(candidate, phis, shape: tuple, where: str) -> tuple:
+    """``phis`` checked: a tuple/list of one real array per parameter, each of ``shape`` or a
+    scalar (``where``: how it was evaluated, for the message)."""
+    n = len(candidate.parameters)
+    if isinstance(phis, jax.Array | np.ndarray) or not isinstance(phis, tuple | list):
+        got = (
+            f"an array of shape {tuple(np.shape(phis))}"
+            if isinstance(phis, jax.Array | np.ndarray | jax.ShapeDtypeStruct)
+            else f"a {type(phis).__name__}"
+        )
+        raise _refuse(
+            candidate,
+            f"basis returned {got} {where}, not a tuple of {n} array(s)",
+            "one_each",
+            f"return ({', '.join('phi_' + p for p in candidate.parameters)},)"
+            if n == 1
+            else f"return ({', '.join('phi_' + p for p in candidate.parameters)})",
+        )
+    if len(phis) != n:
+        raise _refuse(
+            candidate,
+            f"basis returned {len(phis)} array(s) {where} for the {n} parameter(s) "
+            f"{candidate.parameters}",
+            "one_each",
+            "return one array per name in parameters (add a parameter for each extra basis "
+            "function, or combine them)",
+        )
+    for j, phi in enumerate(phis):
+        sh = tuple(np.shape(phi))
+        dtype = np.dtype(getattr(phi, "dtype", np.result_type(phi)))
+        if sh not in ((), shape):
+            raise _refuse(
+                candidate,
+                f"basis function {j} ({candidate.parameters[j]}) has shape {sh} {where}, "
+                f"not {shape} (elementwise in x, v, F, t)",
+                "one_each",
+                "return one array of the shape of x per parameter (stacking several makes "
+                "one of shape (k, T): return them as separate tuple items)",
+            )
+        if dtype.kind not in "fiub":
+            raise _refuse(
+                candidate,
+                f"basis function {j} ({candidate.parameters[j]}) is of dtype {dtype} {where}",
+                "one_each",
+                "return a real force per unit of the parameter (jnp.real(...) if complex "
+                "arithmetic is meant)",
+            )
+    return tuple(phis)
+
+
+def _probe(candidate) -> None:
+    """Trace ``candidate.basis`` as the compiled simulation calls it, once per class."""
+    from ._force_effects import _traced
+
+    cls = type(candidate)
+    if cls in _PROBED or candidate.acts_on != "device":
+        return
+    arg = jax.ShapeDtypeStruct((PROBE_WINDOWS,), jnp.float64)
+    try:
+        out = eqx.filter_eval_shape(
+            lambda e, x, v, F, t: e.basis(x, v, F, t), _traced(candidate), arg, arg, arg, arg
+        )
+    except (
+        jax.errors.TracerArrayConversionError,
+        jax.errors.TracerBoolConversionError,
+        jax.errors.ConcretizationTypeError,
+        jax.errors.TracerIntegerConversionError,
+    ) as e:
+        kind = (
+            "converts a traced argument to NumPy (np.… on x, v, F or t)"
+            if isinstance(e, jax.errors.TracerArrayConversionError)
+            else "branches in Python on the value of an argument or field (if/while/bool(), "
+            "int(), float())"
+        )
+        raise _refuse(
+            candidate,
+            f"basis {kind}, which the compiled simulation cannot run ({type(e).__name__})",
+            "jnp",
+            "write it with jnp functions; a branch as jnp.where(cond, a, b), a sign as "
+            "jnp.tanh(v / v_eps)",
+        ) from None
+    except Exception as e:  # noqa: BLE001 - the user's code failed: say so, with its error
+        raise _refuse(
+            candidate,
+            f"basis failed when traced as the simulation calls it (arrays of shape "
+            f"({PROBE_WINDOWS},)): {type(e).__name__}: {e}",
+            "jnp",
+            "make basis work on jnp arrays of any length, elementwise",
+        ) from None
+    _values(candidate, out, (PROBE_WINDOWS,), "in the simulation")
+    _PROBED.add(cls)
+
+
+def checked_basis(candidate, record, v) -> tuple:
+    """``candidate.record_basis(record, v)`` checked (module docstring); the first time per
+    class, the basis traced as the simulation calls it too."""
+    if not is_users(candidate):
+        return tuple(candidate.record_basis(record, v))
+    _probe(candidate)
+    try:
+        phis = candidate.record_basis(record, v)
+    except Exception as e:  # noqa: BLE001 - the user's code failed: say so, with its error
+        raise _refuse(
+            candidate,
+            f"basis failed on the record (arrays of shape {tuple(record.x.shape)}): "
+            f"{type(e).__name__}: {e}",
+            "jnp",
+            "make basis work on jnp arrays elementwise (no Python if on their values: jnp.where)",
+        ) from None
+    phis = _values(candidate, phis, tuple(record.x.shape), "on the record")
+    for j, phi in enumerate(phis):
+        a = np.asarray(phi, np.float64)
+        bad = np.flatnonzero(~np.isfinite(np.broadcast_to(a, record.x.shape)))
+        if bad.size:
+            k = int(bad[0])
+            x = float(np.asarray(record.x)[k])
+            raise _refuse(
+                candidate,
+                f"basis function {j} ({candidate.parameters[j]}) is not finite at "
+                f"{bad.size} of the record's {record.n_samples} samples (the first: sample "
+                f"{k}, x = {x:.6g} m, value {float(np.broadcast_to(a, record.x.shape)[k])})",
+                "finite",
+                "bound it (e.g. x / (x² + ε²) for 1/x, jnp.log(jnp.abs(v) + ε)), or leave the "
+                "effect out",
+            )
+    return phis
