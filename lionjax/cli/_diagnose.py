@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import warnings
 
-from .._errors import IdentificationError, InputError
+from .._errors import DataWarning, IdentificationError, InputError
 from .._plotting import FIGURE_SUFFIXES
 from .._tables import check_output, write_json
 from ._common import about, cli_words, format_table, number
@@ -255,10 +256,12 @@ def _run_one(args) -> int:
     )
     out_of = {k: v for k, v in base["valid_outside_train"].items() if (v or 0) > OUTSIDE_WARN}
     if out_of:
-        print(
-            "warning: the validation record leaves the training record's range ("
+        warnings.warn(
+            "the validation record leaves the training record's range ("
             + ", ".join(f"{k}: {v:.0%} of the samples" for k, v in out_of.items())
-            + "); the model extrapolates there — record a training run that covers it"
+            + "); the model extrapolates there — record a training run that covers it",
+            DataWarning,
+            stacklevel=2,
         )
     fin = out["final"]
     print(

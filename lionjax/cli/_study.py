@@ -80,7 +80,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _poles(text: str) -> list[list[float]]:
-    sets = [float_list(s, "--poles") for s in text.split(";") if s.strip()]
+    parts = text.split(";")
+    empty = [i + 1 for i, s in enumerate(parts) if not s.strip()]
+    if empty and len(parts) > 1:
+        raise InputError(
+            f"--poles: pole set {empty[0]} of {len(parts)} in {text!r} is empty (two ';' in a "
+            "row, or one at an end); give each set its poles, e.g. \"-4;-8\"."
+        )
+    sets = [float_list(s, "--poles") for s in parts if s.strip()]
     sets = [s * 3 if len(s) == 1 else s for s in sets]
     if not sets or len({len(s) for s in sets}) != 1:
         raise InputError(
