@@ -60,6 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
         mod = importlib.import_module(f"lionjax.cli._{name}")
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.__doc__)
         mod.add_arguments(p)
+        p.add_argument(
+            "--quiet",
+            action="store_true",
+            help="no progress on stderr (default: drawn where stderr is a terminal, once a step "
+            "has run 2 s)",
+        )
         _no_cache_flag(p, argparse.SUPPRESS)  # also after the command; keeps one given before
         p.set_defaults(_run=mod.run)
     return parser

@@ -24,6 +24,7 @@ import warnings
 
 from .._errors import DataWarning, IdentificationError, InputError
 from .._plotting import FIGURE_SUFFIXES
+from .._progress import wanted
 from .._tables import check_output, write_json
 from ._common import about, cli_words, format_table, number
 
@@ -159,7 +160,7 @@ def _run_pairs(args) -> int:
     result = lj.diagnosis.diagnose_many(
         pairs,
         candidates=library,
-        progress=True,
+        progress=wanted(args.quiet),  # the pairs done
         load={"columns": columns, "force_scale": args.force_scale, "resample": args.resample},
         filter_hz=args.filter_hz,
         window_s=args.window,
@@ -216,6 +217,7 @@ def _run_one(args) -> int:
             window_s=args.window,
             max_memory_gb=args.max_memory_gb,
             streamed=_streamed(args),
+            progress=wanted(args.quiet),
         )
     except (InputError, IdentificationError) as e:
         raise type(e)(_name_files(str(e), args)) from None

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from .._progress import counted, status, wanted
 from .._tables import check_output, write_json
 from ._common import about, float_list, format_table
 
@@ -335,7 +336,7 @@ def load_many(paths: list[Path], args) -> list:
 
     columns = lj.extend.parse_columns(args.columns) if args.columns else None
     records, errors = [], []
-    for p in paths:
+    for p in counted(paths, "reading", "files"):
         try:
             records.append(
                 lj.load_record(
@@ -353,13 +354,22 @@ def load_many(paths: list[Path], args) -> list:
 
 
 def run_many(args) -> int:
-    import lionjax as lj
 
     check_output(args.json, "--json")
     check_output(args.csv, "--csv")
     settings(args)  # bad options fail before any file is read
     paths = data_files(args.data)
-    records = load_many(paths, args)
+    with status("identify", enabled=wanted(args.quiet)) as st:
+        records = load_many(paths, args)
+        st.stage(f"identifying the {len(records)} records in one batched call")
+        res = _identify_many(records, paths, args)
+    return report_many(res, records, args)
+
+
+def _identify_many(records, paths, args):
+    """The batched identification of ``records`` (``identify_batch``) under the options."""
+    import lionjax as lj
+
     model, bank, gain = settings(args, np.array([float(r.dt) for r in records]))
     theta0 = None
     if args.method == "lion":
@@ -371,9 +381,13 @@ def run_many(args) -> int:
         method = lj.LeastSquares()
     else:
         method = lj.Lion(gain=gain, stepper=stepper(args), theta0=theta0)
-    res = lj.identify_batch(
+    return lj.identify_batch(
         model, records, method=method, labels=[str(p) for p in paths], bank=bank
     )
+
+
+def report_many(res, records, args) -> int:
+    """Print and write the rows of a batch; exit status 1 when some record failed."""
     print_many(res)
     if args.json:
         res.to_json(args.json)

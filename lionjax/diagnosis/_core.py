@@ -109,6 +109,7 @@ from threadpoolctl import threadpool_limits
 
 from .._data_checks import check_diagnosis_data
 from .._errors import InputError
+from .._progress import status
 from .._record import Record
 from .._validity import check_record
 from ._candidates import AbstractCandidate
@@ -208,6 +209,7 @@ def diagnose(
     max_memory_gb: float | None = None,
     criteria: Criteria | None = None,
     streamed: bool | None = None,
+    progress: bool = False,
 ) -> Diagnosis:
     """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record (module docstring: the method,
     the confidence, the precision).
@@ -244,6 +246,8 @@ def diagnose(
             signal, design or profile column is held whole; the same verdicts as in memory, the
             numbers equal to the last bits. None (default): streamed where a record's padded
             length exceeds 2¹⁷ samples (in memory, records of up to 2¹⁷ samples peak below 2 GB).
+        progress: draw a status line on stderr once the diagnosis has run a few seconds (its
+            step, and the grid points of a profile done: :class:`lionjax._progress.Status`).
 
     Returns:
         a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,
@@ -267,24 +271,34 @@ def diagnose(
         criteria or Criteria(), **{k: v for k, v in given.items() if v is not None}
     )
     library = check_candidates(candidates, RESERVED)
-    run = prepare(train, valid, library, crit, filter_hz, window_s, max_memory_gb, streamed)
-    fitted = fit_alone(run)
-    alone = {
-        c.name: (run.assess(run.base, fitted[c.name], c, run.floor_of([c])), fitted[c.name])
-        for c in library
-    }
-    effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
-    stk = parsimony(run, stack_effects(run, alone))
-    if stk.stands_for and stk.size < crit.max_effects:
-        # a stand-in opens the stack to what the candidate it replaced excluded (asymmetric
-        # friction excludes a spring, its stand-in Coulomb friction + offset does not)
-        stk = parsimony(run, stack_effects(run, alone, stk))
-    stk = prune(run, stk)
-    verdict = judge(run, stk)
-    confidence = weigh(
-        run, effects, stk, verdict, uncounted(run, fitted, stk), unresolved(run, fitted, effects)
-    )
-    return report(run, effects, stk, verdict, confidence)
+    with status("diagnose", enabled=progress) as st:  # the stages on stderr, if asked
+        st.stage("baseline and noise floor")
+        run = prepare(train, valid, library, crit, filter_hz, window_s, max_memory_gb, streamed)
+        st.stage(f"fitting the {len(library)} candidates alone")
+        fitted = fit_alone(run)
+        alone = {
+            c.name: (run.assess(run.base, fitted[c.name], c, run.floor_of([c])), fitted[c.name])
+            for c in library
+        }
+        effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
+        st.stage("stacking")
+        stk = parsimony(run, stack_effects(run, alone))
+        if stk.stands_for and stk.size < crit.max_effects:
+            # a stand-in opens the stack to what the candidate it replaced excluded (asymmetric
+            # friction excludes a spring, its stand-in Coulomb friction + offset does not)
+            stk = parsimony(run, stack_effects(run, alone, stk))
+        stk = prune(run, stk)
+        st.stage("verdict")
+        verdict = judge(run, stk)
+        confidence = weigh(
+            run,
+            effects,
+            stk,
+            verdict,
+            uncounted(run, fitted, stk),
+            unresolved(run, fitted, effects),
+        )
+        return report(run, effects, stk, verdict, confidence)
 
 
 __all__ = ["diagnose"]

@@ -41,6 +41,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._models import AbstractEffect, Column
+from .._progress import counted
 from .._record import Record
 from ._candidates import AbstractCandidate, Context, Limits
 from ._streaming import zero_phase
@@ -103,7 +104,8 @@ class ForceEffect(AbstractCandidate):
         grid = checked_grid(self, self.grid(limits))  # a user's mistake named (docs/effects.md)
         if len(grid) == 1:
             return grid[0]
-        values = np.asarray([rss(g) for g in grid], np.float64)
+        points = counted(grid, f"profiling {self.name}", "grid points")  # stderr, if asked
+        values = np.asarray([rss(g) for g in points], np.float64)
         if not np.any(np.isfinite(values)):
             raise ValueError(f"{type(self).__name__}: no grid point could be fitted.")
         i = int(np.nanargmin(values))

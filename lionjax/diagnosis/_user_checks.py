@@ -6,15 +6,16 @@ the fix, never an "internal error" of lionjax.
 Three moments:
 
 - **loaded** (:func:`check_definitions`, from :func:`~._force_effects.check_library`): the class
-  variables (``name``, ``parameters``, ``nonlinear``, ``units``, ``acts_on``) and a ``basis``
-  (or, for a measurement effect, a ``record_basis``) of its own;
+  variables (``name``, ``parameters``, ``nonlinear``, ``units``, ``acts_on``), a ``basis`` (or,
+  for a measurement effect, a ``record_basis``) of its own, and the basis traced as the
+  compiled windowed simulation calls it (arrays of shape (W,), the Module's float fields traced
+  too): a tuple of one array of shape (W,) per parameter, no NumPy or Python control flow on
+  the arguments;
 - **grid** (:func:`checked_grid`, from :meth:`~._force_effects.ForceEffect.profile`): at least
   one Module, each an instance of the candidate's class;
 - **basis** (:func:`checked_basis`, from :class:`~._force_effects.ForceColumns`, wherever the basis
   is evaluated on a record): a tuple of one array per parameter, each of the record's shape (or
-  a scalar), real and finite; and, the first time per class, the basis traced as the compiled
-  windowed simulation calls it (arrays of shape (W,), the Module's float fields traced too), so
-  NumPy or Python control flow on the arguments is refused before the diagnosis runs.
+  a scalar), real and finite on every sample.
 
 The built-in candidates (modules under ``lionjax.``) are trusted: an error in them is lionjax's.
 """
@@ -92,7 +93,7 @@ def check_definitions(candidates: Sequence, reserved: Sequence[str]) -> None:
         nm = type(c).__name__
         name = getattr(c, "name", None)
         if not isinstance(name, str) or not name:
-            raise refuse(c, f"name is {name!r}", "class_variables", 'name: ClassVar[str] = "…"', "")
+            raise refuse(c, f"name is {name!r}", "class_variables", 'name: ClassVar[str] = "…"')
         params = getattr(c, "parameters", None)
         if (
             not isinstance(params, tuple)
@@ -167,6 +168,8 @@ def check_definitions(candidates: Sequence, reserved: Sequence[str]) -> None:
                     c, f"parameter name {p!r} is also {seen[p]}'s", "names", "rename one of them"
                 )
             seen[p] = nm
+        if is_users(c):
+            _probe(c, "")
 
 
 def checked_grid(candidate, grid) -> list:
@@ -204,9 +207,10 @@ def checked_grid(candidate, grid) -> list:
     return pts
 
 
-def _values(candidate, phis, shape: tuple, where: str) -> tuple:
+def _values(candidate, phis, shape: tuple, where: str, prefix: str = "diagnose: ") -> tuple:
     """``phis`` checked: a tuple/list of one real array per parameter, each of ``shape`` or a
     scalar (``where``: how it was evaluated, for the message)."""
+    refuse = lambda *args: _refuse(*args, prefix=prefix)
     n = len(candidate.parameters)
     if isinstance(phis, jax.Array | np.ndarray) or not isinstance(phis, tuple | list):
         got = (
@@ -214,7 +218,7 @@ def _values(candidate, phis, shape: tuple, where: str) -> tuple:
             if isinstance(phis, jax.Array | np.ndarray | jax.ShapeDtypeStruct)
             else f"a {type(phis).__name__}"
         )
-        raise _refuse(
+        raise refuse(
             candidate,
             f"basis returned {got} {where}, not a tuple of {n} array(s)",
             "one_each",
@@ -223,7 +227,7 @@ def _values(candidate, phis, shape: tuple, where: str) -> tuple:
             else f"return ({', '.join('phi_' + p for p in candidate.parameters)})",
         )
     if len(phis) != n:
-        raise _refuse(
+        raise refuse(
             candidate,
             f"basis returned {len(phis)} array(s) {where} for the {n} parameter(s) "
             f"{candidate.parameters}",
@@ -235,16 +239,16 @@ def _values(candidate, phis, shape: tuple, where: str) -> tuple:
         sh = tuple(np.shape(phi))
         dtype = np.dtype(getattr(phi, "dtype", np.result_type(phi)))
         if sh not in ((), shape):
-            raise _refuse(
+            raise refuse(
                 candidate,
                 f"basis function {j} ({candidate.parameters[j]}) has shape {sh} {where}, "
-                f"not {shape} (elementwise in x, v, F, t)",
+                f"where x has shape {shape} (elementwise in x, v, F, t)",
                 "one_each",
                 "return one array of the shape of x per parameter (stacking several makes "
                 "one of shape (k, T): return them as separate tuple items)",
             )
         if dtype.kind not in "fiub":
-            raise _refuse(
+            raise refuse(
                 candidate,
                 f"basis function {j} ({candidate.parameters[j]}) is of dtype {dtype} {where}",
                 "one_each",
@@ -254,8 +258,9 @@ def _values(candidate, phis, shape: tuple, where: str) -> tuple:
     return tuple(phis)
 
 
-def _probe(candidate) -> None:
-    """Trace ``candidate.basis`` as the compiled simulation calls it, once per class."""
+def _probe(candidate, prefix: str = "diagnose: ") -> None:
+    """Trace ``candidate.basis`` as the compiled simulation calls it, once per class (no record
+    needed: when loaded)."""
     from ._force_effects import _traced
 
     cls = type(candidate)
@@ -284,25 +289,33 @@ def _probe(candidate) -> None:
             "jnp",
             "write it with jnp functions; a branch as jnp.where(cond, a, b), a sign as "
             "jnp.tanh(v / v_eps)",
+            prefix,
         ) from None
     except Exception as e:  # noqa: BLE001 - the user's code failed: say so, with its error
+        if "truth value" in str(e):  # a Python `if` on a traced array of several values
+            raise _refuse(
+                candidate,
+                "basis branches in Python on the value of an argument (if/while on an array)",
+                "jnp",
+                "write the branch as jnp.where(cond, a, b) (a sign as jnp.tanh(v / v_eps))",
+                prefix,
+            ) from None
         raise _refuse(
             candidate,
             f"basis failed when traced as the simulation calls it (arrays of shape "
             f"({PROBE_WINDOWS},)): {type(e).__name__}: {e}",
             "jnp",
             "make basis work on jnp arrays of any length, elementwise",
+            prefix,
         ) from None
-    _values(candidate, out, (PROBE_WINDOWS,), "in the simulation")
+    _values(candidate, out, (PROBE_WINDOWS,), "in the simulation", prefix)
     _PROBED.add(cls)
 
 
 def checked_basis(candidate, record, v) -> tuple:
-    """``candidate.record_basis(record, v)`` checked (module docstring); the first time per
-    class, the basis traced as the simulation calls it too."""
+    """``candidate.record_basis(record, v)`` checked (module docstring)."""
     if not is_users(candidate):
         return tuple(candidate.record_basis(record, v))
-    _probe(candidate)
     try:
         phis = candidate.record_basis(record, v)
     except Exception as e:  # noqa: BLE001 - the user's code failed: say so, with its error
