@@ -237,7 +237,7 @@ def _values(candidate, phis, shape: tuple, where: str, prefix: str = "diagnose: 
         )
     for j, phi in enumerate(phis):
         sh = tuple(np.shape(phi))
-        dtype = np.dtype(getattr(phi, "dtype", np.result_type(phi)))
+        dtype = np.dtype(phi.dtype if hasattr(phi, "dtype") else np.result_type(phi))
         if sh not in ((), shape):
             raise refuse(
                 candidate,
