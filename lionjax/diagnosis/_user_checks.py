@@ -42,12 +42,11 @@ RULES = {
     "if on their values, nothing that reads neighbouring samples",
     "one_each": "Return exactly one array per name in parameters, as a tuple: "
     "return (phi_1, phi_2, …), each of the shape of x",
-    "grid": "grid(limits) returns the Modules the profile searches, one per grid point, each an "
-    "instance of the candidate's class (e.g. [Cogging(float(p)) for p in periods]), at least "
-    "one",
+    "grid": "grid(limits) returns the Modules the profile searches, one per grid point, each a "
+    "Module of the candidate's class (e.g. [Cogging(float(p)) for p in periods]), at least one",
     "class_variables": "name, parameters and units are class variables: name a str, "
-    "parameters a non-empty tuple of str (one per basis function), units a dict of a unit "
-    "for each parameter and nonlinear field",
+    "parameters a non-empty tuple of str (one per basis function), units a dict of the unit of "
+    "each parameter and nonlinear field",
     "names": "Names of one's own: a parameter name may not be one the diagnosis already "
     "reports, nor another candidate's",
 }
@@ -124,16 +123,13 @@ def check_definitions(candidates: Sequence, reserved: Sequence[str]) -> None:
                     "class_variables",
                     f"declare it as a field with a default, e.g. {f}: float = 1e-3",
                 )
-        units = getattr(c, "units", None)
-        missing = [
-            p for p in (*params, *nonlinear) if not isinstance(units, Mapping) or p not in units
-        ]
-        if missing:
+        units = getattr(c, "units", {})
+        if not isinstance(units, Mapping):
             raise refuse(
                 c,
-                f"units gives no unit for {', '.join(missing)}",
+                f"units is {units!r}",
                 "class_variables",
-                'units: ClassVar[dict[str, str]] = {"' + missing[0] + '": "N", …}',
+                'units: ClassVar[dict[str, str]] = {"' + params[0] + '": "N", …} (or leave it out)',
             )
         if c.acts_on not in ("device", "measurement"):
             raise refuse(
@@ -174,7 +170,8 @@ def check_definitions(candidates: Sequence, reserved: Sequence[str]) -> None:
 
 def checked_grid(candidate, grid) -> list:
     """``candidate.grid(limits)`` as a list, or an InputError: not a sequence, empty, or holding
-    something that is not an instance of the candidate's class."""
+    something that is not a ForceEffect of the candidate's name (its class, or a class it
+    derives from)."""
     cls = type(candidate)
     if not is_users(candidate):
         return list(grid)
@@ -194,13 +191,16 @@ def checked_grid(candidate, grid) -> list:
             "return at least one point (build the grid from limits, e.g. limits.x_range); "
             "without nonlinear parameters leave grid out",
         )
-    bad = next((g for g in pts if not isinstance(g, cls)), None)
+    from ._force_effects import ForceEffect
+
+    same = lambda g: isinstance(g, ForceEffect) and g.name == candidate.name
+    bad = next((g for g in pts if not same(g)), None)
     if bad is not None:
         field = candidate.nonlinear[0] if candidate.nonlinear else "value"
         raise _refuse(
             candidate,
             f"grid returned a {type(bad).__name__} ({bad!r}) among its {len(pts)} points, "
-            f"not a {cls.__name__}",
+            f"not a {cls.__name__} (a ForceEffect named {candidate.name!r})",
             "grid",
             f"return Modules, e.g. [{cls.__name__}({field}=float(v)) for v in values]",
         )
