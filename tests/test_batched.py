@@ -186,6 +186,7 @@ def test_least_squares_batched(recs, masked, monkeypatch):
         np.testing.assert_allclose(sol.rms[i], ls.rms, rtol=1e-2)
 
 
+@pytest.mark.slow  # several kernels compiled
 def test_piecewise_and_normalised(recs):
     batch, _ = lj.stack_records(recs[:2])
     model = lj.Piecewise((-0.001, 0.001))
@@ -244,6 +245,7 @@ def test_unexcited_reported_per_element(recs):
         lj.raise_if_failed(sol)
 
 
+@pytest.mark.slow  # several kernels compiled
 def test_split_loops_equal_one_loop(masked):
     """The batch split into independent loops over its rows (how one CPU device uses every
     core) gives the same numbers as one loop, with LS, convergence and masks on."""

@@ -118,6 +118,7 @@ def test_bad_arguments():
         lj.diagnose(rec, other)
 
 
+@pytest.mark.slow  # diagnoses of blind-benchmark records
 def test_blind_small():
     """The blind benchmark's harness (``blind.run``) with the real diagnosis, end to end, on one
     twin record per outcome it scores: clean (``none``), two named effects, and one outside the

@@ -50,6 +50,7 @@ def _same(row: dict, ref: dict) -> None:
     assert row["error"] is None
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_rows_equal_single_calls_and_bad_pairs_are_rows(pairs, tmp_path):
     recs, ref = pairs["records"], pairs["ref"]
     dead = lj.Record(recs["p_none"][0].x, 0.0 * recs["p_none"][0].F, recs["p_none"][0].dt)
@@ -76,6 +77,7 @@ def test_rows_equal_single_calls_and_bad_pairs_are_rows(pairs, tmp_path):
         got.rows = ()
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_other_errors_propagate_and_bad_pairs_are_refused(monkeypatch, pairs):
     recs = pairs["records"]["p_none"]
     with pytest.raises(lj.InputError, match=r"pairs\[0\] must be \(name, train, valid\)"):
@@ -93,6 +95,7 @@ def test_other_errors_propagate_and_bad_pairs_are_refused(monkeypatch, pairs):
         lj.diagnosis.diagnose_many([("a", *recs)])
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_a_second_pair_of_the_same_bucket_compiles_nothing(pairs, caplog):
     recs = pairs["records"]
     lj.diagnosis.diagnose_many([("p_offset", *recs["p_offset"])])
@@ -107,6 +110,7 @@ def test_a_second_pair_of_the_same_bucket_compiles_nothing(pairs, caplog):
     assert any("ompil" in r.getMessage() for r in caplog.records)
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_cli_pairs_folder_and_manifest(pairs, tmp_path, capsys, monkeypatch):
     d, ref = pairs["dir"], pairs["ref"]
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # the bar: on a terminal only
@@ -147,6 +151,7 @@ def test_cli_pairs_folder_and_manifest(pairs, tmp_path, capsys, monkeypatch):
     _same(listed[0], ref["p_offset"])
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_cli_pairs_argument_errors(pairs, tmp_path, capsys):
     d = pairs["dir"]
     empty = tmp_path / "nopairs"
@@ -183,6 +188,7 @@ def test_compile_cache_folder():
     assert cache_dir({"LIONJAX_CACHE_DIR": "/y", "LIONJAX_NO_COMPILE_CACHE": "1"}) is None
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_compile_cache_is_kept_unless_turned_off(pairs, tmp_path):
     base = {k: v for k, v in os.environ.items() if not k.startswith("JAX_PERSISTENT_CACHE")}
     base.pop("JAX_COMPILATION_CACHE_DIR", None)  # the test suite's own cache
@@ -204,6 +210,7 @@ def test_compile_cache_is_kept_unless_turned_off(pairs, tmp_path):
         assert not (tmp_path / name).exists(), name
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 @pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="glibc's mallopt only")
 def test_the_command_line_keeps_freed_memory_for_reuse():
     # arrays of 8 MiB and growing, allocated and freed 20 times: with glibc's default each

@@ -10,6 +10,9 @@ import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
 
+# the slow tier (.ci/run's second step): streamed against in-memory diagnoses
+pytestmark = pytest.mark.slow
+
 CHUNK = 512  # far shorter than the records: ~8 chunks of train, states carried at each edge
 
 

@@ -35,7 +35,6 @@ from collections.abc import Callable, Sequence
 from typing import ClassVar
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -45,7 +44,7 @@ from .._progress import counted
 from .._record import Record
 from ._candidates import AbstractCandidate, Context, Limits
 from ._streaming import zero_phase
-from ._user_checks import check_definitions, checked_basis, checked_grid
+from ._user_checks import check_definitions, checked_basis, checked_grid, traced
 
 #: Golden-section steps of :meth:`ForceEffect.profile`'s refinement (the bracket shrinks by
 #: 0.618 per step: 16 steps leave 5·10⁻⁴ of the grid's spacing).
@@ -237,14 +236,6 @@ class SimulatedForce(eqx.Module):
         return total
 
 
-def _traced(effect: ForceEffect) -> ForceEffect:
-    """``effect`` with its float fields as arrays, so that the compiled simulation is reused
-    across their values."""
-    return jax.tree_util.tree_map(
-        lambda a: jnp.asarray(a, jnp.float64) if isinstance(a, float) else a, effect
-    )
-
-
 def simulation_terms(
     effects: Sequence[ForceEffect], phys: dict[str, float], record: Record, v: Array
 ) -> tuple[SimulatedForce | None, np.ndarray]:
@@ -262,11 +253,11 @@ def simulation_terms(
             tuple(jnp.asarray(float(phys.get(p, 0.0)), jnp.float64) for p in e.parameters)
             for e in device
         )
-        extra = SimulatedForce(tuple(_traced(e) for e in device), coefs)
+        extra = SimulatedForce(tuple(traced(e) for e in device), coefs)
     return extra, du
 
 
 def check_library(candidates: Sequence[AbstractCandidate], reserved: Sequence[str]) -> None:
     """Raise :class:`~lionjax.InputError` naming the candidate, the rule of docs/effects.md and
     the fix when a ForceEffect of ``candidates`` is not usable (:mod:`._user_checks`)."""
-    check_definitions(candidates, reserved)
+    check_definitions([c for c in candidates if isinstance(c, ForceEffect)], reserved, ForceEffect)

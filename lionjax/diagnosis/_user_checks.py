@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
+from ._candidates import AbstractCandidate
 
 #: The rules of docs/effects.md ("Rules for a good candidate", "What a candidate is"), quoted.
 RULES = {
@@ -71,24 +72,24 @@ def _refuse(candidate, what: str, rule: str, fix: str, prefix: str = "diagnose: 
     return InputError(f"{prefix}{who}: {what}. Rule (docs/effects.md): {RULES[rule]}. Fix: {fix}.")
 
 
-def _overrides(candidate, method: str) -> bool:
-    from ._force_effects import ForceEffect
+def traced(effect):
+    """``effect`` with its float fields as arrays, so that a compiled simulation is reused
+    across their values (and a Python branch on them is seen when traced)."""
+    return jax.tree_util.tree_map(
+        lambda a: jnp.asarray(a, jnp.float64) if isinstance(a, float) else a, effect
+    )
 
-    return getattr(type(candidate), method) is not getattr(ForceEffect, method)
 
-
-def check_definitions(candidates: Sequence, reserved: Sequence[str]) -> None:
-    """The class variables of every ForceEffect of ``candidates`` (loaded), and that no
-    parameter name is reserved (``reserved``: the names the diagnosis reports) or another's.
-    The messages start with the candidate (the caller names the argument)."""
-    from ._force_effects import ForceEffect
-
+def check_definitions(effects: Sequence, reserved: Sequence[str], base: type) -> None:
+    """The class variables of every ForceEffect of ``effects`` (loaded; ``base``: the ForceEffect
+    class, whose ``basis`` a device effect must override), and that no parameter name is
+    reserved (``reserved``: the names the diagnosis reports) or another's. The messages start
+    with the candidate (the caller names the argument)."""
     refuse = lambda *args: _refuse(*args, prefix="")
 
     seen: dict[str, str] = {}
-    for c in candidates:
-        if not isinstance(c, ForceEffect):
-            continue
+    own = lambda c, m: getattr(type(c), m) is not getattr(base, m)
+    for c in effects:
         nm = type(c).__name__
         name = getattr(c, "name", None)
         if not isinstance(name, str) or not name:
@@ -140,7 +141,7 @@ def check_definitions(candidates: Sequence, reserved: Sequence[str]) -> None:
                 "the force sensor)",
             )
         method = "basis" if c.acts_on == "device" else "record_basis"
-        if not (_overrides(c, "basis") or _overrides(c, "record_basis")):
+        if not (own(c, "basis") or own(c, "record_basis")):
             raise refuse(
                 c,
                 f"it defines no {method}",
@@ -191,9 +192,7 @@ def checked_grid(candidate, grid) -> list:
             "return at least one point (build the grid from limits, e.g. limits.x_range); "
             "without nonlinear parameters leave grid out",
         )
-    from ._force_effects import ForceEffect
-
-    same = lambda g: isinstance(g, ForceEffect) and g.name == candidate.name
+    same = lambda g: isinstance(g, AbstractCandidate) and g.name == candidate.name
     bad = next((g for g in pts if not same(g)), None)
     if bad is not None:
         field = candidate.nonlinear[0] if candidate.nonlinear else "value"
@@ -261,15 +260,13 @@ def _values(candidate, phis, shape: tuple, where: str, prefix: str = "diagnose: 
 def _probe(candidate, prefix: str = "diagnose: ") -> None:
     """Trace ``candidate.basis`` as the compiled simulation calls it, once per class (no record
     needed: when loaded)."""
-    from ._force_effects import _traced
-
     cls = type(candidate)
     if cls in _PROBED or candidate.acts_on != "device":
         return
     arg = jax.ShapeDtypeStruct((PROBE_WINDOWS,), jnp.float64)
     try:
         out = eqx.filter_eval_shape(
-            lambda e, x, v, F, t: e.basis(x, v, F, t), _traced(candidate), arg, arg, arg, arg
+            lambda e, x, v, F, t: e.basis(x, v, F, t), traced(candidate), arg, arg, arg, arg
         )
     except (
         jax.errors.TracerArrayConversionError,
