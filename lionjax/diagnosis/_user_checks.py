@@ -85,88 +85,90 @@ def check_definitions(effects: Sequence, reserved: Sequence[str], base: type) ->
     class, whose ``basis`` a device effect must override), and that no parameter name is
     reserved (``reserved``: the names the diagnosis reports) or another's. The messages start
     with the candidate (the caller names the argument)."""
-    refuse = lambda *args: _refuse(*args, prefix="")
-
     seen: dict[str, str] = {}
-    own = lambda c, m: getattr(type(c), m) is not getattr(base, m)
     for c in effects:
-        nm = type(c).__name__
-        name = getattr(c, "name", None)
-        if not isinstance(name, str) or not name:
-            raise refuse(c, f"name is {name!r}", "class_variables", 'name: ClassVar[str] = "…"')
-        params = getattr(c, "parameters", None)
-        if (
-            not isinstance(params, tuple)
-            or not params
-            or not all(isinstance(p, str) and p for p in params)
-        ):
-            raise refuse(
-                c,
-                f"parameters is {params!r}",
-                "class_variables",
-                'parameters: ClassVar[tuple[str, ...]] = ("c1",), one name per basis function',
-            )
-        nonlinear = getattr(c, "nonlinear", ())
-        if not isinstance(nonlinear, tuple) or not all(isinstance(f, str) for f in nonlinear):
-            raise refuse(
-                c,
-                f"nonlinear is {nonlinear!r}",
-                "class_variables",
-                'nonlinear: ClassVar[tuple[str, ...]] = ("period",), fields of the Module',
-            )
-        for f in nonlinear:
-            if isinstance(getattr(c, f, None), bool) or not isinstance(
-                getattr(c, f, None), numbers.Real
-            ):
-                raise refuse(
-                    c,
-                    f"nonlinear parameter {f!r} is {getattr(c, f, None)!r}, not a real field",
-                    "class_variables",
-                    f"declare it as a field with a default, e.g. {f}: float = 1e-3",
-                )
-        units = getattr(c, "units", {})
-        if not isinstance(units, Mapping):
-            raise refuse(
-                c,
-                f"units is {units!r}",
-                "class_variables",
-                'units: ClassVar[dict[str, str]] = {"' + params[0] + '": "N", …} (or leave it out)',
-            )
-        if c.acts_on not in ("device", "measurement"):
-            raise refuse(
-                c,
-                f"acts_on is {c.acts_on!r}",
-                "class_variables",
-                "leave it out (an effect on the device) or set it to 'measurement' (an error of "
-                "the force sensor)",
-            )
-        method = "basis" if c.acts_on == "device" else "record_basis"
-        if not (own(c, "basis") or own(c, "record_basis")):
-            raise refuse(
-                c,
-                f"it defines no {method}",
-                "jnp",
-                "define basis(self, x, v, F, t) returning one jnp array per parameter",
-            )
-        if len(set(params)) != len(params):
-            dup = sorted({p for p in params if params.count(p) > 1})
-            raise refuse(c, f"parameter name(s) {dup} repeat", "names", "name each one once")
-        for p in (*params, *nonlinear):
+        _check_variables(c, base)
+        for p in (*c.parameters, *c.nonlinear):
             if p in reserved:
-                raise refuse(
+                raise _refuse(
                     c,
                     f"parameter name {p!r} is one the diagnosis already reports "
                     f"({', '.join(sorted(set(reserved)))})",
                     "names",
                     "rename it",
+                    "",
                 )
             if p in seen:
-                raise refuse(
-                    c, f"parameter name {p!r} is also {seen[p]}'s", "names", "rename one of them"
+                raise _refuse(
+                    c, f"parameter name {p!r} is also {seen[p]}'s", "names", "rename one", ""
                 )
-            seen[p] = nm
+            seen[p] = type(c).__name__
         if is_users(c):
             _probe(c, "")
+
+
+def _check_variables(c, base: type) -> None:
+    """One candidate's class variables (:func:`check_definitions`)."""
+    refuse = lambda *args: _refuse(*args, prefix="")
+    name = getattr(c, "name", None)
+    if not isinstance(name, str) or not name:
+        raise refuse(c, f"name is {name!r}", "class_variables", 'name: ClassVar[str] = "…"')
+    params = getattr(c, "parameters", None)
+    if (
+        not isinstance(params, tuple)
+        or not params
+        or not all(isinstance(p, str) and p for p in params)
+    ):
+        raise refuse(
+            c,
+            f"parameters is {params!r}",
+            "class_variables",
+            'parameters: ClassVar[tuple[str, ...]] = ("c1",), one name per basis function',
+        )
+    if len(set(params)) != len(params):
+        dup = sorted({p for p in params if params.count(p) > 1})
+        raise refuse(c, f"parameter name(s) {dup} repeat", "names", "name each one once")
+    nonlinear = getattr(c, "nonlinear", ())
+    if not isinstance(nonlinear, tuple) or not all(isinstance(f, str) for f in nonlinear):
+        raise refuse(
+            c,
+            f"nonlinear is {nonlinear!r}",
+            "class_variables",
+            'nonlinear: ClassVar[tuple[str, ...]] = ("period",), fields of the Module',
+        )
+    for f in nonlinear:
+        v = getattr(c, f, None)
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise refuse(
+                c,
+                f"nonlinear parameter {f!r} is {v!r}, not a real field",
+                "class_variables",
+                f"declare it as a field with a default, e.g. {f}: float = 1e-3",
+            )
+    units = getattr(c, "units", {})
+    if not isinstance(units, Mapping):
+        raise refuse(
+            c,
+            f"units is {units!r}",
+            "class_variables",
+            'units: ClassVar[dict[str, str]] = {"' + params[0] + '": "N", …} (or leave it out)',
+        )
+    if c.acts_on not in ("device", "measurement"):
+        raise refuse(
+            c,
+            f"acts_on is {c.acts_on!r}",
+            "class_variables",
+            "leave it out (an effect on the device) or set it to 'measurement' (an error of the "
+            "force sensor)",
+        )
+    own = lambda m: getattr(type(c), m) is not getattr(base, m)
+    if not (own("basis") or own("record_basis")):
+        raise refuse(
+            c,
+            f"it defines no {'basis' if c.acts_on == 'device' else 'record_basis'}",
+            "jnp",
+            "define basis(self, x, v, F, t) returning one jnp array per parameter",
+        )
 
 
 def checked_grid(candidate, grid) -> list:
