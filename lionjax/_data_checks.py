@@ -29,16 +29,16 @@ of the signal s (x or F) alone:
   force the drive applied. A force at one value over more than half the record has no spread,
   and no force spike is judged.
 
-Measured on clean records of every class of the blind benchmark's generator
+Measured on 440 clean records of every class of the blind benchmark's generator
 (``benchmarks/diagnosis_blind.py``: both simulators, open and closed loop, quantised encoders,
-position noise, saturation, stiction, random steps, sensor lines): no glitch, the largest
-position departure 1.0 Q and jump 2.0 Q, the largest force departure 0.52 of its bound
+position noise, saturation, stiction, random steps, sensor lines): no glitch; the largest
+position departure 1.35 Q, step 2.1 Q, force departure 0.15 of its bound
 (``benchmarks/results/2026-11-29_data_checks.md``).
 
 **Unit mismatch** (:func:`unit_mismatch`): the force's root mean square of the two records of a
 pair differs by :data:`UNIT_RATIO` = 100 or more, or the position's standard deviation and its
 steps' both do: a record in mN beside one in N, or mm beside m (on the benchmark's clean pairs
-the ratios reach 5.1 and 2.8). A real validation record 100
+the ratios reach 5.1 and 4.4). A real validation record 100
 times weaker or stronger than the training record would also leave its range (the model
 extrapolates), so either way no diagnosis of the pair can be trusted.
 """

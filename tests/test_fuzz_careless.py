@@ -174,6 +174,20 @@ def test_glitch_rule():
     assert (g.column, g.kind, g.index, g.length) == ("F", "spike", 1200, 3)
 
 
+@pytest.mark.slow
+def test_no_glitch_on_clean_benchmark_records():
+    """Every class of the blind benchmark's independent simulator (one pair each: encoders,
+    saturation, closed loop, stiction, backlash, sensor lines …): no glitch, no unit mismatch
+    (benchmarks/results/2026-11-29_data_checks.md: 0 of 440 records)."""
+    import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
+
+    for c, cls in enumerate(blind.CLASSES):
+        train, valid, _ = blind.make_case(cls, 600000 + 10000 * c + 1000, source="scipy")
+        for rec in (train, valid):
+            assert _data_checks.find_glitches(rec) == [], cls
+        assert _data_checks.unit_mismatch(train, valid) == "", cls
+
+
 def test_far_encoder_origin_is_not_millimetres(files, capsys):
     """µm of motion 1 km from the origin: no "millimetres" advice, and the answer is right."""
     code, out, err = _run(
