@@ -9,7 +9,8 @@ of the signal s (x or F) alone:
 
 - a **spike** is a run of at most :data:`SPIKE_RUN` samples s[k … k+m−1] that all depart, on the
   same side, from the mean of the two samples around the run, s̄ = (s[k−1] + s[k+m])/2, by at
-  least h, while those two agree within h/4: the signal leaves its course and comes back. A step
+  least h, while those two agree within h/4: the signal leaves its course and comes back (at the
+  first or last sample: it departs from its neighbour by h, the next two agree within h/4). A step
   (an encoder count, a level of a random-step excitation, a saturated force) departs on one side
   only: its outer samples differ by the whole step, and it never counts;
 - a **jump** (x only) is one difference Δx[k] = x[k+1] − x[k] larger than :data:`X_RATIO` times
@@ -76,8 +77,9 @@ _UNIT = {"x": "m", "F": "N"}
 class Glitch:
     """One glitch: ``column`` ``"x"`` or ``"F"``, ``kind`` ``"spike"`` or ``"jump"``, the first
     sample ``index`` and the run's ``length``, the samples' ``value`` (the first of a spike's
-    run; a jump's sample after it), its neighbours ``before`` and ``after``, and ``ratio``: the
-    departure over the record's common step Q."""
+    run; a jump's sample after it), its neighbours ``before`` and ``after`` (at the first or
+    ``last`` sample, its two inner neighbours), and ``ratio``: the departure over the record's
+    common step Q."""
 
     column: str
     kind: str
@@ -87,6 +89,7 @@ class Glitch:
     before: float
     after: float
     ratio: float
+    last: bool = False
 
     def describe(self, t0: float, dt: float) -> str:
         c, u, k = self.column, _UNIT[self.column], self.index
@@ -98,6 +101,13 @@ class Glitch:
                 f"{self.ratio:.3g} times the record's common step"
             )
         run = f"{c}[{k}]" if self.length == 1 else f"{c}[{k}…{k + self.length - 1}]"
+        if k == 0 or self.last:
+            ends = "first" if k == 0 else "last"
+            return (
+                f"a spike at the {ends} sample, {run} = {self.value:.6g} {u} ({at}), where its "
+                f"neighbours are {self.before:.6g} and {self.after:.6g} {u}, a departure "
+                f"{self.ratio:.3g} times the record's common step"
+            )
         return (
             f"a spike {run} = {self.value:.6g} {u} ({at}) between {c}[{k - 1}] = "
             f"{self.before:.6g} {u} and {c}[{k + self.length}] = {self.after:.6g} {u}, "
@@ -133,6 +143,15 @@ def _spikes(s: np.ndarray, bound: float) -> list[tuple]:
             if not taken[ki - 1 : ki + m + 1].any():
                 found.append((int(ki), m, float(hi / Q)))
                 taken[ki : ki + m] = True
+    if T >= 3:  # the first and last samples, against their two inner neighbours
+        for k, n1, n2 in ((0, 1, 2), (T - 1, T - 2, T - 3)):
+            h = abs(s[k] - s[n1])
+            if (
+                h > bound
+                and abs(s[n1] - s[n2]) <= AGREE * h
+                and not taken[min(k, n2) : max(k, n2) + 1].any()
+            ):
+                found.append((k, 1, float(h / Q)))
     return found
 
 
@@ -161,7 +180,11 @@ def find_glitches(record: Record) -> list[Glitch]:
             bound = max(F_STEP_RATIO * common_step(s), F_SPREAD_RATIO * (q75 - q25) / 1.349)
         spikes = _spikes(s, bound)
         for k, m, r in spikes:
-            out.append(Glitch(col, "spike", k, m, float(s[k]), float(s[k - 1]), float(s[k + m]), r))
+            i, j = (k - 1, k + m) if 0 < k < s.size - 1 else ((1, 2) if k == 0 else (k - 2, k - 1))
+            g = Glitch(
+                col, "spike", k, m, float(s[k]), float(s[i]), float(s[j]), r, k == s.size - 1
+            )
+            out.append(g)
         if col == "x":
             skip = np.zeros(s.size, bool)
             for k, m, _ in spikes:

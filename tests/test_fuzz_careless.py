@@ -172,6 +172,14 @@ def test_glitch_rule():
     FF[1200:1203] = 30.0
     (g,) = _data_checks.find_glitches(lj.Record(x, FF, DT))
     assert (g.column, g.kind, g.index, g.length) == ("F", "spike", 1200, 3)
+    for k in (0, T - 1):  # the first and the last sample
+        FF, xx = F.copy(), x.copy()
+        FF[k], xx[k] = 1000.0, 1.0
+        glitches = _data_checks.find_glitches(lj.Record(xx, FF, DT))
+        assert [(g.column, g.index) for g in glitches] == [("F", k), ("x", k)], glitches
+        assert (
+            "the first sample" in _data_checks.glitch_message(lj.Record(xx, FF, DT), glitches) or k
+        )
 
 
 @pytest.mark.slow
