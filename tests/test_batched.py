@@ -61,6 +61,7 @@ def test_phi_sym2_against_scipy_expm(scale):
         np.testing.assert_allclose(f32, np.array(ref)[small], rtol=0, atol=1.1e-8)
 
 
+@pytest.mark.slow  # eager and parametrised kernels
 @pytest.mark.parametrize("unit_dc_gain", [True, False])
 @pytest.mark.parametrize("dt", [1e-4, 1e-3, 2e-2])
 def test_midpoint_basis_maps_equal_the_filter_maps(unit_dc_gain, dt):
@@ -204,6 +205,7 @@ def test_piecewise_and_normalised(recs):
         np.testing.assert_array_equal(sol.unexcited[i], ref.unexcited)
 
 
+@pytest.mark.slow  # eager and parametrised kernels
 def test_jit_equals_nojit(recs):
     """The kernel traced and compiled equals its ops run one by one (30 samples: eager is slow)."""
     batch, _ = lj.stack_records(recs)

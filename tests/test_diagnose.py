@@ -26,6 +26,7 @@ def emps():
     return lj.diagnose(tr, va)
 
 
+@pytest.mark.slow  # whole diagnoses (EMPS, a figure)
 def test_emps_against_published(emps):
     R = lj.datasets.EMPS_REFERENCE
     j = emps.to_json()
@@ -40,6 +41,7 @@ def test_emps_against_published(emps):
     assert j["final"]["gap"] < j["baseline"]["gap"]
 
 
+@pytest.mark.slow  # whole diagnoses (EMPS, a figure)
 def test_json_contract(emps):
     j = json.loads(json.dumps(emps.to_json()))
     assert set(j["baseline"]) >= {"model", "params", "gap"}
@@ -62,6 +64,7 @@ def test_json_contract(emps):
     assert kinds >= {"position", "velocity", "force", "frequency", "time", "whiteness"}
 
 
+@pytest.mark.slow  # whole diagnoses (EMPS, a figure)
 def test_cli_roundtrip_and_plot(tmp_path):
     tr, va, _ = blind.make_case("offset", 11, duration=2.5, rate=(1000.0, 1000.0))
     for name, r in (("train", tr), ("valid", va)):
