@@ -190,10 +190,11 @@ def check_candidates(candidates: Sequence[Any], reserved) -> tuple[AbstractCandi
         )
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
-        twice = sorted({n for n in names if names.count(n) > 1})
+        dup = sorted({n for n in names if names.count(n) > 1})
         raise InputError(
-            f"diagnose: candidate names repeat: {', '.join(repr(n) for n in twice)} "
-            f"(library {names}); give each candidate a name of its own."
+            f"diagnose: argument 'candidates': the name(s) {dup} are used by more than one "
+            f"candidate ({', '.join(type(c).__name__ for c in candidates if c.name in dup)}); "
+            "give each candidate its own name (a candidate added twice: pass it once)."
         )
     try:
         check_library(candidates, reserved)
