@@ -205,7 +205,7 @@ def diagnose(
 def _pipeline(run, st) -> Diagnosis:
     """Every candidate alone, the stack, its verdict and confidence (module docstring); ``st``
     the status line the stages are named on."""
-    st.stage(f"fitting the {len(run.candidates)} candidates alone")
+    st.stage("fitting the candidates alone")
     run, fitted = fit_alone(run)
     by_name = run.by_name
     alone = {

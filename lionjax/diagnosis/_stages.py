@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from .._errors import InputError
+from .._progress import counted
 from ._filtering import P_MAX
 from ._fit import Fitted
 from ._objective import Objective
@@ -59,7 +60,7 @@ def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
     noise, else from nothing yet). Returns the run with the resolved candidates, every form's
     fit and the fitted floor, and each candidate's chosen fit."""
     resolved, fits, variant_fits = {}, {}, {}
-    for c in run.candidates:
+    for c in counted(run.candidates, "fitting the candidates alone", "candidates"):
         tries = []
         for v in c.variants(run.limits, tuple(resolved.values())):
             v = resolve(run, v)
