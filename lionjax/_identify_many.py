@@ -8,7 +8,9 @@ own filter discretisation) and identifies them all in one streamed, jitted call:
 - ``method=LeastSquares()``: :func:`lionjax.least_squares_batched`, the LS answer
   θ = −(ΦᵀΦ)⁻¹Φᵀy from sufficient statistics streamed over the samples after the filter
   transient. Per record this is ``lionjax.least_squares(model, record, initial="discard")``:
-  no initial-state nuisance columns. (The single-record default ``initial="estimate"`` fits
+  no initial-state nuisance columns, and the same check that the filter's free response does
+  not excite a parameter alone after the transient (the cross products with the free responses
+  streamed in the kernel, float64 records). (The single-record default ``initial="estimate"`` fits
   them and uses every sample — a different estimator, within noise of this one once the record
   is much longer than the transient.) With it the nominal standard deviations
   √diag(σ²(ΦᵀΦ)⁻¹), σ² = RSS/(N − p), as that call reports them.

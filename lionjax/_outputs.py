@@ -179,6 +179,8 @@ class LSResult(eqx.Module):
     rms: Float[Array, " B"]
     n_used: Float[Array, " B"]
     moments: Float[Array, "B p p"]
+    free_condition: Float[Array, " B"] | None = None
+    free_weakest: Float[Array, "B q"] | None = None
 
 
 class LSStatistics(AbstractOutput):
@@ -190,9 +192,17 @@ class LSStatistics(AbstractOutput):
         transient: [s], a number or one per record ``(B,)``; default 3·λₙ₋₁/λₙ of each filter.
             Also the window of a data-dependent gain's R and of :class:`ConvergenceTime`'s
             default reference.
+        free_response: also stream the cross products with the filter's n free responses N
+            (the initial-state error's columns, :meth:`lionjax.FilterBank.free_response`: ΦᵀN,
+            NᵀN, Nᵀy, N carried as the powers of the filter's map, Φ_fᵏ⁺¹ = Φ_f·Φ_fᵏ), and
+            report the condition number and weakest direction of [Φ, N] (``free_condition``,
+            ``free_weakest``): after the transient a parameter excited only through the free
+            response is not identified by the record (:func:`lionjax.least_squares`' check with
+            ``initial="discard"``).
     """
 
     transient: float | Array | None = None
+    free_response: bool = eqx.field(static=True, default=False)
     needs_theta: ClassVar[bool] = False
     every: ClassVar[None] = None
 
@@ -216,25 +226,103 @@ class LSStatistics(AbstractOutput):
         kk = jnp.ceil(tr / dt)
         kk = jnp.where(dt * (kk - 1) >= tr, kk - 1, kk)
         kk = jnp.where(dt * kk < tr, kk + 1, kk)
-        return jnp.maximum(kk, 0).astype(jnp.int32)
+        first = jnp.maximum(kk, 0).astype(jnp.int32)
+        if not self.free_response:
+            return first
+        return (first, *_free_maps(ctx))
 
     @staticmethod
     def _size(p: int) -> int:
         return p * (p + 1) // 2 + p + 2  # ΦᵀΦ (upper), Φᵀy, yᵀy, count
 
     def init(self, inputs, p, theta0, zero):
-        return Accumulated(None, [zero] * self._size(p))
+        if not self.free_response:
+            return Accumulated(None, [zero] * self._size(p))
+        n = _order(inputs[1])
+        eye = [zero + float(i == j) for i in range(n) for j in range(n)]  # Φ_f⁰ = I
+        return Accumulated(eye, [zero] * (self._size(p) + p * n + n * (n + 1) // 2 + n))
 
     def update(self, state, sample, inputs):
         W1, W2, y1, y2 = sample.end_regressors()
         p = len(W1)
-        w = sample.weight(inputs)  # statistics of sample k+1 (sample 0 is in every transient)
+        first = inputs[0] if self.free_response else inputs
+        w = sample.weight(first)  # statistics of sample k+1 (sample 0 is in every transient)
         terms = [W1[i] * W1[j] + W2[i] * W2[j] for i in range(p) for j in range(i, p)]
         terms += [W1[i] * y1 + W2[i] * y2 for i in range(p)] + [y1 * y1 + y2 * y2, 1.0]
-        return Accumulated(None, [a + w * t for a, t in zip(state.sums, terms, strict=True)])
+        carry = state.carry
+        if self.free_response:
+            carry, (N1, N2) = _free_step(state.carry, inputs[1], inputs[2])
+            n = len(N1)
+            terms += [W1[j] * N1[i] + W2[j] * N2[i] for j in range(p) for i in range(n)]
+            terms += [N1[i] * N1[m] + N2[i] * N2[m] for i in range(n) for m in range(i, n)]
+            terms += [N1[i] * y1 + N2[i] * y2 for i in range(n)]
+        return Accumulated(carry, [a + w * t for a, t in zip(state.sums, terms, strict=True)])
 
     def finalise(self, state, ctx, snapshots):
-        return _ls_result(jnp.stack(state.sums, -1), ctx.p)
+        stats = jnp.stack(state.sums, -1)
+        p = ctx.p
+        out = _ls_result(stats[:, : self._size(p)], p)
+        if not self.free_response:
+            return out
+        n = ctx.bank.order
+        fit = jax.vmap(gram_lstsq)(*_augmented(stats, p, n), 2 * out.n_used)
+        return dataclasses.replace(out, free_condition=fit.condition, free_weakest=fit.weakest)
+
+
+def _order(flat) -> int:
+    """n from the n² entries of a flattened n × n matrix (a list or an array)."""
+    return int(round(len(flat) ** 0.5))
+
+
+def _free_maps(ctx) -> tuple[Array, Array]:
+    """Per record: the filter's sampled map Φ_f (B, n²) and the rows C₁, C₂ of V₁, V₂
+    (B, 2n), from which the kernel steps the free responses."""
+    B, n = ctx.dt.shape[0], ctx.bank.order
+    coeffs = jnp.broadcast_to(ctx.bank.coeffs, (B, n))
+
+    def maps(c, h):
+        bank = dataclasses.replace(ctx.bank, coeffs=c)
+        Phi, _, _ = bank.discretise(h)
+        _, _, C, _ = bank.state_space()
+        return Phi.reshape(-1), C[:2].reshape(-1)
+
+    Phi, C = jax.vmap(maps)(coeffs, ctx.dt)
+    return Phi.astype(ctx.dtype), C.astype(ctx.dtype)
+
+
+def _free_step(Z, Phi, C):
+    """Φ_fᵏ⁺¹ = Φ_f·Φ_fᵏ (``Z``: n² lanes, row major) and the free responses' V₁, V₂ at sample
+    k + 1 (n lanes each): column i of C·Φ_fᵏ⁺¹ (:meth:`FilterBank.free_response`)."""
+    n = _order(Z)
+    Zn = [sum(Phi[i * n + m] * Z[m * n + j] for m in range(n)) for i in range(n) for j in range(n)]
+    N1 = [sum(C[m] * Zn[m * n + i] for m in range(n)) for i in range(n)]
+    N2 = [sum(C[n + m] * Zn[m * n + i] for m in range(n)) for i in range(n)]
+    return Zn, (N1, N2)
+
+
+def _augmented(stats: Array, p: int, n: int):
+    """(Gram, cross, yᵀy) of [Φ, N] from the streamed sums (B, m) of :class:`LSStatistics`."""
+    q = p + n
+    B = stats.shape[0]
+    A = jnp.zeros((B, q, q), stats.dtype)
+    idx = 0
+    for i in range(p):
+        for j in range(i, p):
+            A = A.at[:, i, j].set(stats[:, idx]).at[:, j, i].set(stats[:, idx])
+            idx += 1
+    cross = stats[:, idx : idx + p]
+    yy = stats[:, idx + p]
+    idx = LSStatistics._size(p)
+    for j in range(p):
+        for i in range(n):
+            A = A.at[:, j, p + i].set(stats[:, idx]).at[:, p + i, j].set(stats[:, idx])
+            idx += 1
+    for i in range(n):
+        for m in range(i, n):
+            A = A.at[:, p + i, p + m].set(stats[:, idx]).at[:, p + m, p + i].set(stats[:, idx])
+            idx += 1
+    cross = jnp.concatenate([cross, stats[:, idx : idx + n]], axis=-1)
+    return A, cross, yy
 
 
 def _ls_result(stats: Array, p: int) -> LSResult:

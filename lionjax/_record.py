@@ -20,6 +20,57 @@ JITTER_TOLERANCE = 1e-3
 MIN_SAMPLES = 16
 
 
+def time_dtype():
+    """The dtype of dt, t0 and t: JAX's default float, float64 under ``jax_enable_x64`` (the
+    recommended setting) whatever the signals' dtype — a float32 t loses a 10 kHz record's
+    sample spacing after 800 s; float32 where x64 is off."""
+    return jnp.result_type(float)
+
+
+def _kind_error(a, name: str) -> InputError | None:
+    kind = np.dtype(a.dtype).kind
+    if kind == "b":
+        return InputError(
+            f"Record: {name} is boolean (True/False samples), not a measured signal; pass the "
+            f"{'position [m]' if name == 'x' else 'force [N]' if name == 'F' else 'values'} "
+            "as numbers (a logged on/off state is not a force: check the column)."
+        )
+    if kind == "c":
+        return InputError(
+            f"Record: {name} is complex ({a.dtype}); pass its real samples (np.real(...) if "
+            "the imaginary part is zero by construction)."
+        )
+    if kind not in "iuf":
+        return InputError(f"Record: {name} must be real numbers, got dtype {a.dtype}.")
+    return None
+
+
+def signal_array(v: ArrayLike, name: str) -> Array:
+    """A signal as a JAX float array: integers (an encoder's counts, a logger's ints) become
+    JAX's default float, half precision (float16, bfloat16) becomes float32, so that every
+    estimator computes on it the same way (a float16 record keeps its rounding, ~5·10⁻⁴ of
+    |x|, in the data); booleans and complex numbers are refused naming the signal."""
+    a = v if isinstance(v, jax.Array | jax.core.Tracer) else np.asarray(v)
+    err = _kind_error(a, name)
+    if err is not None:
+        raise err
+    kind, size = np.dtype(a.dtype).kind, np.dtype(a.dtype).itemsize
+    if kind in "iu":
+        return jnp.asarray(a, dtype=jnp.result_type(float))
+    if size < 4:
+        return jnp.asarray(a, dtype=jnp.float32)
+    return jnp.asarray(a)
+
+
+def _real(v: ArrayLike, name: str, dtype) -> Array:
+    """dt or t0 as a real array of ``dtype`` (booleans and complex numbers refused)."""
+    a = v if isinstance(v, jax.Array | jax.core.Tracer) else np.asarray(v)
+    err = _kind_error(a, name)
+    if err is not None:
+        raise err
+    return jnp.asarray(a, dtype=dtype)
+
+
 class Record(eqx.Module):
     """One uniformly sampled record (or a batch of them, leading axes on every array).
 
@@ -35,7 +86,10 @@ class Record(eqx.Module):
 
     Build one from raw samples with :meth:`Record.from_samples`, which checks the samples
     (finite, strictly increasing uniform time) and names the first bad index. The constructor
-    itself only converts to arrays, so a ``Record`` can be built inside ``jit``/``vmap``.
+    itself only converts to arrays, so a ``Record`` can be built inside ``jit``/``vmap``:
+    integer signals become JAX's default float and half-precision ones float32
+    (:func:`signal_array`), dt and t0 take :func:`time_dtype` (float64 under x64) whatever the
+    signals' dtype; boolean or complex signals and a column of shape (T, 1) are refused.
     """
 
     x: Float[Array, "*batch T"]
@@ -55,11 +109,12 @@ class Record(eqx.Module):
         *,
         units: str = "linear",
     ):
-        self.x = jnp.asarray(x)
-        self.F = jnp.asarray(F)
-        self.dt = jnp.asarray(dt, dtype=self.x.dtype)
-        self.t0 = jnp.asarray(t0, dtype=self.x.dtype)
-        self.extras = {k: jnp.asarray(v) for k, v in (extras or {}).items()}
+        self.x = signal_array(x, "x")
+        self.F = signal_array(F, "F")
+        time = time_dtype()
+        self.dt = _real(dt, "dt", time)
+        self.t0 = _real(t0, "t0", time)
+        self.extras = {k: signal_array(v, f"extra signal {k!r}") for k, v in (extras or {}).items()}
         self.units = check_units(units, "Record: units")
 
     def __check_init__(self):
@@ -70,6 +125,12 @@ class Record(eqx.Module):
             )
         if self.x.ndim < 1:
             raise InputError("Record: x must have a time axis (shape (T,)), got a scalar.")
+        if self.x.ndim >= 2 and self.x.shape[-1] == 1 and self.x.shape[-2] > 1:
+            raise InputError(
+                f"Record: x has shape {self.x.shape}: one sample per row of a column, which "
+                f"reads as {self.x.shape[-2]} records of 1 sample each. For one record pass "
+                "x and F of shape (T,) (x.ravel(), or x[:, 0]); for a batch, shape (B, T)."
+            )
         if not isinstance(self.dt, jax.core.Tracer):
             dt = np.asarray(self.dt, dtype=np.float64)
             if not np.all(np.isfinite(dt) & (dt > 0)):
@@ -100,8 +161,8 @@ class Record(eqx.Module):
 
     @property
     def t(self) -> Float[Array, "*batch T"]:
-        """Sample times ``t0 + k·dt`` [s]."""
-        k = jnp.arange(self.n_samples, dtype=self.x.dtype)
+        """Sample times ``t0 + k·dt`` [s], in the dtype of dt (:func:`time_dtype`)."""
+        k = jnp.arange(self.n_samples, dtype=self.dt.dtype)
         return self.t0[..., None] + self.dt[..., None] * k
 
     def decimate(self, factor: int) -> Record:

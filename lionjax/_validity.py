@@ -8,7 +8,8 @@ no gain, method or path skips one:
 1. **Arguments and data** (host side, on concrete values; skipped under ``jit``/``vmap``):
    :func:`check_theta0` (shape and finiteness, naming ``theta0``), :func:`check_record`
    (non-finite or out-of-range samples are an :class:`~lionjax.InputError` naming the column;
-   probable unit mistakes and isolated spikes are a :class:`DataWarning`),
+   probable unit mistakes and glitches (:mod:`lionjax._data_checks`) are a
+   :class:`DataWarning`),
    :func:`check_duration` (the record outlasts the filter transient) and
    :func:`check_padding` (a padded batch without ``lengths`` is refused).
 2. **Filter speed against sampling** (:func:`check_filter_speed`). The filters are exact for
@@ -73,6 +74,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from ._data_checks import find_glitches, glitch_message
 from ._errors import RESULTS, DataWarning, FilterSpeedWarning, InputError, result_codes
 from ._filters import FilterBank
 from ._record import Record
@@ -101,14 +103,13 @@ MAX_MOMENT_CONDITION = 1e12
 #: T = 8000, float32: 2 ms, against 8 ms for every 64th sample and 10 ms for a full pass).
 RAW_WINDOWS = 16
 RAW_WINDOW = 8
-#: A sample more than SPIKE_RATIO times the median absolute deviation from the median, at
-#: most SPIKE_MAX_COUNT of them, is an isolated spike (a warning).
-SPIKE_RATIO = 1e5
-SPIKE_MAX_COUNT = 3
-#: Units warnings: |x| above X_UNITS_BOUND [m] looks like millimetres (linear records only); dt in
+#: Units warnings: |x| above X_UNITS_BOUND [m] looks like millimetres, unless the travel is
+#: below X_OFFSET_SHARE of |x| (an encoder origin far away: µm of motion 1 km from the origin is
+#: no axis in mm, and its identification is right); dt in
 #: [MS_DT_RANGE] s with at least MS_MIN_SAMPLES samples and under 1 m of travel looks like a
 #: time column in milliseconds (a 1 kHz device read as 1 Hz).
 X_UNITS_BOUND = 10.0
+X_OFFSET_SHARE = 1e-3
 MS_DT_RANGE = (0.5, 2.0)
 MS_MIN_SAMPLES = 10_000
 
@@ -265,7 +266,8 @@ def check_record(record: Record, what: str, *, warn: bool = True) -> None:
     Raises :class:`~lionjax.InputError` for non-finite samples and for samples out of range
     (|v| > :func:`value_bound`, whose squares overflow), naming the column and first index.
     Warns (:class:`DataWarning`, ``warn=True``) for a time column that looks like
-    milliseconds, positions that look like millimetres and an isolated huge spike.
+    milliseconds, positions that look like millimetres and glitches
+    (:func:`lionjax._data_checks.find_glitches`).
     Skipped under tracing; a batch (x of shape (B, T)) gets the errors only.
     """
     if is_traced((record.x, record.F, record.dt)):
@@ -301,41 +303,29 @@ def check_record(record: Record, what: str, *, warn: bool = True) -> None:
 def sanity_messages(record: Record) -> list[str]:
     """Probable mistakes in one record (the text of each :class:`DataWarning`)."""
     x = np.asarray(record.x, dtype=np.float64)
-    F = np.asarray(record.F, dtype=np.float64)
     dt = float(record.dt)
     T = x.size
     out = []
     xmax = float(np.max(np.abs(x)))
     length = unit("m", record.units)
+    travel = float(np.max(x) - np.min(x))
     # A rotor turns without bound (a motor at 3000 rpm passes 300 rad a second), so no angle is
     # implausible in itself: the millimetre check is for linear axes only.
-    if record.units == "linear" and xmax > X_UNITS_BOUND:
+    if record.units == "linear" and xmax > X_UNITS_BOUND and travel > X_OFFSET_SHARE * xmax:
         out.append(
-            f"column 'x' reaches |x| = {xmax:.4g} m; lionjax expects metres: is x in "
-            "millimetres? Divide it by 1000 (or convert to metres) before identifying."
+            f"column 'x' reaches |x| = {xmax:.4g} m with {travel:.4g} m of travel; lionjax "
+            "expects metres: is x in millimetres? Divide it by 1000 (or convert to metres) "
+            "before identifying."
         )
-    travel = float(np.max(x) - np.min(x))
     if MS_DT_RANGE[0] <= dt <= MS_DT_RANGE[1] and T >= MS_MIN_SAMPLES and 0 < travel < 1.0:
         out.append(
             f"dt = {dt:g} s with {T} samples ({T * dt / 3600:.3g} h) and {travel:.3g} {length} of "
             "travel: is the time column in milliseconds (a 1 kHz record read as 1 Hz)? "
             "lionjax expects t in seconds; divide t by 1000."
         )
-    for name, a in (("x", x), ("F", F)):
-        med = np.median(a)
-        dev = np.abs(a - med)
-        mad = float(np.median(dev))
-        if mad <= 0:
-            continue
-        spikes = np.flatnonzero(dev > SPIKE_RATIO * mad)
-        if 0 < spikes.size <= SPIKE_MAX_COUNT:
-            k = int(spikes[np.argmax(dev[spikes])])
-            out.append(
-                f"column {name!r} has an isolated spike: {name}[{k}] = {a[k]:.4g} is "
-                f"{dev[k] / mad:.3g} times the median absolute deviation ({mad:.3g}) from the "
-                f"median ({spikes.size} such sample(s)); a glitch of the sensor or logger? "
-                "Repair it before identifying."
-            )
+    glitches = find_glitches(record)  # a sample of the logger or sensor gone wrong
+    if glitches:
+        out.append(glitch_message(record, glitches))
     return out
 
 

@@ -106,3 +106,12 @@ def _approx(expected, *args, **kwargs):
 
 
 pytest.approx = _approx
+
+
+def pytest_collection_modifyitems(config, items):
+    """The notebooks (nbmake's items) belong to the slow tier: the README's test command
+    (``-m "not slow"``) leaves them out, ``.ci/run``'s second step (``-m slow``) runs them."""
+    notebooks = _ROOT / "notebooks"
+    for item in items:
+        if pathlib.Path(str(item.path)).is_relative_to(notebooks):
+            item.add_marker(pytest.mark.slow)

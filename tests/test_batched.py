@@ -63,6 +63,7 @@ def test_phi_sym2_against_scipy_expm(scale):
         np.testing.assert_allclose(f32, np.array(ref)[small], rtol=0, atol=1.1e-8)
 
 
+@pytest.mark.slow  # eager and parametrised kernels
 @pytest.mark.parametrize("unit_dc_gain", [True, False])
 @pytest.mark.parametrize("dt", [1e-4, 1e-3, 2e-2])
 def test_midpoint_basis_maps_equal_the_filter_maps(unit_dc_gain, dt):
@@ -188,6 +189,7 @@ def test_least_squares_batched(recs, masked, monkeypatch):
         np.testing.assert_allclose(sol.rms[i], ls.rms, rtol=1e-2)
 
 
+@pytest.mark.slow  # several kernels compiled
 def test_piecewise_and_normalised(recs):
     batch, _ = lj.stack_records(recs[:2])
     model = lj.Piecewise((-0.001, 0.001))
@@ -205,6 +207,7 @@ def test_piecewise_and_normalised(recs):
         np.testing.assert_array_equal(sol.unexcited[i], ref.unexcited)
 
 
+@pytest.mark.slow  # eager and parametrised kernels
 def test_jit_equals_nojit(recs):
     """The kernel traced and compiled equals its ops run one by one (30 samples: eager is slow)."""
     batch, _ = lj.stack_records(recs)
@@ -246,6 +249,7 @@ def test_unexcited_reported_per_element(recs):
         lj.raise_if_failed(sol)
 
 
+@pytest.mark.slow  # several kernels compiled
 def test_split_loops_equal_one_loop(masked):
     """The batch split into independent loops over its rows (how one CPU device uses every
     core) gives the same numbers as one loop, with LS, convergence and masks on."""

@@ -17,6 +17,9 @@ import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
 
+# the slow tier (.ci/run's second step): the blind benchmark's generator and diagnoses
+pytestmark = pytest.mark.slow
+
 
 def test_self_test_closed_form():
     worst = bs.self_test(1e-6)

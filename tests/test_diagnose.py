@@ -28,6 +28,7 @@ def emps():
     return lj.diagnose(tr, va)
 
 
+@pytest.mark.slow  # whole diagnoses (EMPS, a figure)
 def test_emps_against_published(emps):
     R = lj.datasets.EMPS_REFERENCE
     j = emps.to_json()
@@ -42,6 +43,7 @@ def test_emps_against_published(emps):
     assert j["final"]["gap"] < j["baseline"]["gap"]
 
 
+@pytest.mark.slow  # whole diagnoses (EMPS, a figure)
 def test_json_contract(emps):
     j = json.loads(json.dumps(emps.to_json()))
     assert set(j["baseline"]) >= {"model", "params", "gap"}
@@ -64,6 +66,7 @@ def test_json_contract(emps):
     assert kinds >= {"position", "velocity", "force", "frequency", "time", "whiteness"}
 
 
+@pytest.mark.slow  # whole diagnoses (EMPS, a figure)
 def test_cli_roundtrip_and_plot(tmp_path):
     tr, va, _ = blind.make_case("offset", 11, duration=2.5, rate=(1000.0, 1000.0))
     for name, r in (("train", tr), ("valid", va)):
@@ -120,6 +123,7 @@ def test_bad_arguments():
         lj.diagnose(rec, other)
 
 
+@pytest.mark.slow  # diagnoses of blind-benchmark records
 def test_blind_small():
     """The blind benchmark's harness (``blind.run``) with the real diagnosis, end to end, on one
     twin record per outcome it scores: clean (``none``), two named effects, and one outside the

@@ -10,6 +10,9 @@ import pytest
 
 import lionjax as lj
 
+# the slow tier (.ci/run's second step): whole diagnoses of blind-benchmark records
+pytestmark = pytest.mark.slow
+
 
 def _diagnose(cls, seed, source):
     train, valid, info = blind.make_case(cls, seed, source=source)

@@ -9,6 +9,9 @@ from _reference_sim import stick_slip_axis
 
 import lionjax as lj
 
+# the slow tier (.ci/run's second step): whole diagnoses of blind-benchmark records
+pytestmark = pytest.mark.slow
+
 A, B, FS = 20.0, 2.0, 1000.0
 
 

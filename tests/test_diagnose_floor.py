@@ -8,6 +8,9 @@ import pytest
 
 import lionjax as lj
 
+# the slow tier (.ci/run's second step): whole diagnoses of blind-benchmark records
+pytestmark = pytest.mark.slow
+
 
 def test_strong_evidence_is_not_none():
     # Dahl friction from the independent simulator (benchmarks/_blind_sim.py), open loop, a

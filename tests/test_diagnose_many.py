@@ -49,6 +49,7 @@ def _same(row: dict, ref: dict) -> None:
     assert row["error"] is None
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_rows_equal_single_calls_and_bad_pairs_are_rows(pairs, tmp_path):
     recs, ref = pairs["records"], pairs["ref"]
     dead = lj.Record(recs["p_none"][0].x, 0.0 * recs["p_none"][0].F, recs["p_none"][0].dt)
@@ -75,6 +76,7 @@ def test_rows_equal_single_calls_and_bad_pairs_are_rows(pairs, tmp_path):
         got.rows = ()
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_other_errors_propagate_and_bad_pairs_are_refused(pairs):
     recs = pairs["records"]["p_none"]
     with pytest.raises(lj.InputError, match=r"pairs\[0\] must be \(name, train, valid\)"):
@@ -90,6 +92,7 @@ def test_other_errors_propagate_and_bad_pairs_are_refused(pairs):
         lj.diagnosis.diagnose_many([("a", *recs)], bogus=1)
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_a_second_pair_of_the_same_bucket_compiles_nothing(pairs, caplog):
     recs = pairs["records"]
     lj.diagnosis.diagnose_many([("p_offset", *recs["p_offset"])])
@@ -104,8 +107,10 @@ def test_a_second_pair_of_the_same_bucket_compiles_nothing(pairs, caplog):
     assert any("ompil" in r.getMessage() for r in caplog.records)
 
 
-def test_cli_pairs_folder_and_manifest(pairs, tmp_path, capsys):
+@pytest.mark.slow  # diagnoses of pairs, processes
+def test_cli_pairs_folder_and_manifest(pairs, tmp_path, capsys, monkeypatch):
     d, ref = pairs["dir"], pairs["ref"]
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # the bar: on a terminal only
     folder = tmp_path / "in"
     folder.mkdir()
     for q in d.iterdir():
@@ -136,13 +141,14 @@ def test_cli_pairs_folder_and_manifest(pairs, tmp_path, capsys):
             for (n, _, _), e in zip(CASES, (".csv", ".npz"), strict=True)
         )
     )
-    code, out, _ = _run(["diagnose", "--pairs", sub / "man.csv", "--json", js], capsys)
-    assert code == 0
+    code, out, err = _run(["diagnose", "--pairs", sub / "man.csv", "--json", js, "--quiet"], capsys)
+    assert code == 0 and "diagnose [" not in err  # --quiet: no bar
     listed = json.loads(js.read_text())["rows"]
     assert [r["name"] for r in listed] == ["p_offset", "p_none"]  # the manifest's order
     _same(listed[0], ref["p_offset"])
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_cli_pairs_argument_errors(pairs, tmp_path, capsys):
     d = pairs["dir"]
     empty = tmp_path / "nopairs"
@@ -179,6 +185,7 @@ def test_compile_cache_folder():
     assert cache_dir({"LIONJAX_CACHE_DIR": "/y", "LIONJAX_NO_COMPILE_CACHE": "1"}) is None
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 def test_compile_cache_is_kept_unless_turned_off(pairs, tmp_path):
     base = {k: v for k, v in os.environ.items() if not k.startswith("JAX_PERSISTENT_CACHE")}
     base.pop("JAX_COMPILATION_CACHE_DIR", None)  # the test suite's own cache
@@ -200,6 +207,7 @@ def test_compile_cache_is_kept_unless_turned_off(pairs, tmp_path):
         assert not (tmp_path / name).exists(), name
 
 
+@pytest.mark.slow  # diagnoses of pairs, processes
 @pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="glibc's mallopt only")
 def test_the_command_line_keeps_freed_memory_for_reuse():
     # arrays of 8 MiB and growing, allocated and freed 20 times: with glibc's default each

@@ -10,6 +10,9 @@ import pytest
 
 import lionjax as lj
 
+# the slow tier (.ci/run's second step): whole diagnoses of blind-benchmark records
+pytestmark = pytest.mark.slow
+
 
 def test_quantisation_fed_back_is_no_mode():
     """A clean closed-loop record (independent simulator, 1.3 kHz, 4 µm encoder, PD on the

@@ -10,6 +10,9 @@ import pytest
 
 import lionjax as lj
 
+# the slow tier (.ci/run's second step): whole diagnoses of blind-benchmark records
+pytestmark = pytest.mark.slow
+
 DT = 1 / 997.3
 A, B = 20.0, 2.0
 

@@ -16,6 +16,9 @@ import lionjax as lj
 from lionjax import twin as tw
 from lionjax.cli import main
 
+# the slow tier (.ci/run's second step): whole diagnoses at several sampling rates
+pytestmark = pytest.mark.slow
+
 RATES = (97.3, 2011.7, 4987.3, 10103.9)  # Hz, deliberately non-round
 
 

@@ -10,6 +10,9 @@ import pytest
 
 import lionjax as lj
 
+# the slow tier (.ci/run's second step): whole diagnoses of blind-benchmark records
+pytestmark = pytest.mark.slow
+
 
 def test_second_effect_gains_below_the_first_ones_fit():
     """A closed-loop twin record (2.06 kHz, PD on the measured position) with a spring (3 %

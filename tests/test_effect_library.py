@@ -20,6 +20,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "examples"))
 from custom_effects import Cogging, QuadraticDrag  # noqa: E402
 
+# the slow tier (.ci/run's second step): whole diagnoses with profiled candidates
+pytestmark = pytest.mark.slow
+
 A, B, FS, SECONDS, Q = 20.0, 2.0, 1000.0, 4.0, 2e-6
 CUSTOM = lj.diagnosis.DEFAULT_CANDIDATES + (QuadraticDrag(), Cogging())
 

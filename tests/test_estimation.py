@@ -162,6 +162,7 @@ def test_lion_end_point_near_ls_with_noise():
     np.testing.assert_allclose(li.theta_final, ls.theta, rtol=1e-2)  # measured ~2e-3
 
 
+@pytest.mark.slow  # eager or ODE reference runs
 def test_exact_step_matches_diffrax():
     rec = single_region_record(T=2500)
     kw = dict(gain=lj.AutoGain(5.0), save_every=10)
@@ -177,6 +178,7 @@ def test_exact_step_matches_diffrax():
     )
 
 
+@pytest.mark.slow  # eager or ODE reference runs
 def test_exact_step_matches_diffrax_piecewise_fixed_gain(crossing):
     rec = lj.Record(crossing.x[:2400], crossing.F[:2400], DT)
     kw = dict(bank=lj.FilterBank.paper(), gain=lj.FixedGain(1e4), save_every=20)
@@ -248,6 +250,7 @@ def test_normalised_law_converges():
 
 # the fast filter keeps the 40-sample record longer than the transient; its bias (|p|·dt = 0.24,
 # lionjax._validity) does not matter for jit == no jit
+@pytest.mark.slow  # eager or ODE reference runs
 @pytest.mark.filterwarnings("ignore::lionjax.solutions.FilterSpeedWarning")
 def test_jit_equals_no_jit(single):
     # disable_jit runs every op eagerly (slow): keep the records short.
@@ -290,6 +293,7 @@ def test_batched_failure_names_the_element():
         lj.raise_if_failed(sols)
 
 
+@pytest.mark.slow  # eager or ODE reference runs
 def test_grad_matches_finite_differences():
     rec = single_region_record(T=3000, noise=(1e-6, 0.01))
     x0 = jnp.asarray(rec.x)

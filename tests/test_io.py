@@ -433,6 +433,7 @@ def test_load_records_errors(tmp_path):
     assert re.search(r"Columns found: 't', 'x'", msg)
 
 
+@pytest.mark.slow  # the twin's simulation
 def test_decimate_against_numpy_and_the_plant():
     """Record.decimate keeps x at the new instants and averages F over each new interval
     (numpy reference, batched); the twin's mass–damper at 10.1 kHz, decimated by 5 and 20,

@@ -1,4 +1,4 @@
-"""The notebooks are executed by `pytest --nbmake notebooks` (README's test command); here we
+"""The notebooks are executed by `pytest --nbmake notebooks` (.ci/run's slow tier); here we
 check what nbmake does not: outputs are cleared and each runs at its small size by default."""
 
 from pathlib import Path

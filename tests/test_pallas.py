@@ -21,6 +21,9 @@ from _reference_sim import multisine, simulate
 
 import lionjax as lj
 
+# the slow tier (.ci/run's second step): the Pallas kernel in interpret mode
+pytestmark = pytest.mark.slow
+
 DT = 1e-3
 T = 300
 B = 6

@@ -59,7 +59,9 @@ def test_filter_scan_equals_sequential(signals, dtype, tol, hold):
 # lion_parallel against the sequential lion_batched, B > 1 (vmap), T = 10⁴
 
 
-@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-9), (np.float32, 1e-4)])
+@pytest.mark.parametrize(
+    "dtype, tol", [pytest.param(np.float64, 1e-9, marks=pytest.mark.slow), (np.float32, 1e-4)]
+)  # the float64 run in the slow tier
 def test_lion_parallel_equals_lion_batched(signals, dtype, tol):
     """θ at every 100th sample and θ(T) of vmap(lion_parallel) against lion_batched (the fused
     sequential loop, tested against lj.lion) for B = 3 records of 10⁴ samples, relative to the

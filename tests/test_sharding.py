@@ -7,6 +7,11 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
+# the slow tier (.ci/run's second step): a subprocess with two host devices
+pytestmark = pytest.mark.slow
+
 SCRIPT = textwrap.dedent(
     """
     import jax, numpy as np

@@ -247,6 +247,7 @@ def test_study_records_grid(grid_records):
         lj.studies.study_records(operating_points="centre")
 
 
+@pytest.mark.slow  # studies against per-record runs, tuning
 def test_study_over_labelled_records_vs_lion(grid_records, tmp_path):
     """Record dims become study dims; tail std (noise amplification), the smooth surrogate and
     the decimated trajectory equal numpy references computed from lj.lion's full θ(t)."""
@@ -301,6 +302,7 @@ def test_study_over_labelled_records_vs_lion(grid_records, tmp_path):
         lj.study(model, grid_records, dataset_names=["a", "b", "c", "d"], progress=False)
 
 
+@pytest.mark.slow  # studies against per-record runs, tuning
 def test_cli_study_tune_and_map(monkeypatch, tmp_path, capsys):
     """--noise-seeds simulates labelled twin records; --tune calls lj.studies.tune from the grid's
     centre with the objective whose map is drawn (lj.studies.tune itself: tests/test_tune.py)."""

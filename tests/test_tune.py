@@ -10,6 +10,9 @@ import lionjax as lj
 from lionjax import twin
 from lionjax.studies import _tune
 
+# the slow tier (.ci/run's second step): gradient tuning (its compile alone takes 15 s)
+pytestmark = pytest.mark.slow
+
 # a 6 × 5 grid over (AutoGain rate g [1/s], triple filter pole p [rad/s]), log-spaced
 GAINS = np.geomspace(2.0, 200.0, 6)
 POLES = np.geomspace(8.0, 128.0, 5)

@@ -61,7 +61,10 @@ def least_squares_batched(
             3·λₙ₋₁/λₙ of each filter).
         max_condition: bound on cond(Φ); records at or above it are ``unidentifiable``, and so
             are records with a column that is not excited at all (:mod:`lionjax._validity`;
-            ``unexcited`` names the parameters).
+            ``unexcited`` names the parameters), and float64 records where cond([Φ, N]) is, N
+            the filter's free responses after the transient, streamed with Φ
+            (``LSStatistics(free_response=True)``: what ``least_squares(initial="discard")``
+            refuses, a parameter excited only through the filter's own transient).
 
     The validity layer as in :func:`lion_batched` (filter speed, padding without lengths,
     failed records with bad data flagged ``nonfinite``).
@@ -78,9 +81,10 @@ def least_squares_batched(
     records, shard = shard_here(records, execution.shard)
     execution = dataclasses.replace(execution, shard=shard)
     one = jnp.ones((), records.x.dtype)
-    sol = _least_squares_batched(
-        model, records, bank, lengths, LSStatistics(transient), execution, one, max_condition
-    )
+    # [Φ, N]'s conditioning (N the filter's free responses) as least_squares(initial="discard")
+    # checks it; float64 only: a float32 Gram cannot resolve that condition number
+    ls = LSStatistics(transient, free_response=records.x.dtype == jnp.float64)
+    sol = _least_squares_batched(model, records, bank, lengths, ls, execution, one, max_condition)
     sol = flag_bad_data(sol, records)
     return finish(sol, throw, what="least_squares_batched", explain=explain_unexcited)
 
@@ -97,6 +101,10 @@ def _least_squares_batched(model, records, bank, lengths, ls, execution, one, ma
     dead = jax.vmap(dead_columns)(r.moments, ref)
     bad = jax.vmap(lambda m, f: unexcited(m, f, max_condition**2))(r.moments, ref)
     ok = (r.condition < max_condition) & ~jnp.any(dead, axis=-1)
+    if r.free_condition is not None:  # a parameter excited only through the free response
+        free_ok = r.free_condition < max_condition
+        ok = ok & free_ok
+        bad = bad | (~free_ok[:, None] & (jnp.abs(r.free_weakest[:, : st.ctx.p]) > 0.3))
     return LSBatchedSolution(
         theta=r.theta,
         covariance=r.covariance,

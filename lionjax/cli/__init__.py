@@ -60,6 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
         mod = importlib.import_module(f"lionjax.cli._{name}")
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.__doc__)
         mod.add_arguments(p)
+        p.add_argument(
+            "--quiet",
+            action="store_true",
+            help="no progress on stderr (default: drawn where stderr is a terminal, once a step "
+            "has run 2 s)",
+        )
         _no_cache_flag(p, argparse.SUPPRESS)  # also after the command; keeps one given before
         p.set_defaults(_run=mod.run)
     return parser
@@ -132,19 +138,31 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # the one handler
         if os.environ.get("LIONJAX_TRACEBACK"):
             raise
-        print(f"{name}: error: {describe(e)}", file=sys.stderr)
+        print(f"{name}: error: {describe(e, args.command)}", file=sys.stderr)
         return EXIT_ERROR
     finally:
         cli_hints.reset(token)
 
 
-def describe(e: BaseException) -> str:
-    """The one-line message of an error raised by a subcommand (see :func:`main`)."""
+def describe(e: BaseException, command: str = "") -> str:
+    """The one-line message of an error raised by subcommand ``command`` (see :func:`main`):
+    the library's name of the call that refused (``diagnose: …``) is dropped where it is the
+    command's own; an error raised inside a user's candidate file (``--candidates``) names that
+    file and line, not lionjax."""
     from .._errors import IdentificationError, InputError
     from ._common import CURRENT_FILE, one_line
 
     if isinstance(e, InputError | IdentificationError):
-        return one_line(str(e))
+        text = one_line(str(e))
+        return text[len(command) + 2 :] if command and text.startswith(f"{command}: ") else text
+    user = _user_frame(e)
+    if user is not None:
+        path, line, func = user
+        return one_line(
+            f"the candidate file {path} failed (line {line}, in {func}): {type(e).__name__}: "
+            f"{e}. The diagnosis calls a candidate's methods (basis, grid, implausible, …): fix "
+            "it there (docs/effects.md, 'Rules for a good candidate')."
+        )
     if isinstance(e, OSError):
         where = e.filename if e.filename is not None else CURRENT_FILE.get()
         why = e.strerror or str(e)
@@ -167,6 +185,20 @@ def describe(e: BaseException) -> str:
         "lionjax, not in your input: please report it with the command line "
         "(LIONJAX_TRACEBACK=1 shows where it happened)."
     )
+
+
+def _user_frame(e: BaseException) -> tuple[str, int, str] | None:
+    """(file, line, function) of the deepest frame of ``e``'s traceback in a user's candidate
+    file (a module :func:`lionjax.diagnosis.load_candidates` ran), or None."""
+    from ..diagnosis._load import USER_MODULE
+
+    tb, found = e.__traceback__, None
+    while tb is not None:
+        if str(tb.tb_frame.f_globals.get("__name__", "")).startswith(USER_MODULE):
+            code = tb.tb_frame.f_code
+            found = (code.co_filename, tb.tb_lineno, code.co_name)
+        tb = tb.tb_next
+    return found
 
 
 def _warning_printer(name: str):

@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import warnings
 
-from .._errors import IdentificationError, InputError
+from .._errors import DataWarning, IdentificationError, InputError
 from .._plotting import FIGURE_SUFFIXES
+from .._progress import wanted
 from .._tables import check_output, write_json
 from ._common import about, add_units_argument, cli_words, format_table, number
 
@@ -163,7 +165,7 @@ def _run_pairs(args) -> int:
     result = lj.diagnosis.diagnose_many(
         pairs,
         candidates=library,
-        progress=True,
+        progress=wanted(args.quiet),  # the pairs done
         load={
             "columns": columns,
             "force_scale": args.force_scale,
@@ -225,6 +227,7 @@ def _run_one(args) -> int:
             window_s=args.window,
             max_memory_gb=args.max_memory_gb,
             streamed=_streamed(args),
+            progress=wanted(args.quiet),
         )
     except (InputError, IdentificationError) as e:
         raise type(e)(_name_files(str(e), args)) from None
@@ -272,10 +275,12 @@ def _run_one(args) -> int:
     )
     out_of = {k: v for k, v in base["valid_outside_train"].items() if (v or 0) > OUTSIDE_WARN}
     if out_of:
-        print(
-            "warning: the validation record leaves the training record's range ("
+        warnings.warn(
+            "the validation record leaves the training record's range ("
             + ", ".join(f"{k}: {v:.0%} of the samples" for k, v in out_of.items())
-            + "); the model extrapolates there — record a training run that covers it"
+            + "); the model extrapolates there — record a training run that covers it",
+            DataWarning,
+            stacklevel=2,
         )
     fin = out["final"]
     if not fin.get("result", True):

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from .._progress import counted, status, wanted
 from .._tables import check_output, write_json
 from .._units import unit
 from ._common import about, add_units_argument, float_list, format_table
@@ -190,6 +191,7 @@ def identify(record, args) -> dict:
         out["convergence_time"] = t_conv if np.isfinite(t_conv) else None
         out["duration"] = float(record.dt) * (int(record.n_samples) - 1)
         out["gain_rule"] = "fixed" if isinstance(gain, lj.FixedGain) else "auto"
+        out["gain_rates"] = gain_rates(gain, ls)
         std = lion_std(np.array(list(out["params"].values())), ls)
         out["std"] = dict(zip(out["params"], std.tolist(), strict=True))
         out["std_method"] = STD_AT_LION
@@ -248,16 +250,51 @@ def print_result(out: dict) -> None:
         print(convergence_sentence(out))
 
 
+#: Time constants a record must hold at Lion's slowest rate for θ to settle (e^−5 < 1 %).
+SETTLE_TIME_CONSTANTS = 5.0
+
+
+def gain_rates(gain, ls) -> list[float]:
+    """[slowest, fastest] rate [1/s] at which Lion's law converges under ``gain``: the extreme
+    eigenvalues of G·R, R = ΦᵀΦ/n the mean regressor moment (from the least-squares answer
+    ``ls``: ΦᵀΦ = σ²·cov⁻¹); AutoGain's rate for both under AutoGain (G = rate·R⁻¹)."""
+    import lionjax as lj
+
+    if not isinstance(gain, lj.FixedGain):
+        return [float(gain.rate)] * 2
+    try:
+        R = float(ls.sigma2) * np.linalg.inv(np.asarray(ls.covariance, np.float64))
+    except np.linalg.LinAlgError:
+        return [float("nan")] * 2
+    R = R / max(float(ls.n_used), 1.0)
+    G = np.asarray(gain.matrix, np.float64)
+    GR = (G if G.ndim == 2 else float(G) * np.eye(len(R))) @ R
+    ev = np.sort(np.abs(np.linalg.eigvals(GR)))
+    return [float(ev[0]), float(ev[-1])]
+
+
 def convergence_sentence(out: dict, tolerance: float = 0.02) -> str:
-    """Plain English: when Lion's estimate settles within the band of least squares."""
+    """Plain English: when Lion's estimate settles within the band of least squares, and, when
+    it did not, which way to move the gain: up where the slowest rate leaves fewer than
+    :data:`SETTLE_TIME_CONSTANTS` time constants in the record, down where it leaves more (θ
+    then follows the equation error's noise instead of settling)."""
     st = out["convergence_time"]
     band = f"within {100 * tolerance:g} % of least squares"
     if st is not None:
         return f"Lion's estimate settles {band} after {st:.3g} s."
-    fix = "raise --rate" if out.get("gain_rule", "auto") == "auto" else "raise --gain"
+    flag = "--rate" if out.get("gain_rule", "auto") == "auto" else "--gain"
+    slow, fast = out.get("gain_rates", [float("nan")] * 2)
+    if np.isfinite(slow) and slow * out["duration"] >= SETTLE_TIME_CONSTANTS:
+        fix = (
+            f"lower {flag}: its slowest rate, {slow:.3g} 1/s (fastest {fast:.3g} 1/s), already "
+            f"fits {slow * out['duration']:.3g} time constants in the record, so θ follows the "
+            "noise of the equation error instead of settling"
+        )
+    else:
+        fix = f"raise {flag} or use a longer record"
     return (
         f"Lion's estimate did not settle {band} by the end of the record "
-        f"({out['duration']:.3g} s); {fix} or use a longer record."
+        f"({out['duration']:.3g} s); {fix}."
     )
 
 
@@ -311,7 +348,7 @@ def load_many(paths: list[Path], args) -> list:
 
     columns = lj.extend.parse_columns(args.columns) if args.columns else None
     records, errors = [], []
-    for p in paths:
+    for p in counted(paths, "reading", "files"):
         try:
             records.append(
                 lj.load_record(
@@ -333,13 +370,22 @@ def load_many(paths: list[Path], args) -> list:
 
 
 def run_many(args) -> int:
-    import lionjax as lj
 
     check_output(args.json, "--json")
     check_output(args.csv, "--csv")
     settings(args)  # bad options fail before any file is read
     paths = data_files(args.data)
-    records = load_many(paths, args)
+    with status("identify", enabled=wanted(args.quiet)) as st:
+        records = load_many(paths, args)
+        st.stage(f"identifying the {len(records)} records in one batched call")
+        res = _identify_many(records, paths, args)
+    return report_many(res, records, args)
+
+
+def _identify_many(records, paths, args):
+    """The batched identification of ``records`` (``identify_batch``) under the options."""
+    import lionjax as lj
+
     model, bank, gain = settings(args, np.array([float(r.dt) for r in records]))
     theta0 = None
     if args.method == "lion":
@@ -351,9 +397,13 @@ def run_many(args) -> int:
         method = lj.LeastSquares()
     else:
         method = lj.Lion(gain=gain, stepper=stepper(args), theta0=theta0)
-    res = lj.identify_batch(
+    return lj.identify_batch(
         model, records, method=method, labels=[str(p) for p in paths], bank=bank
     )
+
+
+def report_many(res, records, args) -> int:
+    """Print and write the rows of a batch; exit status 1 when some record failed."""
     print_many(res, args.units)
     if args.json:
         res.to_json(args.json)

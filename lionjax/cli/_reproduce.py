@@ -209,7 +209,7 @@ def run(args) -> int:
         ) from None
     check_output(out / "summary.json", "--out")  # writable, before the long run
     start = time.perf_counter()
-    say = stamped(start)
+    say = stamped(start) if not args.quiet else (lambda message: None)
     figures = not args.no_figures
     if figures and importlib.util.find_spec("matplotlib") is None:
         say(

@@ -26,6 +26,7 @@ import numpy as np
 
 from .._errors import IdentificationError, InputError, result_message
 from .._plotting import FIGURE_SUFFIXES, save_figure
+from .._progress import wanted
 from .._tables import check_output, write_json
 from ._common import add_units_argument, float_list, format_table
 
@@ -81,7 +82,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _poles(text: str) -> list[list[float]]:
-    sets = [float_list(s, "--poles") for s in text.split(";") if s.strip()]
+    parts = text.split(";")
+    empty = [i + 1 for i, s in enumerate(parts) if not s.strip()]
+    if empty and len(parts) > 1:
+        raise InputError(
+            f"--poles: pole set {empty[0]} of {len(parts)} in {text!r} is empty (two ';' in a "
+            'row, or one at an end); give each set its poles, e.g. "-4;-8".'
+        )
+    sets = [float_list(s, "--poles") for s in parts if s.strip()]
     sets = [s * 3 if len(s) == 1 else s for s in sets]
     if not sets or len({len(s) for s in sets}) != 1:
         raise InputError(
@@ -178,6 +186,7 @@ def run(args) -> int:
         unit_dc_gain=True,
         dataset_names=names,
         chunk_size=args.chunk_size,
+        progress=wanted(args.quiet),
         **kw,
     )
     rec_dims = [d for d in res.dims if d not in ("gain", "poles")]

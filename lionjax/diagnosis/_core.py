@@ -27,7 +27,9 @@ import jax
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .._data_checks import check_diagnosis_data
 from .._errors import InputError
+from .._progress import status
 from .._record import Record
 from .._validity import check_record
 from ._confidence import uncounted, unresolved, weigh
@@ -86,6 +88,7 @@ def _check_excites(nm: str, rec: Record) -> None:
 
 def _check_records(train: Record, valid: Record | None) -> Record:
     """The validation record (``train`` when None), or an :class:`~lionjax.InputError`."""
+    check_diagnosis_data(train, valid, ROLES)  # glitches, a pair in different units
     for nm, rec in (("train", train), ("valid", valid)):
         if rec is not None and not isinstance(rec, Record):
             raise InputError(
@@ -126,6 +129,7 @@ def diagnose(
     max_memory_gb: float | None = None,
     criteria: Criteria | None = None,
     streamed: bool | int | None = None,
+    progress: bool = False,
 ) -> Diagnosis:
     """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record (module docstring: the method,
     the confidence, the precision).
@@ -165,6 +169,8 @@ def diagnose(
             bits. False: each record in one chunk, its filtered signals and designs kept. None
             (default): in chunks where a record's padded length exceeds 2¹⁷ samples (in one
             chunk, records of up to 2¹⁷ samples peak below 2 GB).
+        progress: draw a status line on stderr once the diagnosis has run a few seconds (its
+            stage, and the points of a search done: :class:`lionjax._progress.Status`).
 
     Returns:
         a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,
@@ -193,15 +199,19 @@ def diagnose(
         criteria or Criteria(), **{k: v for k, v in given.items() if v is not None}
     )
     library = check_candidates(candidates, RESERVED)
-    run = prepare(
-        train, valid, library, DEFAULT_LOOKALIKES, crit, filter_hz, window_s, max_memory_gb,
-        streamed,
-    )  # fmt: skip
-    return _pipeline(run)
+    with status("diagnose", enabled=progress) as st:  # the stages on stderr, if asked
+        st.stage("baseline and noise floor")
+        run = prepare(
+            train, valid, library, DEFAULT_LOOKALIKES, crit, filter_hz, window_s, max_memory_gb,
+            streamed,
+        )  # fmt: skip
+        return _pipeline(run, st)
 
 
-def _pipeline(run) -> Diagnosis:
-    """Every candidate alone, the stack, its verdict and confidence (module docstring)."""
+def _pipeline(run, st) -> Diagnosis:
+    """Every candidate alone, the stack, its verdict and confidence (module docstring); ``st``
+    the status line the stages are named on."""
+    st.stage("fitting the candidates alone")
     run, fitted = fit_alone(run)
     by_name = run.by_name
     alone = {
@@ -209,6 +219,7 @@ def _pipeline(run) -> Diagnosis:
         for name, f in fitted.items()
     }
     effects = sorted((s for s, _ in alone.values()), key=lambda s: -s.score)
+    st.stage("stacking")
     run, stk = stack_effects(run, alone)
     stk = parsimony(run, stk)
     if stk.stands_for and stk.size < run.crit.max_effects:
@@ -217,6 +228,7 @@ def _pipeline(run) -> Diagnosis:
         run, stk = stack_effects(run, alone, stk)
         stk = parsimony(run, stk)
     stk = prune(run, stk)
+    st.stage("verdict")
     verdict = judge(run, stk)
     confidence = weigh(
         run, effects, stk, verdict, uncounted(run, stk), unresolved(run, fitted, effects)

@@ -11,6 +11,10 @@ import sys
 from .._errors import InputError
 from .effects import AbstractCandidate
 
+#: Prefix of the module names the user's candidate files run as (errors inside them are the
+#: user's: the command line names the file and line, :func:`lionjax.cli.describe`).
+USER_MODULE = "lionjax_user_candidates_"
+
 
 def load_candidates(spec: str) -> tuple[AbstractCandidate, ...]:
     """The candidates ``Name…`` defined in the Python file ``FILE.py``.
@@ -36,7 +40,7 @@ def load_candidates(spec: str) -> tuple[AbstractCandidate, ...]:
     if not os.path.isfile(path):
         raise InputError(f"--candidates: file {path!r} not found (from {spec!r}).")
     digest = hashlib.sha1(os.path.abspath(path).encode()).hexdigest()[:12]
-    mod_name = f"lionjax_user_candidates_{digest}"
+    mod_name = f"{USER_MODULE}{digest}"
     module = sys.modules.get(mod_name)
     if module is None:
         loader = importlib.util.spec_from_file_location(mod_name, path)

@@ -23,6 +23,8 @@ from typing import Any
 import equinox as eqx
 import numpy as np
 
+from .._progress import counted
+
 Batch = Callable[[Sequence[Any]], np.ndarray]
 
 
@@ -47,9 +49,10 @@ class GridSearch(eqx.Module):
     nan_wins: bool = False
 
     def values(self, fn: Batch) -> np.ndarray:
+        starts = range(0, len(self.points), self.batch)  # counted on a status line, if drawn
         out = [
             np.asarray(fn(self.points[i : i + self.batch]), np.float64)
-            for i in range(0, len(self.points), self.batch)
+            for i in counted(starts, f"searching {len(self.points)} points", "batches")
         ]
         return np.concatenate(out) if out else np.zeros(0)
 

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from .._errors import InputError
+from .._progress import counted
 from ._filtering import P_MAX
 from ._fit import Fitted
 from ._objective import Objective
@@ -59,7 +60,7 @@ def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
     noise, else from nothing yet). Returns the run with the resolved candidates, every form's
     fit and the fitted floor, and each candidate's chosen fit."""
     resolved, fits, variant_fits = {}, {}, {}
-    for c in run.candidates:
+    for c in counted(run.candidates, "fitting the candidates alone", "candidates"):
         tries = []
         for v in c.variants(run.limits, tuple(resolved.values())):
             v = resolve(run, v)
@@ -196,10 +197,11 @@ def check_candidates(candidates: Sequence[Any], reserved) -> tuple[AbstractCandi
         )
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
-        twice = sorted({n for n in names if names.count(n) > 1})
+        dup = sorted({n for n in names if names.count(n) > 1})
         raise InputError(
-            f"diagnose: candidate names repeat: {', '.join(repr(n) for n in twice)} "
-            f"(library {names}); give each candidate a name of its own."
+            f"diagnose: argument 'candidates': the name(s) {dup} are used by more than one "
+            f"candidate ({', '.join(type(c).__name__ for c in candidates if c.name in dup)}); "
+            "give each candidate its own name (a candidate added twice: pass it once)."
         )
     try:
         check_library(candidates, reserved)

@@ -30,12 +30,10 @@ subtracted from the input of the windowed simulation.
 from __future__ import annotations
 
 import dataclasses
-import numbers
 from collections.abc import Callable, Sequence
 from typing import ClassVar
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -44,6 +42,7 @@ from ..._models import AbstractEffect, Column
 from ..._record import Record
 from .._search import GoldenSection, GridSearch
 from ._base import AbstractCandidate, Limits, b_positive
+from ._user_checks import check_definitions, checked_basis, checked_grid, traced
 
 #: Golden-section steps of :meth:`ForceEffect.profile`'s refinement (the bracket shrinks by
 #: 0.618 per step: 16 steps leave 5·10⁻⁴ of the grid's spacing).
@@ -100,9 +99,7 @@ class ForceEffect(AbstractCandidate):
         refined by a golden-section search between that point's neighbours on the grid
         (:data:`REFINE_STEPS` more fits). Override for another search (it returns a new,
         immutable Module)."""
-        grid = list(self.grid(limits))
-        if not grid:
-            raise ValueError(f"{type(self).__name__}.grid() returned no Module to search.")
+        grid = checked_grid(self, self.grid(limits))  # a user's mistake named (docs/effects.md)
         if len(grid) == 1:
             return grid[0]
         i, values = GridSearch(tuple(grid), 1).minimise(lambda g: [rss(g[0])])
@@ -147,7 +144,7 @@ class ForceEffect(AbstractCandidate):
                 du = du + float(phys.get(p, 0.0)) * np.asarray(phi, np.float64)
             return {"du": du}
         coefs = tuple(jnp.asarray(float(phys.get(p, 0.0)), jnp.float64) for p in self.parameters)
-        return {"extra": (_traced(self), coefs)}
+        return {"extra": (traced(self), coefs)}
 
     def report(self, phys: dict[str, float]) -> dict[str, float]:
         keys = (*self.parameters, *self.nonlinear, *self.units)
@@ -196,21 +193,11 @@ class ForceColumns(AbstractEffect):
 
     def signals(self, rs) -> dict:
         x = jnp.asarray(rs.x)
-        phis = self.effect.record_basis(rs.record, jnp.asarray(rs.v))
-        names = signal_names(self.effect)
-        if len(phis) != len(names):
-            raise ValueError(
-                f"{type(self.effect).__name__}: basis returned {len(phis)} functions for the "
-                f"{len(names)} parameters {self.effect.parameters}; return one per parameter."
-            )
+        # a user's mistake named (docs/effects.md)
+        phis = checked_basis(self.effect, rs.record, jnp.asarray(rs.v))
         out = {}
-        for n, phi in zip(names, phis, strict=True):
+        for n, phi in zip(signal_names(self.effect), phis, strict=True):
             phi = np.asarray(jnp.broadcast_to(jnp.asarray(phi, jnp.float64), x.shape))
-            if not np.all(np.isfinite(phi)):
-                raise ValueError(
-                    f"{type(self.effect).__name__}.basis gave non-finite values on the record; "
-                    "it must be finite wherever the record goes."
-                )
             # a correction of the measured F is held as F is (zero order); a force of the
             # state, as x is (first order)
             out[n] = (phi, "zoh" if self.effect.acts_on == "measurement" else "foh")
@@ -235,35 +222,7 @@ class SimulatedForce(eqx.Module):
         return total
 
 
-def _traced(effect: ForceEffect) -> ForceEffect:
-    """``effect`` with its float fields as arrays, so that the compiled simulation is reused
-    across their values."""
-    return jax.tree_util.tree_map(
-        lambda a: jnp.asarray(a, jnp.float64) if isinstance(a, float) else a, effect
-    )
-
-
 def check_library(candidates: Sequence[AbstractCandidate], reserved: Sequence[str]) -> None:
-    """Raise ``ValueError`` naming the problem when a ForceEffect of ``candidates`` is not
-    usable: no parameters, a parameter name the diagnosis already reports, a repeated one."""
-    seen: dict[str, str] = {}
-    for c in candidates:
-        if not isinstance(c, ForceEffect):
-            continue
-        nm = type(c).__name__
-        if not isinstance(getattr(c, "parameters", None), tuple) or not c.parameters:
-            raise ValueError(f"{nm}: 'parameters' must be a non-empty tuple of names.")
-        if c.acts_on not in ("device", "measurement"):
-            raise ValueError(f"{nm}: acts_on must be 'device' or 'measurement', got {c.acts_on!r}.")
-        for p in (*c.parameters, *c.nonlinear):
-            if p in reserved:
-                raise ValueError(
-                    f"{nm}: parameter name {p!r} is one the diagnosis already reports "
-                    f"({', '.join(sorted(set(reserved)))}); rename it."
-                )
-            if p in seen:
-                raise ValueError(f"{nm}: parameter name {p!r} is also {seen[p]}'s; rename it.")
-            seen[p] = nm
-        for f in c.nonlinear:
-            if not isinstance(getattr(c, f, None), numbers.Real):
-                raise ValueError(f"{nm}: nonlinear parameter {f!r} must be a real field.")
+    """Raise :class:`~lionjax.InputError` naming the candidate, the rule of docs/effects.md and
+    the fix when a ForceEffect of ``candidates`` is not usable (:mod:`._user_checks`)."""
+    check_definitions([c for c in candidates if isinstance(c, ForceEffect)], reserved, ForceEffect)
