@@ -256,6 +256,18 @@ PRIVATE_IMPORTS = {
     ("test_diagnose_kernels.py", "diagnosis.effects._position._local_raw"): (
         "the localized position's raw signals, computed per chunk, as profile columns"
     ),
+    ("test_units.py", "_units.unit"): (
+        "each linear unit's rotary counterpart, one by one against the table written out in the "
+        "test; reports show only the units their own parameters carry"
+    ),
+    ("test_units.py", "_units.convert_units"): "as _units.unit",
+    ("test_units.py", "_validity.sanity_messages"): (
+        "the millimetre check's text for a linear and a rotary record of the same file, without "
+        "an identification around it"
+    ),
+    ("test_units.py", "diagnosis._plot"): (
+        "the figure's axis labels, its save captured: a PNG shows them only as pixels"
+    ),
     ("test_diagnose_kernels.py", "twin._windows.WINDOW_PARAMETERS"): (
         "the names of the windowed simulator's parameters, every one passed to simulate_windows"
     ),

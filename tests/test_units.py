@@ -14,7 +14,6 @@ import scipy.signal
 
 import lionjax as lj
 from lionjax import InputError
-from lionjax._errors import DataWarning
 from lionjax._units import convert_units, unit
 from lionjax._validity import sanity_messages
 from lionjax.cli import main
@@ -109,7 +108,7 @@ def test_rotary_diagnosis_and_identification(tmp_path, monkeypatch, capsys):
     valid = _write(tmp_path / "valid.npz", tv, xv, Fv)
 
     # the linear reading of the same samples: the numbers, and the millimetre warning
-    with pytest.warns(DataWarning, match="millimetres"):
+    with pytest.warns(lj.solutions.DataWarning, match="millimetres"):
         lin = lj.diagnose(lj.load_record(train), lj.load_record(valid))
     assert lin.units == "linear" and lin.baseline["units"]["b"] == "1/kg"
 
