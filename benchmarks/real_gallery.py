@@ -127,6 +127,8 @@ ENTRIES = (
           lambda: load_npz_pair("lorenz_friction")),
     Entry("odrive_cogging", "unexplained (position_period)", ("unexplained", "inconclusive"),
           lambda: load_npz_pair("odrive_cogging"), needs="position_period"),
+    Entry("quanser_flexcart", "coulomb_friction", ("coulomb_friction", "asymmetric_friction"),
+          lambda: load_npz_pair("quanser_flexcart")),
     Entry("silverbox_multisine", "spring", ("spring",),
           lambda: _silverbox("split_test_multisine")),
     Entry("silverbox_arrow", "spring", ("spring",), lambda: _silverbox("split_test_arrow_full")),

@@ -33,6 +33,7 @@ PACKAGED = {
     "motorbench_load": (12_500, "rad", "A", "rotary"),
     "lorenz_friction": (10_000, "rad", "N·m", "rotary"),
     "odrive_cogging": (1_880, "rad", "A", "rotary"),
+    "quanser_flexcart": (8_001, "m", "V", "linear"),
 }
 NAMES = [e.name for e in gallery.ENTRIES]
 

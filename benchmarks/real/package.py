@@ -111,9 +111,31 @@ def odrive(src: Path, out: Path) -> None:
         _save(out, "odrive_cogging", split, tc, x, F, x_unit="rad", F_unit="A", units="rotary")
 
 
+def quanser_flexcart(src: Path, out: Path) -> None:
+    """Quanser two-cart flexible drive, driven cart: velocity_response_1_5.mat → train,
+    velocity_response_2.mat → valid.
+
+    1 kHz, 8001 samples: u [V] (square wave ±1.5 or ±2 V), v1 [mm/s] (encoder counts per
+    sample × 4.6592 mm/s). x = running sum of v1·dt in m (the count itself), F = u; all kept.
+    """
+    import scipy.io as sio
+
+    for split, fname in (
+        ("train", "velocity_response_1_5.mat"),
+        ("valid", "velocity_response_2.mat"),
+    ):
+        d = sio.loadmat(src / fname, squeeze_me=True)
+        t = np.asarray(d["t"], dtype=float)
+        dt = float(np.mean(np.diff(t)))
+        x = np.cumsum(np.asarray(d["v1"], dtype=float)) * dt * 1e-3
+        _save(out, "quanser_flexcart", split, t, x, d["u"], x_unit="m", F_unit="V", units="linear")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("name", choices=["motorbench", "lorenz_friction", "odrive_cogging"])
+    p.add_argument(
+        "name", choices=["motorbench", "lorenz_friction", "odrive_cogging", "quanser_flexcart"]
+    )
     p.add_argument("source", type=Path)
     p.add_argument("--out", type=Path, default=Path(__file__).parent)
     a = p.parse_args()
@@ -122,6 +144,8 @@ def main() -> None:
         motorbench(a.source, a.out, "load")
     elif a.name == "lorenz_friction":
         lorenz(a.source, a.out)
+    elif a.name == "quanser_flexcart":
+        quanser_flexcart(a.source, a.out)
     else:
         odrive(a.source, a.out)
 
