@@ -3,6 +3,7 @@ is found, a record that cannot decide is called ``inconclusive`` with what to re
 
 import math
 
+import jax
 import numpy as np
 import pytest
 
@@ -53,3 +54,34 @@ def test_a_record_that_cannot_decide_is_inconclusive():
     else:  # a record that does decide names what it holds
         assert d.verdict == "coulomb_friction"
         assert j["inconclusive"] is None
+
+
+def test_a_record_whose_noise_hides_every_effect_is_inconclusive():
+    """Position noise of 0.1 mm rms on 2–3 cm of travel: the detection limit (the size an effect
+    needs to be seen, over the input's term b·F) is above one half, so an effect half as large
+    as the drive could hide, and a Coulomb friction of 0.1 N (a fifth of the force) is not
+    seen. Nothing named is then no evidence of no effect: ``inconclusive``, with that reason and
+    the advice to drive harder or measure finer, with or without the friction — never ``none``.
+    The same records at 10 µm (limit ≈ 0.03–0.09) decide: the friction, or none."""
+    dt, n = 1e-3, 6000
+    t = dt * np.arange(n)
+    F = [0.5 * np.sin(2 * math.pi * t + p) + 0.3 * np.sin(2 * math.pi * 3.1 * t) for p in (0, 1)]
+    for noise, friction, verdict in (
+        (1e-4, True, "inconclusive"),
+        (1e-4, False, "inconclusive"),
+        (1e-5, True, "coulomb_friction"),
+    ):
+        plant = twin.Plant(5.0, 1.0, (), [twin.PositionNoise(noise)])
+        if friction:
+            plant = plant.with_effects(twin.CoulombFriction(0.1))
+        recs = [twin.simulate(plant, f, dt=dt, key=jax.random.key(k)) for k, f in enumerate(F)]
+        d = lj.diagnose(*recs)
+        limit = d.noise["detection_limit_worst"]
+        assert d.verdict == verdict, (noise, friction, d.verdict, limit)
+        assert (limit >= 0.5) == (verdict == "inconclusive"), limit
+        j = d.to_json()
+        if verdict == "inconclusive":
+            assert "detection limit" in j["inconclusive"]["reason"]
+            assert "measure its position finer" in j["inconclusive"]["advice"]
+        else:
+            assert j["inconclusive"] is None

@@ -194,25 +194,38 @@ class Confidence:
 #: decide: below it a one-parameter effect must remove over a third of the mean square to
 #: reach the threshold (1 − exp(−(threshold + ln N)/N) at N = 30, threshold 10).
 N_EFF_LEAST = 30
+#: Detection limit (size, over the input's term b·F) at which a record cannot decide: effects
+#: worth naming run from ``min_size`` to the drive's own size, and at half of it most of that
+#: range (1 − ln 2 / ln(1/min_size) on a log scale, 0.87 at min_size 0.005) could hide unseen.
+DETECTION_MOST = 0.5
 #: Velocity reversals a record needs for friction to be told apart from a constant force.
 REVERSALS_LEAST = 10
 
 
-def inconclusive(run: Run, detection: float, decided: bool) -> dict | None:
+def inconclusive(run: Run, detection: float, worst: float, decided: bool) -> dict | None:
     """Why the records cannot decide whether an effect is there, and what to record instead; or
-    None. The validation residual's effective sample count below :data:`N_EFF_LEAST` (its
+    None. Two reasons, unless a look-alike explains the gap (``decided``: the record shows that
+    effect): the validation residual's effective sample count below :data:`N_EFF_LEAST` (its
     evidence too coarse: nothing named is then no evidence of no effect, and a residual with
-    structure no evidence of one outside the library), unless a look-alike explains the gap
-    (``decided``: the record shows that effect)."""
+    structure no evidence of one outside the library); or the detection limit (``worst``, the
+    size an effect needs to be seen) at or above :data:`DETECTION_MOST` of the input's term."""
     n = run.base.n_eff
-    if decided or not n < N_EFF_LEAST:
+    few, blind = n < N_EFF_LEAST, worst >= DETECTION_MOST
+    if decided or not (few or blind):
         return None
-    reasons = [
-        f"the validation residual holds {n:.0f} effective samples (at least {N_EFF_LEAST} decide: "
-        "the residual is slow against the record's length), and its detection limit is "
-        f"{detection:.2g} of the input's term b·F"
-    ]
-    advice = ["record longer, or with an excitation that changes faster"]
+    reasons, advice = [], []
+    if few:
+        reasons.append(
+            f"the validation residual holds {n:.0f} effective samples (at least {N_EFF_LEAST} "
+            "decide: the residual is slow against the record's length)"
+        )
+        advice.append("record longer, or with an excitation that changes faster")
+    reasons.append(f"the detection limit is {max(detection, worst):.2g} of the input's term b·F")
+    if blind:
+        advice.append(
+            "drive the axis harder or measure its position finer (the detection limit scales "
+            "with the position noise over the response it drives)"
+        )
     lo, hi = run.st.excited
     v = np.asarray(run.problem.v_valid, np.float64)
     moving = np.abs(v) > 0.1 * float(np.quantile(np.abs(v), 0.9))
@@ -313,7 +326,9 @@ def weigh(
         confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
     if verdict != "unexplained":
         confidence *= doubt
-    undecided = inconclusive(run, detection, bool(v.decided_by)) if not stk.cands else None
+    undecided = None
+    if not stk.cands:
+        undecided = inconclusive(run, detection, detection_worst, bool(v.decided_by))
     if undecided is not None:
         # nothing named on a record that cannot decide: a statement about the record
         verdict, confidence, ambiguous = "inconclusive", 1.0, []
