@@ -1745,6 +1745,25 @@ def streamed(train, valid, chunk: int, **kw):
     return lj.diagnose(train, valid, streamed=chunk, **kw)
 
 
+def merge_runs(paths: Sequence[str]) -> dict:
+    """The summary of the cases of several runs (disjoint classes, one seed, one per-class
+    count), with their configs' wall times summed."""
+    runs = [json.load(open(path)) for path in paths]
+    cfg = [r["config"] for r in runs]
+    for key in ("per_class", "seed0", "sources"):
+        if len({json.dumps(c[key]) for c in cfg}) > 1:
+            raise SystemExit(f"--merge: the runs differ in {key}: {[c[key] for c in cfg]}")
+    classes = [k for c in cfg for k in c["classes"]]
+    if len(set(classes)) < len(classes):
+        raise SystemExit("--merge: the runs share classes; merge runs over disjoint --classes")
+    order = [k for k in CLASSES if k in classes]
+    rows = sorted((r for run in runs for r in run["records"]), key=lambda r: r["seed"])
+    out = summarise(rows, order)
+    out["config"] = dict(cfg[0], classes=order, wall_s=sum(c["wall_s"] for c in cfg))
+    out["config"]["merged_from"] = [str(path) for path in paths]
+    return out
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(
         description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1774,7 +1793,22 @@ def main(argv=None) -> None:
         "their edges): the streamed path's verdicts, for comparison with an in-memory run",
     )
     p.add_argument("--json", help="write the summary and every case here")
+    p.add_argument(
+        "--merge",
+        nargs="+",
+        metavar="RUN.json",
+        help="summarise the cases of runs over disjoint --classes of one seed (the cases are "
+        "those of one run over all their classes: a case's seed depends on its class, not on "
+        "the run) instead of running",
+    )
     a = p.parse_args(argv)
+    if a.merge:
+        out = merge_runs(a.merge)
+        print_summary(out)
+        if a.json:
+            with open(a.json, "w") as fh:
+                json.dump(out, fh, indent=1, default=_json_default)
+        return
     if a.streamed is not None and (a.streamed < 64 or a.streamed & (a.streamed - 1)):
         p.error(f"--streamed: CHUNK must be a power of two ≥ 64, got {a.streamed}")
     out = run(
