@@ -18,8 +18,9 @@ import numpy as np
 
 from ..twin._windows import WINDOW_PARAMETERS
 from ._criteria import DIVERGED
-from ._lstsq import apply_input, fit_batch, residual, simulate_windows
+from ._lstsq import fit_batch, residual, simulate_windows
 from ._statistics import _n_eff
+from ._streaming import input_map
 from .effects import Design, SimulatedForce, design_of
 
 
@@ -121,7 +122,7 @@ def fit(problem, structure: tuple) -> Fitted:
     valid = problem.valid
 
     def signals():
-        u = apply_input(valid.F, problem.st.dt, d.tau, d.fmax)
+        u = input_map(valid.F, problem.st.dt, d.tau, d.fmax)
         return residual(rva, model, theta, inp), simulate(problem, phys, structure, u)
 
     r, sim = signals()

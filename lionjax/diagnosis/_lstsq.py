@@ -42,7 +42,7 @@ import numpy as np
 from .._least_squares import gram_lstsq
 from .._models import AbstractModel
 from ..twin._windows import window_span, windowed_errors
-from ._filtering import MIN_PADDED, P_MAX, _capacity, _f, _i, edge_pad, padded_length
+from ._filtering import MIN_PADDED, P_MAX, _capacity, _f, _i, padded_length
 from ._regressors import Regressors, TooWide, columns_of
 from ._streaming import GridColumns, as_source
 
@@ -146,26 +146,6 @@ def physical_memory() -> int | None:
         return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
     except (AttributeError, OSError, ValueError):
         return None
-
-
-# ----------------------------------------------------------------------------- inputs
-
-
-def apply_input(F, dt, tau, fmax) -> np.ndarray:
-    """u = sat_Fmax(F(t − τ)) at the samples, for a force held between samples [N].
-
-    With τ = (n + φ)·dt the delayed held force averaged over each interval is
-    (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0]). F_max > 0: the hard clip;
-    F_max < 0 stands for the soft saturation |F_max|·tanh(F/|F_max|) (one profile grid holds
-    both shapes).
-    """
-    F = np.asarray(F, np.float64)
-    t = np.arange(F.size, dtype=np.float64)
-    Fd = np.interp(t - float(tau) / float(dt), t, F, left=F[0], right=F[-1])
-    m = abs(float(fmax))
-    if fmax < 0:
-        return m * np.tanh(Fd / m)
-    return np.clip(Fd, -m, m)
 
 
 # ----------------------------------------------------------------------------- least squares
@@ -382,7 +362,7 @@ def _simulate_segment(p, signals, dt, H: int, extra, t0: float, k0: int) -> np.n
     T = signals[0].size
     Tn = (T // H) * H
     Tp = padded_length(T)
-    args = [edge_pad(a, Tp) for a in signals]
+    args = [np.concatenate([a, np.full(Tp - T, a[-1])]) for a in signals]  # edge-padded
     pj = {k: _f(v) for k, v in p.items()}
     t = None
     if extra is not None:

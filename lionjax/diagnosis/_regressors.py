@@ -14,16 +14,7 @@ from .._filters import FilterBank
 from .._model_effects import LOCAL_F_MULTIPLIERS, MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
-from ._filtering import (
-    MODE_BUCKETS,
-    P_MAX,
-    Discrete,
-    _batches,
-    _f,
-    _mode_stages,
-    mode_free_responses,
-    padded_length,
-)
+from ._filtering import P_MAX, Discrete, _f, _mode_stages, mode_free_responses, padded_length
 from ._streaming import (
     ColumnSource,
     Filters,
@@ -42,6 +33,9 @@ class TooWide(ValueError):
     friction and a flexible mode) has 12 + 5."""
 
 
+#: Modes whose stages one call computes: the smallest bucket that holds them (one compiled
+#: program per bucket).
+MODE_BUCKETS = (1, 2, 4)
 #: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
 #: compiled program per bucket; most structures have F alone, or F and ξF).
 K_BUCKETS = (1, 2, 4)
@@ -451,14 +445,7 @@ class _DesignPass:
         self.stages = None
         if modes:
             inputs.setdefault("F", (rows(regs.F), 0.0))
-            (whole, _), *_ = _batches(np.asarray(modes, np.float64), MODE_BUCKETS[-1:])
-            b = next(b for b in MODE_BUCKETS if b >= len(modes))
-            st = _mode_stages(whole[:, 0], whole[:, 1], _f(regs.lam), _f(regs.dt))
-            zeta = np.concatenate(
-                [whole[: len(modes), 1], np.repeat(whole[-1:, 1], b - len(modes))]
-            )
-            stages = tuple(np.asarray(a)[:b] for a in st)
-            self.stages = ModeStages(stages, zeta, float(regs.lam), regs.chunk)
+            self.stages = _mode_stages_of(modes, regs.lam, regs.dt, regs.chunk)
         self.filters = Filters(regs.dsc, regs.T, regs.chunk, inputs, regs.outputs)
 
     def state(self):
@@ -531,21 +518,30 @@ class ModeProfileColumns(ColumnSource):
             {"x": (rows(regs.x), 1.0), "F": (rows(regs.F), 0.0)},
             regs.outputs,
         )
-        stages = []
-        for chunk, m in _batches(self.modes, MODE_BUCKETS):
-            b = len(chunk)
-            (whole, _), *_ = _batches(chunk, MODE_BUCKETS[-1:])
-            st = _mode_stages(whole[:, 0], whole[:, 1], _f(self.lam), _f(regs.dt))
-            st = tuple(np.asarray(a)[:b] for a in st)
-            stages.append((ModeStages(st, chunk[:, 1], self.lam, regs.chunk), m))
+        top = MODE_BUCKETS[-1]
+        stages = [
+            (_mode_stages_of(self.modes[i : i + top], self.lam, regs.dt, regs.chunk), i)
+            for i in range(0, len(self.modes), top)
+        ]
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
             cx, cF = [], []
-            for ms, m in stages:
+            for ms, i in stages:
                 a, b = ms.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
+                m = min(top, len(self.modes) - i)
                 cx.append(a[:m])
                 cF.append(b[:m])
             blk = np.empty((len(self.modes), 4, k1 - k0))
             blk[:, 0], blk[:, 1] = -np.concatenate(cx), np.concatenate(cF)
             blk[:, 2:] = mode_free_responses(self.modes, self.dt, k1, k0)
             yield blk
+
+
+def _mode_stages_of(modes, lam: float, dt: float, chunk: int) -> ModeStages:
+    """The stages of modes (ω, ζ) (m ≤ 4, 2), padded to a bucket of :data:`MODE_BUCKETS` by
+    repeating the last (computed for four, one compiled program)."""
+    modes = np.asarray(modes, np.float64).reshape(-1, 2)
+    full = np.concatenate([modes, np.repeat(modes[-1:], MODE_BUCKETS[-1] - len(modes), 0)])
+    b = next(b for b in MODE_BUCKETS if b >= len(modes))
+    st = _mode_stages(full[:, 0], full[:, 1], _f(lam), _f(dt))
+    return ModeStages(tuple(np.asarray(a)[:b] for a in st), full[:b, 1], float(lam), chunk)

@@ -1,18 +1,16 @@
 """The record in chunks: the diagnosis' filters with their states carried from chunk to chunk,
 and column sources whose products a chunked fit accumulates (:class:`~._regressors.Regressors`).
 
-A long record's filtered signals, designs and profile columns are never held whole: every
-product the fits read (Grams, cross products with a profile's columns, a validation residual's
-refitted part) is a sum over rows, so it is accumulated chunk by chunk of :data:`CHUNK` samples.
-Each chunk runs the same recursion as a whole record (:func:`~._filtering.filter_from`,
-:func:`~._filtering.mode_cascade_from`) from the state the previous chunk ended in; the first
-starts from the steady state before the record, as the whole-record filter does, and the
-hold correction of each chunk reads its neighbours' samples (:func:`window`). So a chunked pass
-gives the whole record's numbers, rounded differently in the last bits.
+Every product the fits read (Grams, cross products with a profile's columns, a validation
+residual's refitted part) is a sum over rows, so it is accumulated chunk by chunk: a long
+record's filtered signals are never held whole, and a short record is one chunk. Each chunk runs
+the recursion of :func:`~._filtering.filter_from` (and :func:`~._filtering.mode_cascade_from`)
+from the state the previous chunk ended in, the first from the steady state before the record;
+the hold correction reads the neighbouring chunks' samples (:func:`window`). The chunk length
+changes the numbers only in their last bits.
 
 Raw signals are functions of a row range, ``raw(k0, k1) -> (k1 − k0,)`` (:func:`rows` of a held
-array, or computed per chunk: a profile's sinusoids, an input map): a pass holds one chunk of
-each.
+array, or computed per chunk: a profile's sinusoids, an input map).
 """
 
 from __future__ import annotations
@@ -25,20 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._filters import FilterBank
-from ._filtering import (
-    LONG_BATCH,
-    Discrete,
-    _f,
-    _i,
-    _seed_discretes,
-    _zero_phase,
-    edge_pad,
-    filter_from,
-    mode_cascade_from,
-    padded_length,
-    seed_design,
-    seed_mode,
-)
+from ._filtering import Discrete, _seed_discretes, filter_from, mode_cascade_from, padded_length
 
 #: Samples per chunk of a streamed pass. A chunk of 32 signals holds (32, 2¹⁶, 4) float64
 #: outputs (67 MB); the passes' cost per sample does not depend on it above a few 10⁴.
@@ -92,10 +77,17 @@ def window(raw: Raw, k0: int, T: int, C: int) -> np.ndarray:
 
 
 def _held(w, foh, first):
-    """(u (C,), u held (C,), its steps (C,)) of a :func:`window` ``w`` (C + 3,), as
-    :func:`~._filtering._filt` forms them on the whole record: u − foh·Δ²u/12
-    (:func:`~._filtering.hold_corrected`; with ``first``, the record's first chunk, Δ² of the
-    first sample is the second's) and foh·(next held − held)."""
+    """(u (C,), u held (C,), its steps (C,)) of a :func:`window` ``w`` (C + 3,): the held
+    samples uₖ − foh·Δ²uₖ/12 (Δ²uₖ = uₖ₊₁ − 2uₖ + uₖ₋₁; on the record's ``first`` chunk the
+    first sample's Δ² is the second's) and their steps foh·(next held − held).
+
+    ``foh`` 1.0: a smooth signal under a first-order hold; 0.0: a zero-order-held input (F),
+    unchanged. Between samples a smooth u(t) differs from its linear interpolant by
+    ½ü(t − tₖ)(t − tₖ₊₁), of mean −h²ü/12 over the interval: a low-pass filter sees the
+    interpolant as u − (h²/12)ü, an equation error ∝ (ωh)²/12 that at a few hundred Hz exceeds
+    an encoder's noise and looks like a flexible mode. Subtracting Δ²u/12 ≈ h²ü/12 leaves
+    O(h⁴) (Simpson's rule against the trapezoid). The last sample's Δ² sees the padding (its own
+    value repeated): one row, off by up to Δx/12."""
     d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]  # Δ² at k0 … k0 + C
     d2 = d2.at[0].set(jnp.where(first, d2[1], d2[0]))
     h = w[1:-1] - foh * d2 / 12.0
@@ -141,11 +133,10 @@ class Filters:
     """Signals filtered chunk by chunk through one bank, their states carried
     (:func:`~._filtering.filter_from`); :meth:`step` filters the next chunk of every signal.
 
-    ``inputs``: {name: (raw, foh)}, ``foh`` 1.0 (first-order hold of the hold-corrected
-    samples) or 0.0 (zero-order hold). The first chunk starts from the steady state of its
-    first (held) sample, as the whole-record filter does. ``kept``: where given (a record of
-    one chunk), the outputs {name: (4, T)} already filtered, read instead of filtered again,
-    and where each new one is kept (a signal's name stands for its samples)."""
+    ``inputs``: {name: (raw, foh)}, ``foh`` as :func:`_held` takes it. The first chunk starts
+    from the steady state of its first held sample. ``kept``: where given (a record of one
+    chunk), the outputs {name: (4, T)} already filtered, read instead of filtered again, and
+    where each new one is kept (a signal's name stands for its samples)."""
 
     def __init__(
         self,
@@ -284,11 +275,14 @@ class FreeRows:
         return self.row[: k1 - k0] @ P
 
 
-def input_map(F: np.ndarray, dt: float, tau: float, fmax: float, k0: int, k1: int) -> np.ndarray:
-    """Rows [k0, k1) of u = sat_Fmax(F(t − τ)) (:func:`~._lstsq.apply_input`'s formula: τ/dt =
-    n + φ, F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1], F before the record = F[0]; F_max < 0
-    the soft saturation)."""
+def input_map(F, dt: float, tau: float, fmax: float, k0: int = 0, k1: int | None = None):
+    """Rows [k0, k1) (default all) of u = sat_Fmax(F(t − τ)) [N] for a force F held between
+    samples: with τ = (n + φ)·dt the delayed force averaged over each interval is
+    F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0]). F_max > 0 the hard
+    clip; F_max < 0 the soft saturation |F_max|·tanh(F/|F_max|) (one grid holds both)."""
+    F = np.asarray(F, np.float64)
     T = F.shape[0]
+    k1 = T if k1 is None else k1
     s = tau / dt
     n = np.floor(s)
     phi = s - n
@@ -396,52 +390,70 @@ def mode_seed(x, F, dt: float, lam: float, chunk: int):
         V, z = np.swapaxes(np.asarray(V, np.float64), 1, 2)[:, :c], np.asarray(z)
         lo = max(n0 - k0, 0)
         if lo < c:
-            A, y = seed_design(V[0, lo:], V[1, lo:])
-            B = np.concatenate([A, y[:, None]], 1)
+            X, Fv = V[0, lo:], V[1, lo:]  # x's s¹…s⁴, F's s⁰…s³
+            B = np.stack([-X[:, 2], -X[:, 1], -X[:, 0], Fv[:, 2], Fv[:, 1], Fv[:, 0], X[:, 3]], 1)
             M += B.T @ B
     N = T - n0
     scale = np.maximum(np.sqrt(np.diag(M)[:6] / N), 1e-300)
     G = M[:6, :6] / np.outer(scale, scale)
-    c = np.linalg.lstsq(G, M[:6, 6] / scale, rcond=None)[0] / scale
-    return seed_mode(c)
+    c1, c2, c3, _, c5, c6 = np.linalg.lstsq(G, M[:6, 6] / scale, rcond=None)[0] / scale
+    with np.errstate(all="ignore"):
+        r = c5 / c6
+        W = c3 / (c1 + r * r * c3 - r * c2)
+        zeta = r * math.sqrt(W) / 2 if W > 0 else math.nan
+    if not (math.isfinite(W) and W > 0 and math.isfinite(zeta) and zeta > 0):
+        return None
+    return math.sqrt(W), zeta
 
 
-def zero_phase_chunked(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CHUNK):
-    """:func:`zero_phase` of a long record chunk by chunk: V₁ of the record
-    filtered forwards, then of that filtered backwards (both under the first-order hold of the
-    hold-corrected samples, from steady states), then central differences (one-sided at the
-    ends); (x smoothed, v̂) (T,) each."""
-    T = x.size
-    fwd = np.empty(T)
-    f = Filters(dsc, T, chunk, {0: (rows(x), 1.0)})
-    for k0, k1 in spans(T, chunk):
-        fwd[k0:k1] = f.step(k0, k1)[0][0]
-    rev = fwd[::-1]
-    sm = np.empty(T)
-    b = Filters(dsc, T, chunk, {0: (rows(rev), 1.0)})
-    for k0, k1 in spans(T, chunk):
-        sm[k0:k1] = b.step(k0, k1)[0][0]
-    sm = sm[::-1].copy()
-    g = np.empty(T)
+def filtered(dsc: Discrete, u, foh: float, chunk: int | None = None) -> np.ndarray:
+    """(4, T) outputs V₁…V₄ of one signal u (T,) under the hold ``foh`` (:func:`_held`), read
+    in chunks of ``chunk`` samples (default :func:`chunk_length`)."""
+    T = np.size(u)
+    chunk = chunk or chunk_length(T)
+    f = Filters(dsc, T, chunk, {0: (rows(u), foh)})
+    return np.concatenate([f.step(k0, k1)[0] for k0, k1 in spans(T, chunk)], 1)
+
+
+def zero_phase(x, dt: float, omega: float, chunk: int | None = None):
+    """(x smoothed, v̂) (T,) each: x forwards, then backwards through (ω/(s + ω))³ (unit DC
+    gain, the first-order hold of :func:`_held`), then central differences (one-sided at the
+    ends), as :func:`lionjax._model_effects.zero_phase_velocity`; in chunks of ``chunk``."""
+    bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
+    dsc = Discrete.of(bank, dt)
+    fwd = filtered(dsc, np.asarray(x, np.float64), 1.0, chunk)[0]
+    sm = filtered(dsc, fwd[::-1], 1.0, chunk)[0][::-1].copy()
+    g = np.empty(sm.size)
     g[1:-1] = (sm[2:] - sm[:-2]) / (2 * dt)
     g[0] = (sm[1] - sm[0]) / dt
     g[-1] = (sm[-1] - sm[-2]) / dt
     return sm, g
 
 
-def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
-    """(x smoothed, v̂) of :func:`lionjax._model_effects.zero_phase_lowpass` /
-    ``zero_phase_velocity`` (forward and backward through (ω/(s + ω))³, then central
-    differences), on bucketed shapes."""
-    x = np.asarray(x, np.float64)
-    T = x.size
-    Tp = padded_length(T)
-    bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
+def mode_filtered(u, foh: float, dt: float, omega: float, zeta: float) -> np.ndarray:
+    """h = (s²/D)[u] (T,), D = s² + 2ζωs + ω² (ω [rad/s]), under the hold ``foh``: V₄ + ωV₃ of
+    the bank (s + ω)·D, exactly."""
+    w, z = float(omega), float(zeta)
+    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
+    bank = FilterBank.from_poles(np.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
+    V = filtered(Discrete.of(bank, dt), u, foh)
+    return V[3] + w * V[2]
+
+
+def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
+    """Σh² of ε₁'s response to unit white noise on x (foh) and on b·F (zoh).
+
+    ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F] (unit-DC-gain bank), so a noise σ_x on x and σ_F on F add
+    σ_x²·Σh_x² + b²σ_F²·Σh_F² to the variance of ε₁ (the noise floor).
+    """
+    c = np.asarray(bank.coeffs)
+    T = int(round(float(20 * c[-2] / c[-1] / dt))) + 64
+    d = np.zeros(T)
+    d[1] = 1.0
     dsc = Discrete.of(bank, dt)
-    if Tp > LONG_BATCH:  # a long record: filtered chunk by chunk, forwards then backwards
-        return zero_phase_chunked(dsc, x, dt)
-    sm, g = _zero_phase(dsc, edge_pad(x, Tp), _i(T), _f(dt))
-    return np.asarray(sm)[:T], np.asarray(g)[:T]
+    Vx, VF = filtered(dsc, d, 1.0), filtered(dsc, d, 0.0)
+    hx = Vx[2] + a * Vx[1]
+    return float(np.sum(hx * hx)), float(np.sum(VF[0] * VF[0]))
 
 
 class GridColumns(ColumnSource):
