@@ -454,7 +454,7 @@ def test_mode_columns_against_scipy(fs, f_filter, f_mode, zeta, chunk):
     w, z, lam = 2 * np.pi * f_mode, zeta, 2 * np.pi * f_filter
     regs = _regressors(x, F, dt, f_filter, chunk)
     assert regs.whole == (chunk is None)
-    blk = np.concatenate(list(regs.blocks(ModeProfileColumns([(w, z)], lam, dt))), -1)
+    blk = np.concatenate(list(ModeProfileColumns([(w, z)], lam, dt).blocks(regs)), -1)
     cx, cF = -blk[0, 0], blk[0, 1]  # the profile's columns carry ε₁'s signs: −x's, +F's
     den = np.polymul(np.poly([-lam] * 3), [1.0, 2 * z * w, w * w])
     xc = _hold_corrected(x)

@@ -121,17 +121,12 @@ def mode_free_responses(modes, dt: float, T: int, k0: int = 0) -> np.ndarray:
 
 
 @jax.jit
-def _seed_discretes(lam, dt) -> Discrete:
-    """Two exact sampled filters of Λ₅ = (s + λ)⁵ (a batch, leading axis): outputs
-    λ⁵s^k/Λ₅ for k = 1…4 (x's) and k = 0…3 (F's), for :func:`~._streaming.mode_seed`."""
-    p = jnp.full((5,), -lam + 0j)
-    bank = FilterBank.from_poles(p)
+def seed_discrete(lam, dt) -> Discrete:
+    """The exact sampled filter of Λ₅ = (s + λ)⁵ with the five outputs λ⁵sᵏ/Λ₅, k = 0 … 4."""
+    bank = FilterBank.from_poles(jnp.full((5,), -lam + 0j))
     Phi, G0, G1 = bank.discretise(dt)
     c = bank.coeffs
-    eye = jnp.eye(5, dtype=c.dtype) * lam**5
-    D = jnp.zeros((4,), c.dtype)
-    one = lambda rows: Discrete(Phi, G0, G1, eye[rows], D, c[-1])
-    return jax.tree.map(lambda *a: jnp.stack(a), one(jnp.arange(1, 5)), one(jnp.arange(4)))
+    return Discrete(Phi, G0, G1, jnp.eye(5, dtype=c.dtype) * lam**5, jnp.zeros(5, c.dtype), c[-1])
 
 
 def _mode_stage(omega, zeta, lam, dt, drive: int):

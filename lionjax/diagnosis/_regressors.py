@@ -1,6 +1,5 @@
 """ε₁ regressors of one record (:class:`Regressors`): the fits' statistics accumulated chunk by
-chunk (:mod:`._streaming`). A record of one chunk keeps what it filtered (its signals' outputs,
-its structures' designs): a short record is a long one in a single chunk, plus a cache."""
+chunk (:mod:`._streaming`). A short record is a long one in a single chunk, plus a cache."""
 
 from __future__ import annotations
 
@@ -14,13 +13,14 @@ from .._filters import FilterBank
 from .._model_effects import LOCAL_F_MULTIPLIERS, MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
-from ._filtering import P_MAX, Discrete, _f, _mode_stages, mode_free_responses, padded_length
+from ._filtering import P_MAX, Discrete, _f, _mode_stages, mode_free_responses
 from ._streaming import (
     ColumnSource,
     Filters,
     FreeRows,
     ModeStages,
     chunk_length,
+    filtered,
     rows,
     scaled,
     spans,
@@ -33,11 +33,9 @@ class TooWide(ValueError):
     friction and a flexible mode) has 12 + 5."""
 
 
-#: Modes whose stages one call computes: the smallest bucket that holds them (one compiled
-#: program per bucket).
+#: Modes whose stages one call computes, and slots for a structure's F-dependent signals (most
+#: have F alone, or F and ξF): the smallest bucket that holds them, one program per bucket.
 MODE_BUCKETS = (1, 2, 4)
-#: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
-#: compiled program per bucket; most structures have F alone, or F and ξF).
 K_BUCKETS = (1, 2, 4)
 K_MAX = K_BUCKETS[-1]
 
@@ -50,8 +48,7 @@ F_DEP = {"F": None} | {
 
 
 def f_dependent(signal: str) -> bool:
-    """Whether ``signal`` is (a function of x) × F (:data:`F_DEP`, or a localized position's,
-    :data:`~lionjax._model_effects.LOCAL_F_MULTIPLIERS`)."""
+    """Whether ``signal`` is (a function of x) × F (:data:`F_DEP`, or a localized position's)."""
     return signal in F_DEP or signal.startswith(tuple(LOCAL_F_MULTIPLIERS))
 
 
@@ -75,8 +72,7 @@ class _Plan(NamedTuple):
 _PER_STRUCTURE = ("plan", "gram", "design", "width")
 
 #: (model, its columns, its key) by id(model): the fits ask a structure for its columns many
-#: times (a profile grid, a plan, a design, a Gram), and building them costs ~0.5 ms (each
-#: column an equinox Module). Holding the model keeps its id from being reused; bounded.
+#: times, at ~0.5 ms each (equinox Modules). Holding the model keeps its id from being reused.
 _COLUMNS: dict[int, tuple] = {}
 
 
@@ -103,10 +99,9 @@ def model_key(model) -> tuple:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class RecordSignals:
-    """A record as the diagnosis' effects read it (their ``signals(rs)``): ``x`` [m] and ``F``
-    [N] in float64, the zero-phase velocity ``v`` [m/s], ``dt`` and ``t0`` [s], the chunk the
-    record is read in, and a ``memo`` of costly raw signals (Dahl's states) shared by the
-    record's regressors."""
+    """A record as the effects' ``signals(rs)`` read it: ``x`` [m], ``F`` [N] in float64, the
+    zero-phase velocity ``v`` [m/s] (every friction column reads the same v̂), the chunk it is
+    read in, and a ``memo`` of costly raw signals (Dahl's states) its regressors share."""
 
     record: Record
     x: np.ndarray
@@ -129,25 +124,16 @@ class RecordSignals:
 
 
 class Regressors:
-    """ε₁ regressors of :class:`~lionjax.Augmented` structures on one record, built from the
-    models' own :meth:`columns` and the signals of :meth:`signals`, every product the fits read
-    (Grams, cross products with a profile's columns, a validation residual's refitted part)
-    accumulated over chunks of ``chunk`` samples (default :func:`~._streaming.chunk_length`).
+    """ε₁ regressors of :class:`~lionjax.Augmented` structures on one record, from the models'
+    :meth:`columns` and their effects' ``signals`` on :class:`RecordSignals`; every product the
+    fits read accumulated over chunks of ``chunk`` samples. A record of one chunk
+    (:attr:`whole`) keeps its filtered signals by name and its structures' designs.
 
-    The effects' raw signals come from their ``signals`` on the record as the diagnosis reads
-    it (:class:`RecordSignals`: with its zero-phase velocity v̂, so that every friction column
-    reads the same v̂).
-
-    ``force_mask``: optional (T,) weights m ∈ {0, 1} of the forces: while the axis sticks
-    (m = 0) static friction balances every force on it, ẍ + aẋ = 0 there, and each force
-    column (order 0: the input u, an offset, a spring, friction) is built from m·(signal).
-
-    The input u = sat_Fmax(F(t − τ)) replaces F in every F-dependent signal (``"F"`` and the
-    position-dependent ``ξ·F``); those columns are built per input map
-    (:class:`~._streaming.GridColumns`).
-
-    A record of one chunk (:attr:`whole`) keeps its signals' filtered outputs by name and its
-    structures' designs: the same numbers, computed once.
+    ``force_mask``: optional (T,) weights m ∈ {0, 1}: while the axis sticks (m = 0) static
+    friction balances every force on it, ẍ + aẋ = 0 there, and each force column (order 0: the
+    input, an offset, a spring, friction) is built from m·(signal). The input map
+    u = sat_Fmax(F(t − τ)) replaces F in every F-dependent signal (F, ξ·F), whose columns are
+    built per input map (:class:`~._streaming.GridColumns`).
     """
 
     def __init__(
@@ -158,39 +144,32 @@ class Regressors:
         chunk: int | None = None,
         lam: float | None = None,
     ):
-        self.rs, self.record, self.bank = rs, rs.record, bank
+        self.rs, self.record = rs, rs.record
         self.force_mask = None if force_mask is None else np.asarray(force_mask, np.float64)
         self.T = rs.n_samples
-        self.Tp = padded_length(self.T)
         self.dt = float(rs.dt)
         self.dsc = Discrete.of(bank, self.dt)
         self.x, self.F = rs.x, rs.F
         self.cache: dict = {}
-        #: raw signals {name: (samples (T,) or a raw signal of rows, hold)}, from the effects'
-        #: ``signals`` on :attr:`rs`, kept
+        #: raw signals {name: (samples (T,) or a raw signal, hold)}, kept
         self.known: dict = {}
         #: signals whose columns are computed, not filtered: {name: (ω, ζ, "x" | "F")} of the
-        #: flexible modes' exact columns (an effect's signal of hold ``"mode"``)
+        #: flexible modes' columns (an effect's signal of hold ``"mode"``)
         self.derived: dict[str, tuple[float, float, str]] = {}
         self.lam = lam
         self.chunk = int(chunk or chunk_length(self.T))
         self.spans = spans(self.T, self.chunk)
         self.free = FreeRows(self.dsc, self.chunk)
-        self.n_bank = int(np.asarray(self.dsc.Phi).shape[0])
         #: filtered outputs {name: (4, T)} of a record of one chunk (None: not kept)
         self.outputs: dict | None = {} if self.whole else None
 
     @property
     def whole(self) -> bool:
-        """Whether the record is one chunk (then its filtered signals and designs are kept)."""
         return len(self.spans) == 1
 
-    # ------------------------------------------------------------------ structures
-
     def drop(self, names) -> None:
-        """Forget raw and filtered signals ``names`` and every cached plan, design and Gram
-        that uses them (profiled columns: one structure per grid point would otherwise stay in
-        memory)."""
+        """Forget signals ``names`` and every cached plan, design and Gram that uses them (a
+        profile's grid point's, which would otherwise stay in memory)."""
         names = set(names)
         for n in names:
             self.known.pop(n, None)
@@ -208,18 +187,18 @@ class Regressors:
         return self.cache[key]
 
     def width(self, model: AbstractModel) -> int:
-        """The structure's columns and its initial-state columns (the filter's free response
-        and each effect's own, a flexible mode's): the slots of the design it fills."""
+        """The design slots the structure fills: its columns and its initial-state columns (the
+        filter's free response and each effect's own, a flexible mode's)."""
 
         def make():
             extra = self._extra_free(model, 0, 1)
-            return len(columns_of(model)) + self.n_bank + sum(np.shape(r)[1] for r in extra)
+            n_bank = np.shape(self.dsc.Phi)[0]
+            return len(columns_of(model)) + n_bank + sum(np.shape(r)[1] for r in extra)
 
         return self._cached(("width", model_key(model)), make)
 
     def plan(self, model: AbstractModel) -> _Plan:
-        """The structure's slots in the design (:class:`_Plan`; small, cached per structure):
-        its column count and its F-dependent columns' signals, slots and signs."""
+        """The structure's slots in the design (:class:`_Plan`), cached per structure."""
 
         def make():
             cols = columns_of(model)
@@ -245,9 +224,8 @@ class Regressors:
         return self._cached(("plan", model_key(model)), make)
 
     def _raw(self, model: AbstractModel, names: Sequence[str]) -> dict:
-        """Raw signals ``names``: kept, else the owning effect's ``signals`` on the record
-        (:class:`RecordSignals`), then kept; a signal of hold ``"mode"`` (a flexible mode's
-        column) is registered in :attr:`derived` instead. {name: (raw, hold)} of the others."""
+        """{name: (raw, hold)} of signals ``names``: kept, else the owning effect's ``signals``
+        on the record, then kept; a signal of hold ``"mode"`` goes to :attr:`derived` instead."""
         missing = {n for n in names if n not in self.known and n not in self.derived}
         for e in model.effects:
             own = {c.signal for c in e.columns()} & missing
@@ -262,8 +240,8 @@ class Regressors:
         return {n: self.known.get(n, (None, None)) for n in names if n not in self.derived}
 
     def _multiplier(self, model, signal: str):
-        """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the signals of the
-        effect that owns it on a record with F = 1 (then kept in ``known``)."""
+        """g(x) of an F-dependent signal g(x)·F: kept, else the owning effect's signal on a
+        record with F = 1."""
         name = f_multiplier(signal)
         if name not in self.known:
             ones = Record(self.record.x, np.ones(np.shape(self.record.x)), self.record.dt)
@@ -299,23 +277,17 @@ class Regressors:
         N = self.free(k0, k1)
         return np.concatenate([N, *extra], 1) if extra else N
 
-    # ------------------------------------------------------------------ passes over the record
-
     def mean_square(self, u, hold: str, order: int) -> float:
-        """The mean over the record of the square of output ``order`` (V₁…V₄) of the raw
-        signal ``u`` (T,) under ``hold``."""
-        filt = Filters(self.dsc, self.T, self.chunk, {0: (rows(u), 1.0 if hold == "foh" else 0.0)})
-        return (
-            sum(float(np.sum(filt.step(k0, k1)[0][order] ** 2)) for k0, k1 in self.spans) / self.T
-        )
+        """The mean square of output ``order`` (V₁…V₄) of ``u`` (T,) under ``hold``."""
+        V = filtered(self.dsc, u, 1.0 if hold == "foh" else 0.0, self.chunk, (order,))[0]
+        return float(np.sum(V**2)) / self.T
 
     def design_pass(self, model, grid: bool = False) -> _DesignPass:
         return _DesignPass(self, model, grid)
 
     def design_blocks(self, model, grid: bool = False) -> Iterator[np.ndarray]:
-        """[W | ε₁'s x column] (c, P_MAX + 1) of each chunk: W the design with u = F, or with
-        ``grid`` its fixed columns only (the F-dependent slots 0, filled per input map); the
-        unused slots 0. A record of one chunk keeps each structure's."""
+        """[W | ε₁'s x column] (c, P_MAX + 1) of each chunk, the unused slots 0: W the design
+        with u = F, or with ``grid`` its fixed columns only (the F-dependent slots 0)."""
         if self.whole:
             key = ("design", model_key(model), grid)
             if key not in self.cache:
@@ -327,11 +299,10 @@ class Regressors:
             yield d.block(k0, k1)
 
     def design_gram(self, model, *, grid: bool = False, n_free: int = 0) -> np.ndarray:
-        """G = AᵀA of the design (P_MAX + 1)² plus a unit diagonal in the unused slots (the Gram
-        of unit columns outside the record: the solver's system keeps one size, and the unused
-        coefficients come out 0), except the ``n_free`` slots after the structure's columns,
-        left 0 for :func:`~._lstsq.rss_with_columns` to fill. Cached per structure (it is small):
-        the τ and F_max profiles and the flexible mode's (ω, ζ) profile reuse it."""
+        """G = AᵀA (P_MAX + 1)² of the design plus a unit diagonal in the unused slots (unit
+        columns outside the record: one system size, the unused coefficients 0), except the
+        ``n_free`` slots after the structure's, left 0 for :func:`~._lstsq.rss_with_columns`.
+        Cached per structure: the profiles reuse it."""
 
         def make():
             G = np.zeros((P_MAX + 1, P_MAX + 1))
@@ -346,28 +317,21 @@ class Regressors:
         G[pads, pads] += 1.0
         return G
 
-    def blocks(self, source: ColumnSource) -> Iterator[np.ndarray]:
-        """The (m, K, c) blocks of a profile's columns, chunk by chunk (a record of one chunk:
-        the source's one block, which the source may keep)."""
-        if self.whole:
-            yield source.full(self)
-        else:
-            yield from source.blocks(self)
-
     def cross(self, model, source: ColumnSource, grid: bool = False):
         """(C = VᵀA (m, K, P_MAX + 1), D = VᵀV (m, K, K)) of the structure's design A and the
         columns V of ``source``, accumulated over chunks."""
         C = D = None
-        for A, V in zip(self.design_blocks(model, grid), self.blocks(source), strict=True):
-            c, d = _cross_blocks(A, V)
+        for A, V in zip(self.design_blocks(model, grid), source.blocks(self), strict=True):
+            m, K, T = V.shape
+            # one product for the batch (A read once; a batched V @ A multiplies m thin blocks)
+            c = (V.reshape(m * K, T) @ A).reshape(m, K, -1)
+            d = V @ np.swapaxes(V, 1, 2)
             C, D = (c, d) if C is None else (C + c, D + d)
         return C, D
 
     def added_columns(self, model, base):
-        """A :class:`~._streaming.ColumnSource` of the columns ``model`` adds to ``base``, for
-        :func:`~._lstsq.rss_with_columns` on ``base``; None where it adds more than columns of
-        its own signals (an F-dependent column, initial-state columns) or lacks one of
-        ``base``'s."""
+        """The columns ``model`` adds to ``base`` (a :class:`DesignColumns`), or None where it
+        adds more than columns of its own signals or lacks one of ``base``'s."""
         have = set(model_key(base))
         keys = model_key(model)
         js = [j for j, k in enumerate(keys) if k not in have]
@@ -381,27 +345,11 @@ class Regressors:
         return DesignColumns(model, js)
 
 
-def _cross_blocks(A: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(VᵀA (m, K, P + 1), VᵀV (m, K, K)) of a design A (T, P + 1) and columns V (m, K, T)."""
-    m, K, T = V.shape
-    # one product for the whole batch (A read once; a batched V @ A multiplies m thin blocks)
-    C = (V.reshape(m * K, T) @ A).reshape(m, K, -1)  # (m, K, P + 1)
-    D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
-    return C, D
-
-
 class DesignColumns(ColumnSource):
     """Columns ``js`` of a structure's design (u = F), one point (1, K, ·)."""
 
     def __init__(self, model, js):
         self.model, self.js = model, list(js)
-
-    def shape(self, regs) -> tuple[int, int]:
-        return 1, len(self.js)
-
-    def full(self, regs: Regressors) -> np.ndarray:
-        (A,) = regs.design_blocks(self.model)
-        return A[:, self.js].T[None]
 
     def blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
         for A in regs.design_blocks(self.model):
@@ -409,9 +357,8 @@ class DesignColumns(ColumnSource):
 
 
 class _DesignPass:
-    """A structure's design chunk by chunk (:meth:`Regressors.design_blocks`), its filters' and
-    mode stages' states held between chunks; :meth:`state` and :meth:`restore` let a pass
-    revisit chunks (the periodic screen reads them backwards)."""
+    """A structure's design chunk by chunk, its filters' and mode stages' states carried;
+    :meth:`state` and :meth:`restore` let a pass revisit chunks."""
 
     def __init__(self, regs: Regressors, model, grid: bool):
         self.regs, self.model, self.grid = regs, model, grid
@@ -492,23 +439,19 @@ class ModeProfileColumns(ColumnSource):
         self._full: dict = {}
 
     def select(self, keep) -> ModeProfileColumns:
-        """The same modes' columns ``keep`` (sharing what :meth:`full` computed)."""
+        """The same modes' columns ``keep`` (sharing a record of one chunk's block)."""
         out = ModeProfileColumns(self.modes, self.lam, self.dt, keep)
         out._full = self._full
         return out
 
-    def shape(self, regs) -> tuple[int, int]:
-        return len(self.modes), len(np.arange(4)[self.keep])
-
-    def full(self, regs: Regressors) -> np.ndarray:
-        if id(regs) not in self._full:
-            (blk,) = self._blocks(regs)
-            self._full[id(regs)] = (regs, blk)
-        return self._full[id(regs)][1][:, self.keep]
-
     def blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
-        for blk in self._blocks(regs):
-            yield blk[:, self.keep]
+        if not regs.whole:
+            for blk in self._blocks(regs):
+                yield blk[:, self.keep]
+            return
+        if id(regs) not in self._full:
+            self._full[id(regs)] = (regs, next(self._blocks(regs)))
+        yield self._full[id(regs)][1][:, self.keep]
 
     def _blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
         filt = Filters(

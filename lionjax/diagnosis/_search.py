@@ -1,17 +1,7 @@
-"""Searches over a candidate's nonlinear parameters: typed Modules, each minimising a host
-function of its points (a residual sum of squares) in the pattern of optimistix's minimisers
+"""Searches over a candidate's nonlinear parameters: typed Modules minimising a host function
+of their points (a residual sum of squares), in the pattern of optimistix's minimisers
 (``GoldenSearch``, ``BestSoFarMinimiser``): the search is a value, the function its argument.
-
-- :class:`GridSearch`: the best of a grid's points (the function takes a batch of points);
-- :class:`ParabolaStep`: the vertex of the parabola through a grid's best point and its
-  neighbours (optionally in the logarithm of the parameter);
-- :class:`GoldenSection`: golden-section steps between the best point's neighbours;
-- :class:`PatternSearch`: a compass search in two parameters, halving its steps where no
-  neighbour is better;
-- :func:`best_so_far`: the best of several searches' results.
-
-Every function here is evaluated on batches of points (a batch is one pass over the record)
-and returns one value per point.
+Functions take a batch of points (one pass over the record) and return one value per point.
 """
 
 from __future__ import annotations
@@ -81,8 +71,7 @@ class ParabolaStep(eqx.Module):
 
 class GoldenSection(eqx.Module):
     """``steps`` golden-section steps of a scalar function between ``lo`` and ``hi`` (the bracket
-    shrinks by 0.618 per step): (the best point seen, its value), starting from ``best`` with the
-    value ``best_value``."""
+    shrinks by 0.618 per step): (the best point seen, its value), from ``best``, ``best_value``."""
 
     steps: int = 16
 

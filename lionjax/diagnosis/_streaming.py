@@ -23,13 +23,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._filters import FilterBank
-from ._filtering import Discrete, _seed_discretes, filter_from, mode_cascade_from, padded_length
+from ._filtering import Discrete, filter_from, mode_cascade_from, padded_length, seed_discrete
 
-#: Samples per chunk of a streamed pass. A chunk of 32 signals holds (32, 2¹⁶, 4) float64
-#: outputs (67 MB); the passes' cost per sample does not depend on it above a few 10⁴.
+#: Samples per chunk of a long record: 32 signals' outputs take 67 MB, and the cost per sample
+#: does not depend on it above a few 10⁴.
 CHUNK = 1 << 16
-#: Signals filtered per call of a chunk's filter (the smallest that holds them; one program per
-#: batch and chunk length).
+#: Signals filtered per call (the smallest batch that holds them; one program per batch).
 BATCHES = (1, 2, 4, 8, 16, 32)
 
 Raw = Callable[[int, int], np.ndarray]
@@ -44,8 +43,7 @@ def rows(a) -> Raw:
 
 
 def scaled(m, raw: Raw) -> Raw:
-    """``m·raw`` for a multiplier ``m`` (a force mask, a position's multiplier), held (T,) or
-    a raw signal."""
+    """``m·raw`` for a multiplier ``m`` (a force mask, a position's), held (T,) or raw."""
     m = rows(m)
     return lambda k0, k1: m(k0, k1) * raw(k0, k1)
 
@@ -56,16 +54,15 @@ def spans(T: int, chunk: int) -> list[tuple[int, int]]:
 
 
 def chunk_length(T: int) -> int:
-    """The chunk of a record of ``T`` samples: :data:`CHUNK`, or the record's own padded length
-    where that is shorter (a short record is one chunk, on the in-memory path's bucket)."""
+    """The chunk of a record of ``T`` samples: :data:`CHUNK`, or the record's padded length
+    where that is shorter (a short record is one chunk)."""
     return min(CHUNK, padded_length(T))
 
 
 def window(raw: Raw, k0: int, T: int, C: int) -> np.ndarray:
     """u[k0 − 1 … k0 + C + 1] (C + 3,) of a signal of ``T`` samples: the rows a chunk of ``C``
-    samples from ``k0`` reads for its hold correction; samples beyond the record repeat its last
-    (the whole record's edge padding), and u[−1] is a stand-in (:func:`_held` replaces its
-    Δ²)."""
+    samples from ``k0`` reads for its hold correction; beyond the record its last sample
+    repeated, u[−1] a stand-in (:func:`_held` replaces its Δ²)."""
     lo, hi = max(k0 - 1, 0), min(k0 + C + 2, T)
     w = np.asarray(raw(lo, hi), np.float64)
     off = 1 if k0 == 0 else 0
@@ -95,7 +92,7 @@ def _held(w, foh, first):
 
 
 def _window_filter(dsc: Discrete, w, foh, first, z):
-    """(outputs (4, C), end state (n,)) of one signal's :func:`window` ``w`` held and filtered
+    """(outputs (r, C), end state (n,)) of one signal's :func:`window` ``w`` held and filtered
     from the state ``z``, or with ``first`` from the steady state of its first held sample."""
     u_at, h, du = _held(w, foh, first)
     z = jnp.where(first, jnp.zeros_like(z).at[0].set(h[0] / dsc.c_last), z)
@@ -105,15 +102,8 @@ def _window_filter(dsc: Discrete, w, foh, first, z):
 
 @jax.jit
 def _filter_window(dsc: Discrete, W, foh, first, z0):
-    """:func:`_window_filter` of signals W (B, C + 3) through one filter: (B, 4, C), (B, n)."""
+    """:func:`_window_filter` of signals W (B, C + 3) through one filter: (B, r, C), (B, n)."""
     return jax.vmap(_window_filter, in_axes=(None, 0, 0, None, 0))(dsc, W, foh, first, z0)
-
-
-@jax.jit
-def _systems_window(dsc: Discrete, W, foh, first, z0):
-    """:func:`_window_filter` of signals W (B, C + 3), each through its own filter (a batch of
-    :class:`~._filtering.Discrete`)."""
-    return jax.vmap(_window_filter, in_axes=(0, 0, 0, None, 0))(dsc, W, foh, first, z0)
 
 
 @jax.jit
@@ -153,9 +143,7 @@ class Filters:
         self.z: np.ndarray | None = None  # (S, n) states before the next chunk
 
     def step(self, k0: int, k1: int) -> dict:
-        """{name: (4, c) outputs V₁…V₄} of rows [k0, k1), in order (one compiled call per
-        batch of :data:`BATCHES`: each signal's window u[k0 − 1 … k0 + chunk + 1] held and
-        filtered inside it, :func:`_filter_window`)."""
+        """{name: (r, c) outputs (V₁…V₄ of the diagnosis' bank)} of rows [k0, k1), in order."""
         kept = {} if self.kept is None else self.kept
         todo = [n for n in self.names if n not in kept]
         out = {}
@@ -168,14 +156,13 @@ class Filters:
         return {n: out[n] if n in out else kept[n] for n in self.names}
 
     def step_windows(self, W: np.ndarray, foh: np.ndarray, c: int, front: int = 0) -> np.ndarray:
-        """(S, 4, c) outputs of the next chunk from the signals' windows W (S, chunk + 3)
-        (:func:`window`), its c samples from ``front`` on; the states carried (after a short
-        last chunk they are never read)."""
+        """(S, r, c) outputs of the next chunk from the signals' windows W (S, chunk + 3), its c
+        samples from ``front`` on, in batches of :data:`BATCHES`; the states carried."""
         S = W.shape[0]
         n = np.asarray(self.dsc.Phi).shape[0]
         first = self.z is None
         z = np.zeros((S, n)) if first else self.z
-        V = np.empty((S, 4, c))
+        V = np.empty((S, np.shape(self.dsc.C)[0], c))
         z_next = np.empty_like(z)
         top = BATCHES[-1]
         for i in range(0, S, top):
@@ -195,11 +182,10 @@ class Filters:
         return V
 
     def step_values(self, U: np.ndarray, last: bool) -> np.ndarray:
-        """(S, 4, c) outputs of the next chunk of zero-order-held values U (S, c) (a pass
-        backwards in time hands them over, no raw signal to read). A short chunk is padded
-        behind where it is the ``last`` and in front otherwise (a first chunk: its first value
-        repeated, the state steady there, so that its end state is the one after its c
-        values)."""
+        """(S, r, c) outputs of the next chunk of zero-order-held values U (S, c) (handed over by
+        a pass backwards in time). A short chunk is padded behind where it is the ``last``, else
+        in front with its first value (the state steady there: its end state is the one after
+        its c values)."""
         S, c = U.shape
         front = 0 if (c == self.chunk or last) else self.chunk - c
         W = np.concatenate(
@@ -214,18 +200,16 @@ class Filters:
 
 
 class ModeStages:
-    """The flexible mode's stages (:func:`~._filtering.mode_cascade_from`) of modes ``stages``
-    (a batch, :func:`~._filtering._mode_stages`) chunk by chunk, their states carried; fed each
-    chunk's filtered x and F and x's held samples."""
+    """Flexible modes' stages (:func:`~._filtering.mode_cascade_from`, a batch ``stages``)
+    chunk by chunk, their states carried."""
 
     def __init__(self, stages, zeta: np.ndarray, lam: float, chunk: int):
         self.stages, self.zeta, self.lam, self.chunk = stages, zeta, lam, chunk
         self.p: np.ndarray | None = None
 
     def step(self, Vx, Vf, x: np.ndarray, F: np.ndarray, k0: int, k1: int):
-        """(x's columns (m, c), F's columns (m, c)) of rows [k0, k1); ``Vx``, ``Vf`` the
-        filtered x and F of the chunk ((4, c) each, :meth:`Filters.step`), ``x``, ``F`` the
-        records."""
+        """(x's columns (m, c), F's columns (m, c)) of rows [k0, k1), from the chunk's filtered
+        x and F ``Vx``, ``Vf`` (4, c) and the records ``x``, ``F``."""
         c, C = k1 - k0, self.chunk
         m = self.zeta.shape[0]
         first = self.p is None
@@ -249,9 +233,8 @@ class ModeStages:
 
 
 class FreeRows:
-    """V₁ of the unforced filter from each unit state at any rows:
-    C·Φʲ·Φᵏ⁰ for rows k0 + j of a chunk (Φʲ for j < chunk computed once); zeros where Φᵏ⁰ has
-    decayed to nothing."""
+    """V₁ of the unforced filter from each unit state, C·Φʲ·Φᵏ⁰ at rows k0 + j of a chunk (Φʲ,
+    j < chunk, computed once); zeros where Φᵏ⁰ has decayed to nothing."""
 
     def __init__(self, dsc: Discrete, chunk: int):
         self.Phi = np.asarray(dsc.Phi, np.float64)
@@ -297,18 +280,8 @@ def input_map(F, dt: float, tau: float, fmax: float, k0: int = 0, k1: int | None
 
 
 class ColumnSource:
-    """Columns (m, K, ·) of a profile (m points, K columns each) that a fit adds to a
-    structure's design, chunk by chunk (:meth:`blocks`, one (m, K, c) block per chunk;
-    :meth:`full`, the one block of a record of one chunk)."""
-
-    def shape(self, regs) -> tuple[int, int]:
-        """(m, K)."""
-        raise NotImplementedError
-
-    def full(self, regs) -> np.ndarray:
-        """The columns of a record of one chunk (m, K, T)."""
-        (blk,) = self.blocks(regs)
-        return blk
+    """Columns of m points, K columns each, that a fit adds to a structure's design:
+    :meth:`blocks` yields one (m, K, c) block per chunk of ``regs.spans``."""
 
     def blocks(self, regs) -> Iterator[np.ndarray]:
         raise NotImplementedError
@@ -320,12 +293,6 @@ class HeldColumns(ColumnSource):
     def __init__(self, cols: np.ndarray):
         self.cols = np.asarray(cols, np.float64)
 
-    def shape(self, regs) -> tuple[int, int]:
-        return self.cols.shape[:2]
-
-    def full(self, regs) -> np.ndarray:
-        return self.cols
-
     def blocks(self, regs) -> Iterator[np.ndarray]:
         for k0, k1 in regs.spans:
             yield self.cols[:, :, k0:k1]
@@ -336,29 +303,52 @@ def as_source(cols) -> ColumnSource:
 
 
 class FilteredColumns(ColumnSource):
-    """Filtered raw signals, one output each, signed: ``signals`` [[(raw, foh, order, sign)
-    × K] × m] (the raw signals computed per chunk), chunk by chunk."""
+    """Raw signals filtered, one output each, signed: ``signals`` [[(raw, foh, order, sign)
+    × K] × m]."""
 
     def __init__(self, signals: Sequence[Sequence[tuple[Raw, float, int, float]]]):
         self.signals = [list(s) for s in signals]
 
-    def _flat(self):
-        return [s for point in self.signals for s in point]
-
-    def shape(self, regs) -> tuple[int, int]:
-        return len(self.signals), len(self.signals[0])
-
     def blocks(self, regs) -> Iterator[np.ndarray]:
-        flat = self._flat()
+        flat = [s for point in self.signals for s in point]
         m, K = len(self.signals), len(self.signals[0])
         filt = Filters(
             regs.dsc, regs.T, regs.chunk, {i: (raw, foh) for i, (raw, foh, _, _) in enumerate(flat)}
         )
-        orders = [o for _, _, o, _ in flat]
         signs = np.array([s for *_, s in flat])[:, None]
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
-            V = np.stack([out[i][orders[i]] for i in range(len(flat))]) * signs
+            V = np.stack([out[i][order] for i, (_, _, order, _) in enumerate(flat)]) * signs
+            yield V.reshape(m, K, k1 - k0)
+
+
+class GridColumns(ColumnSource):
+    """A structure's F-dependent columns for each input map (τ, F_max) of ``inputs``, unsigned:
+    (m, K, ·), K the structure's slots (zero beyond its F-dependent signals)."""
+
+    def __init__(self, model, inputs):
+        self.model, self.inputs = model, [(float(t), float(f)) for t, f in inputs]
+
+    def blocks(self, regs) -> Iterator[np.ndarray]:
+        plan = regs.plan(self.model)
+        K = plan.onehot.shape[0]
+        mult = [regs.multiplier(self.model, s) for s in plan.fdep]
+        F, dt = regs.F, regs.dt
+        zero = lambda k0, k1: np.zeros(k1 - k0)  # noqa: E731
+
+        def one(tau, fmax, g):
+            u = lambda k0, k1: input_map(F, dt, tau, fmax, k0, k1)  # noqa: E731
+            return u if g is None else scaled(g, u)
+
+        inputs = {}
+        for i, (tau, fmax) in enumerate(self.inputs):
+            for k in range(K):
+                inputs[(i, k)] = (one(tau, fmax, mult[k]) if k < len(mult) else zero, 0.0)
+        filt = Filters(regs.dsc, regs.T, regs.chunk, inputs)
+        m = len(self.inputs)
+        for k0, k1 in regs.spans:
+            out = filt.step(k0, k1)
+            V = np.stack([out[(i, k)][0] for i in range(m) for k in range(K)])
             yield V.reshape(m, K, k1 - k0)
 
 
@@ -366,32 +356,23 @@ def mode_seed(x, F, dt: float, lam: float, chunk: int):
     """A first guess of a flexible mode's (ω [rad/s], ζ) from one linear fit, or None.
 
     With the mode, ẍ + aẋ − μ·s²h[x] = b(u − κh[u]) (h = (s²/D)[·], D = s² + 2ζωs + ω²) is,
-    multiplied by D, the 4th-order equation
-
-        (1 − μ)s⁴x + (a + Z)s³x + (W + aZ)s²x + aW·sx = b(1 − κ)s²u + bZ·su + bW·u,
-
-    W = ω², Z = 2ζω: linear in its six coefficients (divided by 1 − μ), which an equation-error
-    least-squares fit through the filter 1/(s + λ)⁵ gives in one solve (its first 10/λ seconds
-    dropped: the filters' start), its Gram accumulated chunk by chunk and solved on its scaled
-    normal equations. Then r = Z/W = c₅/c₆ and W = c₃/(c₁ + r²c₃ − rc₂). Biased by noise (an
-    equation error on derivatives) and by any other effect, it only starts the exact profile's
-    search, whose RSS valley in (ω, ζ) is a few per cent wide for a lightly damped mode: a
-    coarse grid misses it. None when the fit gives no real, positive (ω, ζ)."""
-    x, F = np.asarray(x, np.float64), np.asarray(F, np.float64)
-    T = x.size
-    dsc = _seed_discretes(np.float64(lam), np.float64(dt))
+    multiplied by D, (1 − μ)s⁴x + (a + Z)s³x + (W + aZ)s²x + aW·sx = b(1 − κ)s²u + bZ·su + bW·u
+    (W = ω², Z = 2ζω): linear in its six coefficients over 1 − μ, fitted by equation-error least
+    squares through 1/(s + λ)⁵ (the first 10/λ seconds dropped), its Gram accumulated chunk by
+    chunk. Then r = Z/W = c₅/c₆ and W = c₃/(c₁ + r²c₃ − rc₂). Biased by noise and by any other
+    effect, it only starts the profile's search, whose RSS valley in (ω, ζ) is a few per cent
+    wide for a lightly damped mode (a coarse grid misses it)."""
+    T = np.size(x)
+    dsc = seed_discrete(np.float64(lam), np.float64(dt))
+    f = Filters(dsc, T, chunk, {"x": (rows(x), 1.0), "F": (rows(F), 0.0)})
     n0 = min(int(math.ceil(10.0 / (lam * dt))), T // 4)
     M = np.zeros((7, 7))
-    z = np.zeros((2, 5))
     for k0, k1 in spans(T, chunk):
-        c = k1 - k0
-        W = np.stack([window(rows(u), k0, T, chunk) for u in (x, F)])
-        V, z = _systems_window(dsc, W, np.array([1.0, 0.0]), np.bool_(k0 == 0), z)
-        V, z = np.swapaxes(np.asarray(V, np.float64), 1, 2)[:, :c], np.asarray(z)
+        out = f.step(k0, k1)
         lo = max(n0 - k0, 0)
-        if lo < c:
-            X, Fv = V[0, lo:], V[1, lo:]  # x's s¹…s⁴, F's s⁰…s³
-            B = np.stack([-X[:, 2], -X[:, 1], -X[:, 0], Fv[:, 2], Fv[:, 1], Fv[:, 0], X[:, 3]], 1)
+        if lo < k1 - k0:
+            X, Fv = out["x"][1:, lo:], out["F"][:4, lo:]  # x's s¹…s⁴, F's s⁰…s³
+            B = np.stack([-X[2], -X[1], -X[0], Fv[2], Fv[1], Fv[0], X[3]], 1)
             M += B.T @ B
     N = T - n0
     scale = np.maximum(np.sqrt(np.diag(M)[:6] / N), 1e-300)
@@ -406,13 +387,17 @@ def mode_seed(x, F, dt: float, lam: float, chunk: int):
     return math.sqrt(W), zeta
 
 
-def filtered(dsc: Discrete, u, foh: float, chunk: int | None = None) -> np.ndarray:
-    """(4, T) outputs V₁…V₄ of one signal u (T,) under the hold ``foh`` (:func:`_held`), read
-    in chunks of ``chunk`` samples (default :func:`chunk_length`)."""
+def filtered(dsc: Discrete, u, foh: float, chunk: int | None = None, orders=(0, 1, 2, 3)):
+    """(len(orders), T) outputs ``orders`` of V₁…V₄ of one signal u (T,) under the hold
+    ``foh`` (:func:`_held`), read in chunks of ``chunk`` samples (default
+    :func:`chunk_length`)."""
     T = np.size(u)
     chunk = chunk or chunk_length(T)
     f = Filters(dsc, T, chunk, {0: (rows(u), foh)})
-    return np.concatenate([f.step(k0, k1)[0] for k0, k1 in spans(T, chunk)], 1)
+    out = np.empty((len(orders), T))
+    for k0, k1 in spans(T, chunk):
+        out[:, k0:k1] = f.step(k0, k1)[0][list(orders)]
+    return out
 
 
 def zero_phase(x, dt: float, omega: float, chunk: int | None = None):
@@ -421,8 +406,8 @@ def zero_phase(x, dt: float, omega: float, chunk: int | None = None):
     ends), as :func:`lionjax._model_effects.zero_phase_velocity`; in chunks of ``chunk``."""
     bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
     dsc = Discrete.of(bank, dt)
-    fwd = filtered(dsc, np.asarray(x, np.float64), 1.0, chunk)[0]
-    sm = filtered(dsc, fwd[::-1], 1.0, chunk)[0][::-1].copy()
+    fwd = filtered(dsc, np.asarray(x, np.float64), 1.0, chunk, (0,))[0]
+    sm = filtered(dsc, fwd[::-1], 1.0, chunk, (0,))[0][::-1].copy()
     g = np.empty(sm.size)
     g[1:-1] = (sm[2:] - sm[:-2]) / (2 * dt)
     g[0] = (sm[1] - sm[0]) / dt
@@ -454,37 +439,3 @@ def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
     Vx, VF = filtered(dsc, d, 1.0), filtered(dsc, d, 0.0)
     hx = Vx[2] + a * Vx[1]
     return float(np.sum(hx * hx)), float(np.sum(VF[0] * VF[0]))
-
-
-class GridColumns(ColumnSource):
-    """The F-dependent columns (m, K, ·) of a structure for each input map (τ, F_max) in
-    ``inputs`` (in-memory :func:`~._fit._grid_columns`, unsigned: rows of K slots, zero beyond
-    the structure's F-dependent signals)."""
-
-    def __init__(self, model, inputs):
-        self.model, self.inputs = model, [(float(t), float(f)) for t, f in inputs]
-
-    def shape(self, regs) -> tuple[int, int]:
-        return len(self.inputs), regs.plan(self.model).onehot.shape[0]
-
-    def blocks(self, regs) -> Iterator[np.ndarray]:
-        plan = regs.plan(self.model)
-        K = plan.onehot.shape[0]
-        mult = [regs.multiplier(self.model, s) for s in plan.fdep]
-        F, dt = regs.F, regs.dt
-        zero = lambda k0, k1: np.zeros(k1 - k0)  # noqa: E731
-
-        def one(tau, fmax, g):
-            u = lambda k0, k1: input_map(F, dt, tau, fmax, k0, k1)  # noqa: E731
-            return u if g is None else scaled(g, u)
-
-        inputs = {}
-        for i, (tau, fmax) in enumerate(self.inputs):
-            for k in range(K):
-                inputs[(i, k)] = (one(tau, fmax, mult[k]) if k < len(mult) else zero, 0.0)
-        filt = Filters(regs.dsc, regs.T, regs.chunk, inputs)
-        m = len(self.inputs)
-        for k0, k1 in regs.spans:
-            out = filt.step(k0, k1)
-            V = np.stack([out[(i, k)][0] for i in range(m) for k in range(K)])
-            yield V.reshape(m, K, k1 - k0)
