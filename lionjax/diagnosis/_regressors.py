@@ -13,7 +13,7 @@ from .._filters import FilterBank
 from .._model_effects import LOCAL_F_MULTIPLIERS, MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
-from ._filtering import P_MAX, Discrete, _f, _mode_stages, mode_free_responses
+from ._filtering import P_MAX, Discrete, mode_free_responses
 from ._streaming import (
     ColumnSource,
     Filters,
@@ -33,9 +33,8 @@ class TooWide(ValueError):
     friction and a flexible mode) has 12 + 5."""
 
 
-#: Modes whose stages one call computes, and slots for a structure's F-dependent signals (most
-#: have F alone, or F and ξF): the smallest bucket that holds them, one program per bucket.
-MODE_BUCKETS = (1, 2, 4)
+#: Slots for a structure's F-dependent signals (most have F alone, or F and ξF): the smallest
+#: bucket that holds them, one program per bucket.
 K_BUCKETS = (1, 2, 4)
 K_MAX = K_BUCKETS[-1]
 
@@ -191,9 +190,7 @@ class Regressors:
         filter's free response and each effect's own, a flexible mode's)."""
 
         def make():
-            extra = self._extra_free(model, 0, 1)
-            n_bank = np.shape(self.dsc.Phi)[0]
-            return len(columns_of(model)) + n_bank + sum(np.shape(r)[1] for r in extra)
+            return len(columns_of(model)) + self.nuisance_rows(model, 0, 1).shape[1]
 
         return self._cached(("width", model_key(model)), make)
 
@@ -210,11 +207,8 @@ class Regressors:
                     f"P_MAX = {P_MAX}"
                 )
             fdep = [(j, c) for j, c in enumerate(cols) if f_dependent(c.signal)]
-            for _, c in fdep:
-                if c.order != 0:
-                    raise ValueError(f"unsupported F-dependent column {c}")
-            if len(fdep) > K_MAX:
-                raise ValueError(f"unsupported F-dependent column {fdep[K_MAX][1]}")
+            if len(fdep) > K_MAX or any(c.order != 0 for _, c in fdep):
+                raise ValueError(f"unsupported F-dependent columns {[c for _, c in fdep]}")
             K = next(k for k in K_BUCKETS if k >= len(fdep))
             onehot = np.zeros((K, P_MAX))
             for kk, (j, c) in enumerate(fdep):
@@ -239,11 +233,11 @@ class Regressors:
                         self.known[n] = (u if callable(u) else np.asarray(u, np.float64), hold)
         return {n: self.known.get(n, (None, None)) for n in names if n not in self.derived}
 
-    def _multiplier(self, model, signal: str):
-        """g(x) of an F-dependent signal g(x)·F: kept, else the owning effect's signal on a
-        record with F = 1."""
-        name = f_multiplier(signal)
-        if name not in self.known:
+    def multiplier(self, model, signal: str):
+        """g(x) of an F-dependent signal g(x)·F times the force mask, held (T,) or raw; None for
+        1. g is kept, else the owning effect's signal on a record with F = 1."""
+        name, g = f_multiplier(signal), None
+        if name is not None and name not in self.known:
             ones = Record(self.record.x, np.ones(np.shape(self.record.x)), self.record.dt)
             owner = next(
                 (e for e in model.effects if signal in {c.signal for c in e.columns()}),
@@ -251,31 +245,17 @@ class Regressors:
             )
             g = owner.signals(ones)[signal][0]
             self.known[name] = g if callable(g) else np.asarray(g, np.float64)
-        return self.known[name]
-
-    def multiplier(self, model, signal: str):
-        """g(x) of an F-dependent signal times the force mask, held (T,) or a raw signal; None
-        for 1."""
-        g = None if f_multiplier(signal) is None else self._multiplier(model, signal)
+        if name is not None:
+            g = self.known[name]
         if self.force_mask is not None:
             g = self.force_mask if g is None else scaled(self.force_mask, rows(g))
         return g
 
-    def _extra_free(self, model, k0: int, k1: int) -> list[np.ndarray]:
-        """Rows [k0, k1) of each effect's own initial-state columns (a mode's free response)."""
-        out = []
-        for e in model.effects:
-            r = e.free_response(self.dt, k1, k0)
-            if r is not None:
-                out.append(np.asarray(r, np.float64))
-        return out
-
     def nuisance_rows(self, model, k0: int, k1: int) -> np.ndarray:
         """Rows [k0, k1) of the structure's initial-state columns: the filter's free response
-        from each unit state, then each effect's own."""
-        extra = self._extra_free(model, k0, k1)
-        N = self.free(k0, k1)
-        return np.concatenate([N, *extra], 1) if extra else N
+        from each unit state, then each effect's own (a flexible mode's)."""
+        own = (e.free_response(self.dt, k1, k0) for e in model.effects)
+        return np.concatenate([self.free(k0, k1), *(r for r in own if r is not None)], 1)
 
     def mean_square(self, u, hold: str, order: int) -> float:
         """The mean square of output ``order`` (V₁…V₄) of ``u`` (T,) under ``hold``."""
@@ -392,7 +372,7 @@ class _DesignPass:
         self.stages = None
         if modes:
             inputs.setdefault("F", (rows(regs.F), 0.0))
-            self.stages = _mode_stages_of(modes, regs.lam, regs.dt, regs.chunk)
+            self.stages = ModeStages(modes, regs.lam, regs.dt, regs.chunk)
         self.filters = Filters(regs.dsc, regs.T, regs.chunk, inputs, regs.outputs)
 
     def state(self):
@@ -461,30 +441,11 @@ class ModeProfileColumns(ColumnSource):
             {"x": (rows(regs.x), 1.0), "F": (rows(regs.F), 0.0)},
             regs.outputs,
         )
-        top = MODE_BUCKETS[-1]
-        stages = [
-            (_mode_stages_of(self.modes[i : i + top], self.lam, regs.dt, regs.chunk), i)
-            for i in range(0, len(self.modes), top)
-        ]
+        stages = ModeStages(self.modes, self.lam, regs.dt, regs.chunk)
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
-            cx, cF = [], []
-            for ms, i in stages:
-                a, b = ms.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
-                m = min(top, len(self.modes) - i)
-                cx.append(a[:m])
-                cF.append(b[:m])
+            cx, cF = stages.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
             blk = np.empty((len(self.modes), 4, k1 - k0))
-            blk[:, 0], blk[:, 1] = -np.concatenate(cx), np.concatenate(cF)
+            blk[:, 0], blk[:, 1] = -cx, cF
             blk[:, 2:] = mode_free_responses(self.modes, self.dt, k1, k0)
             yield blk
-
-
-def _mode_stages_of(modes, lam: float, dt: float, chunk: int) -> ModeStages:
-    """The stages of modes (ω, ζ) (m ≤ 4, 2), padded to a bucket of :data:`MODE_BUCKETS` by
-    repeating the last (computed for four, one compiled program)."""
-    modes = np.asarray(modes, np.float64).reshape(-1, 2)
-    full = np.concatenate([modes, np.repeat(modes[-1:], MODE_BUCKETS[-1] - len(modes), 0)])
-    b = next(b for b in MODE_BUCKETS if b >= len(modes))
-    st = _mode_stages(full[:, 0], full[:, 1], _f(lam), _f(dt))
-    return ModeStages(tuple(np.asarray(a)[:b] for a in st), full[:b, 1], float(lam), chunk)

@@ -23,13 +23,23 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._filters import FilterBank
-from ._filtering import Discrete, filter_from, mode_cascade_from, padded_length, seed_discrete
+from ._filtering import (
+    Discrete,
+    _f,
+    _mode_stages,
+    filter_from,
+    mode_cascade_from,
+    padded_length,
+    seed_discrete,
+)
 
 #: Samples per chunk of a long record: 32 signals' outputs take 67 MB, and the cost per sample
 #: does not depend on it above a few 10⁴.
 CHUNK = 1 << 16
-#: Signals filtered per call (the smallest batch that holds them; one program per batch).
+#: Signals filtered per call, and modes whose stages one call computes: the smallest batch that
+#: holds them (one program per batch).
 BATCHES = (1, 2, 4, 8, 16, 32)
+MODE_BUCKETS = (1, 2, 4)
 
 Raw = Callable[[int, int], np.ndarray]
 
@@ -200,36 +210,42 @@ class Filters:
 
 
 class ModeStages:
-    """Flexible modes' stages (:func:`~._filtering.mode_cascade_from`, a batch ``stages``)
-    chunk by chunk, their states carried."""
+    """Flexible modes' stages (:func:`~._filtering.mode_cascade_from`) of modes (ω [rad/s], ζ)
+    (m, 2) chunk by chunk, their states carried; in groups of four, the last padded to a bucket
+    of :data:`MODE_BUCKETS` by repeating its last mode (one program per bucket)."""
 
-    def __init__(self, stages, zeta: np.ndarray, lam: float, chunk: int):
-        self.stages, self.zeta, self.lam, self.chunk = stages, zeta, lam, chunk
-        self.p: np.ndarray | None = None
+    def __init__(self, modes, lam: float, dt: float, chunk: int):
+        modes = np.asarray(modes, np.float64).reshape(-1, 2)
+        self.m, self.lam, self.chunk = len(modes), float(lam), chunk
+        self.groups = []  # (stages, ζ) of each group
+        top = MODE_BUCKETS[-1]
+        for i in range(0, self.m, top):
+            g = modes[i : i + top]
+            full = np.concatenate([g, np.repeat(g[-1:], top - len(g), 0)])
+            b = next(b for b in MODE_BUCKETS if b >= len(g))
+            st = _mode_stages(full[:, 0], full[:, 1], _f(lam), _f(dt))
+            self.groups.append((tuple(np.asarray(a)[:b] for a in st), full[:b, 1]))
+        self.p: list | None = None  # each group's states (2b, 2)
 
     def step(self, Vx, Vf, x: np.ndarray, F: np.ndarray, k0: int, k1: int):
         """(x's columns (m, c), F's columns (m, c)) of rows [k0, k1), from the chunk's filtered
         x and F ``Vx``, ``Vf`` (4, c) and the records ``x``, ``F``."""
         c, C = k1 - k0, self.chunk
-        m = self.zeta.shape[0]
         first = self.p is None
         if first:  # x steady at 0 in p, F steady at F[0]: p = (F[0], 0)
-            self.p = np.zeros((2 * m, 2))
-            self.p[m:, 0] = F[k0]
-        pad = lambda a: _pad_rows(a, C).T  # noqa: E731
-        cx, cF, end = _mode_chunk(
-            self.stages,
-            self.zeta,
-            np.float64(self.lam),
-            pad(Vx),
-            window(rows(x), k0, x.size, C),
-            pad(Vf),
-            _pad_rows(np.asarray(F[k0:k1], np.float64), C),
-            self.p,
-            np.bool_(first),
-        )
-        self.p = np.asarray(end)
-        return np.asarray(cx)[:, :c], np.asarray(cF)[:, :c]
+            self.p = [np.zeros((2 * len(z), 2)) for _, z in self.groups]
+            for p, (_, z) in zip(self.p, self.groups, strict=True):
+                p[len(z) :, 0] = F[k0]
+        wx = window(rows(x), k0, x.size, C)
+        Vx, Vf = _pad_rows(Vx, C).T, _pad_rows(Vf, C).T
+        Fc = _pad_rows(np.asarray(F[k0:k1], np.float64), C)
+        out = [
+            _mode_chunk(st, zeta, np.float64(self.lam), Vx, wx, Vf, Fc, p, np.bool_(first))
+            for (st, zeta), p in zip(self.groups, self.p, strict=True)
+        ]
+        self.p = [np.asarray(end) for *_, end in out]  # a new list: a saved state stays valid
+        cx, cF = (np.concatenate([np.asarray(o[i])[:, :c] for o in out])[: self.m] for i in (0, 1))
+        return cx, cF
 
 
 class FreeRows:
