@@ -65,14 +65,12 @@ def _powers(Phi, L: int):
 
 
 def _recursion(Phi, inputs, drive, z0):
-    """States z[k] (T, n) of z[k + 1] = Φz[k] + drive(inputs[k]), z[0] = ``z0``: every linear
-    filter of the diagnosis runs through it. ``inputs`` is a tuple of arrays with leading axis
-    T, ``drive`` maps their rows (batched over chunks) to the (·, n) input terms.
+    """States z[k] (T, n) of z[k + 1] = Φz[k] + drive(inputs[k]), z[0] = ``z0`` (``inputs``
+    arrays of leading axis T, ``drive`` mapping their rows to (·, n) input terms).
 
-    In M chunks of L samples (L·M = T, L ≈ √T): the zero-state response of every chunk in
-    parallel (L sequential steps), the chunks' start states by z_{m+1} = Φᴸz_m + (chunk m's end
-    state) (M steps), then Φʲ·z_m added back. Linear and exact; ~2√T sequential steps instead of
-    T (a scan step costs microseconds on CPU). Products elementwise
+    In M blocks of L samples (L·M = T, L ≈ √T): every block's zero-state response in parallel
+    (L steps), the blocks' start states z_{m+1} = Φᴸz_m + (block m's end state) (M steps), then
+    Φʲ·z_m added back: exact, ~2√T sequential steps instead of T. Products elementwise
     (:func:`~lionjax._linalg.matvec_unrolled`: fused, and no TF32 dot on a GPU)."""
     n = Phi.shape[0]
     T = inputs[0].shape[0]
@@ -97,9 +95,8 @@ def _recursion(Phi, inputs, drive, z0):
 
 
 def filter_from(dsc: Discrete, u_at, u, du, z0):
-    """((V₁…V₄) (T, 4), the state after the last sample (n,)) of the filter from the state
-    ``z0``, driven by the held samples ``u`` and their steps ``du`` (z[k+1] = Φz[k] + Γ₀u[k] +
-    Γ₁du[k]), the feedthrough reading ``u_at``: one chunk of :class:`~._streaming.Filters`."""
+    """(outputs Cz + D·u_at (T, r), the state after the last sample (n,)) of
+    z[k+1] = Φz[k] + Γ₀u[k] + Γ₁du[k] from ``z0``: one chunk of :class:`~._streaming.Filters`."""
 
     def drive(uk, duk):
         return uk[:, None] * dsc.G0 + duk[:, None] * dsc.G1
@@ -130,13 +127,11 @@ def seed_discrete(lam, dt) -> Discrete:
 
 
 def _mode_stage(omega, zeta, lam, dt, drive: int):
-    """(Φ_pp (2, 2), Φ_pv (2, 3), Γ₀ (2,), Γ₁ (2,)) of the exact sampled cascade: the diagnosis
-    filter λ³/(s + λ)³ in balanced states v̂ⱼ = Vⱼ₊₁/λʲ (v̂ = (V₁, V₂/λ, V₃/λ²): v̂₀' = λv̂₁,
-    v̂₁' = λv̂₂, v̂₂' = λ(u − 3v̂₂ − 3v̂₁ − v̂₀)), followed by the mode stage p = (p₀, p₁),
-    p₀ = ω²/D[v̂_drive], p₁ = p₀'/ω (p₀' = ωp₁, p₁' = ω(v̂_drive − p₀ − 2ζp₁)). The pair is one
-    linear system of order 5 whose exact first-order-hold sampling (:func:`sample_hold`) is
-    block-triangular: the rows of p are all the mode needs, v̂ being the diagnosis filter's own
-    output. Every entry of the matrix is O(λh) or O(ωh): balanced for any pole."""
+    """(Φ_pp (2, 2), Φ_pv (2, 3), Γ₀ (2,), Γ₁ (2,)) of the exact sampled cascade: the filter
+    λ³/(s + λ)³ in balanced states v̂ = (V₁, V₂/λ, V₃/λ²) (v̂₀' = λv̂₁, v̂₁' = λv̂₂,
+    v̂₂' = λ(u − 3v̂₂ − 3v̂₁ − v̂₀)), then the mode stage p₀ = ω²/D[v̂_drive], p₁ = p₀'/ω
+    (p₁' = ω(v̂_drive − p₀ − 2ζp₁)). Its first-order-hold sampling is block-triangular: p's rows
+    are all the mode needs, v̂ being the filter's own output. Entries O(λh) or O(ωh): balanced."""
     A = jnp.zeros((5, 5), omega.dtype)
     A = A.at[0, 1].set(lam).at[1, 2].set(lam)
     A = A.at[2, 0].set(-lam).at[2, 1].set(-3 * lam).at[2, 2].set(-3 * lam)
@@ -149,8 +144,7 @@ def _mode_stage(omega, zeta, lam, dt, drive: int):
 
 @jax.jit
 def _mode_stages(omega, zeta, lam, dt):
-    """:func:`_mode_stage` of x's (driven by v̂₂) and F's (by v̂₀) for each mode (m,): arrays
-    with leading axes (m, 2)."""
+    """:func:`_mode_stage` of x's (driven by v̂₂) and F's (by v̂₀) for each mode: (m, 2, …)."""
 
     def one(w, z):
         return jax.tree.map(
@@ -163,10 +157,10 @@ def _mode_stages(omega, zeta, lam, dt):
 
 
 def mode_cascade_from(stages, zeta, lam, Vx, u, du, VF, F, p0):
-    """(x's columns (m, T), F's columns (m, T), the stages' states after the last sample
-    (2m, 2)) of the mode stages from the states ``p0`` (2m, 2: x's of each mode, then F's),
-    given the diagnosis filter's outputs ``Vx``, ``VF`` (T, 4), x's held samples ``u`` and
-    steps ``du``, and F's samples: one chunk of :class:`~._streaming.ModeStages`."""
+    """(x's columns (m, T), F's columns (m, T), the states after the last sample (2m, 2)) of
+    the mode stages from ``p0`` (x's of each mode, then F's), given the filter's outputs ``Vx``,
+    ``VF`` (T, 4), x's held samples ``u`` and steps ``du``, and F: one chunk of
+    :class:`~._streaming.ModeStages`."""
     Ppp, Ppv, G0, G1 = stages
     scale = jnp.stack([jnp.ones_like(lam), lam, lam * lam])
     vx, vF = Vx[:, :3] / scale, VF[:, :3] / scale

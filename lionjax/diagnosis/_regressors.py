@@ -28,9 +28,8 @@ from ._streaming import (
 
 
 class TooWide(ValueError):
-    """A structure with more columns (its own and the refitted initial-state ones) than
-    :data:`P_MAX`: the default library's widest stack of three (a cubic a(x), b(x), asymmetric
-    friction and a flexible mode) has 12 + 5."""
+    """A structure with more columns (its own and its initial-state ones) than :data:`P_MAX`
+    (the default library's widest stack of three has 12 + 5)."""
 
 
 #: Slots for a structure's F-dependent signals (most have F alone, or F and ξF): the smallest
@@ -39,8 +38,8 @@ K_BUCKETS = (1, 2, 4)
 K_MAX = K_BUCKETS[-1]
 
 
-#: Signals whose value is (a function of x) × F: the input map u replaces F in them; the value
-#: is the name of the multiplier's raw signal (``known``), None for F itself.
+#: Signals (a function of x) × F, in which the input map u replaces F: {name: the multiplier's
+#: raw signal (None for F itself)}.
 F_DEP = {"F": None} | {
     f: m for f, m in (position_terms(k)[1:] for k in range(1, MAX_POSITION_DEGREE + 1))
 }
@@ -52,7 +51,7 @@ def f_dependent(signal: str) -> bool:
 
 
 def f_multiplier(signal: str) -> str | None:
-    """The raw signal name of an F-dependent signal's multiplier (None for F itself)."""
+    """The raw signal of an F-dependent signal's multiplier (None for F itself)."""
     if signal in F_DEP:
         return F_DEP[signal]
     pre = next(p for p in LOCAL_F_MULTIPLIERS if signal.startswith(p))
@@ -91,8 +90,7 @@ def columns_of(model) -> tuple:
 
 
 def model_key(model) -> tuple:
-    """The structure's columns as (signal, order, sign) tuples: the cache key of its plan,
-    design and Gram."""
+    """The structure's columns as (signal, order, sign): the key of its cached plan and Gram."""
     return _columns_and_key(model)[1]
 
 
@@ -135,15 +133,8 @@ class Regressors:
     built per input map (:class:`~._streaming.GridColumns`).
     """
 
-    def __init__(
-        self,
-        rs: RecordSignals,
-        bank: FilterBank,
-        force_mask: np.ndarray | None = None,
-        chunk: int | None = None,
-        lam: float | None = None,
-    ):
-        self.rs, self.record = rs, rs.record
+    def __init__(self, rs: RecordSignals, bank: FilterBank, force_mask=None, chunk=None, lam=None):
+        self.rs, self.record, self.lam = rs, rs.record, lam
         self.force_mask = None if force_mask is None else np.asarray(force_mask, np.float64)
         self.T = rs.n_samples
         self.dt = float(rs.dt)
@@ -155,7 +146,6 @@ class Regressors:
         #: signals whose columns are computed, not filtered: {name: (ω, ζ, "x" | "F")} of the
         #: flexible modes' columns (an effect's signal of hold ``"mode"``)
         self.derived: dict[str, tuple[float, float, str]] = {}
-        self.lam = lam
         self.chunk = int(chunk or chunk_length(self.T))
         self.spans = spans(self.T, self.chunk)
         self.free = FreeRows(self.dsc, self.chunk)
@@ -341,11 +331,9 @@ class _DesignPass:
     :meth:`state` and :meth:`restore` let a pass revisit chunks."""
 
     def __init__(self, regs: Regressors, model, grid: bool):
-        self.regs, self.model, self.grid = regs, model, grid
-        plan = regs.plan(model)
-        self.plan = plan
-        self.cols = columns_of(model)
-        self.n = regs.width(model)
+        self.regs, self.model = regs, model
+        self.plan = plan = regs.plan(model)
+        self.cols, self.n = columns_of(model), regs.width(model)
         fixed = sorted({c.signal for c in self.cols if not f_dependent(c.signal)} - {"x"})
         raw = regs._raw(model, fixed)
         missing = [s for s, (u, _) in raw.items() if u is None]
@@ -367,8 +355,9 @@ class _DesignPass:
                 nm = f"{s}·F"
                 inputs[nm] = (u, 0.0)
                 self.fdep.append((k, int(np.flatnonzero(plan.onehot[k])[0]), nm))
-        modes = sorted({regs.derived[c.signal][:2] for c in self.cols if c.signal in regs.derived})
-        self.modes = modes
+        self.modes = modes = sorted(
+            {regs.derived[c.signal][:2] for c in self.cols if c.signal in regs.derived}
+        )
         self.stages = None
         if modes:
             inputs.setdefault("F", (rows(regs.F), 0.0))
@@ -409,9 +398,9 @@ class _DesignPass:
 
 
 class ModeProfileColumns(ColumnSource):
-    """The flexible mode's columns for each mode (ω [rad/s], ζ) of ``modes``: −(s²/Λ)[h_x],
-    (1/Λ)[h_F] and the mode's free response (2), (m, 4, ·), then the columns ``keep``: the
-    mode's stages chunk by chunk (a record of one chunk: computed once for every ``keep``)."""
+    """A flexible mode's columns −(s²/Λ)[h_x], (1/Λ)[h_F] and its free response (2) for each
+    mode (ω [rad/s], ζ) of ``modes``, (m, 4, ·), its columns ``keep`` taken (a record of one
+    chunk: computed once for every ``keep``)."""
 
     def __init__(self, modes, lam: float, dt: float, keep=slice(None)):
         self.modes = np.asarray(modes, np.float64).reshape(-1, 2)
@@ -434,13 +423,8 @@ class ModeProfileColumns(ColumnSource):
         yield self._full[id(regs)][1][:, self.keep]
 
     def _blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
-        filt = Filters(
-            regs.dsc,
-            regs.T,
-            regs.chunk,
-            {"x": (rows(regs.x), 1.0), "F": (rows(regs.F), 0.0)},
-            regs.outputs,
-        )
+        xF = {"x": (rows(regs.x), 1.0), "F": (rows(regs.F), 0.0)}
+        filt = Filters(regs.dsc, regs.T, regs.chunk, xF, regs.outputs)
         stages = ModeStages(self.modes, self.lam, regs.dt, regs.chunk)
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)

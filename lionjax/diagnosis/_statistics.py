@@ -49,52 +49,46 @@ def decimation_for(
     return decimation_to_fit(have, train.n_samples, valid.n_samples, streamed=streamed)
 
 
-def _check_memory(
-    n_train: int, n_valid: int, max_memory_gb: float | None, streamed: bool | int | None = None
-) -> bool:
+def _check_memory(n_train: int, n_valid: int, max_memory_gb, streamed=None) -> bool:
     """Whether the records are read in chunks (``streamed``: True, False, a chunk length, or
     None: by their length); InputError when they need more host memory than allowed."""
-    ok = streamed is None or isinstance(streamed, bool)
-    ok = ok or (isinstance(streamed, numbers.Integral) and 16 <= streamed)
-    if not ok:
+    if not (
+        streamed is None
+        or isinstance(streamed, bool)
+        or (isinstance(streamed, numbers.Integral) and streamed >= 16)
+    ):
         raise InputError(
             "diagnose: streamed must be True, False, None or a chunk length of at least 16 "
             f"samples, got {streamed!r}."
         )
-    if streamed is None:
-        streamed = streamed_by_default(n_train, n_valid)
-    streamed = bool(streamed)
+    streamed = streamed_by_default(n_train, n_valid) if streamed is None else bool(streamed)
     have = _memory_budget(max_memory_gb)
-    if streamed:
-        need = memory_estimate(n_train, n_valid, streamed=True)
-        if have is None or need <= have:
-            return True
-        raise InputError(
-            f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need "
-            f"about {need / 1e9:.3g} GB of host memory streamed, more than "
-            f"{'max_memory_gb' if max_memory_gb is not None else 'this machine'} "
-            f"({have / 1e9:.3g} GB). Diagnose shorter excerpts or decimate both records "
-            f"(Record.decimate; CLI: --decimate)."
-        )
-    need = memory_estimate(n_train, n_valid, streamed=False)
+    need = memory_estimate(n_train, n_valid, streamed=streamed)
     if have is None or need <= have:
-        return False
+        return streamed
+    limit = "this machine" + ("" if streamed else "'s physical memory")
+    head = (
+        f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
+        f"{need / 1e9:.3g} GB of host memory{' streamed' if streamed else ''}, more than "
+        f"{'max_memory_gb' if max_memory_gb is not None else limit} ({have / 1e9:.3g} GB)."
+    )
+    if streamed:
+        raise InputError(
+            f"{head} Diagnose shorter excerpts or decimate both records (Record.decimate; CLI: "
+            "--decimate)."
+        )
     n = longest_records(have, streamed=False)
     r = decimation_to_fit(have, n_train, n_valid, streamed=False)
-    limit = "max_memory_gb" if max_memory_gb is not None else "this machine's physical memory"
-    if n:
-        how = (
-            f"Decimate both records by {r} or more (train.decimate({r}), valid.decimate({r}): "
-            f"the diagnosis then runs at {r}× the sample interval; CLI: --decimate {r}, or "
-            f"--decimate auto), diagnose shorter excerpts (at most about {n} samples each), or"
-        )
-    else:
-        how = "Even the shortest records do not fit:"
+    how = (
+        f"Decimate both records by {r} or more (train.decimate({r}), valid.decimate({r}): "
+        f"the diagnosis then runs at {r}× the sample interval; CLI: --decimate {r}, or "
+        f"--decimate auto), diagnose shorter excerpts (at most about {n} samples each), or"
+        if n
+        else "Even the shortest records do not fit:"
+    )
     raise InputError(
-        f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
-        f"{need / 1e9:.3g} GB of host memory, more than {limit} ({have / 1e9:.3g} GB). "
-        f"{how} diagnose them streamed (streamed=True; CLI: --streamed on), or pass a larger "
-        f"max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
+        f"{head} {how} diagnose them streamed (streamed=True; CLI: --streamed on), or pass a "
+        "larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
     )
 
 

@@ -1,16 +1,12 @@
 """The record in chunks: the diagnosis' filters with their states carried from chunk to chunk,
-and column sources whose products a chunked fit accumulates (:class:`~._regressors.Regressors`).
+and the column sources whose products a fit accumulates (:class:`~._regressors.Regressors`).
 
-Every product the fits read (Grams, cross products with a profile's columns, a validation
-residual's refitted part) is a sum over rows, so it is accumulated chunk by chunk: a long
+Every product the fits read is a sum over rows, so it is accumulated chunk by chunk: a long
 record's filtered signals are never held whole, and a short record is one chunk. Each chunk runs
-the recursion of :func:`~._filtering.filter_from` (and :func:`~._filtering.mode_cascade_from`)
-from the state the previous chunk ended in, the first from the steady state before the record;
-the hold correction reads the neighbouring chunks' samples (:func:`window`). The chunk length
-changes the numbers only in their last bits.
-
-Raw signals are functions of a row range, ``raw(k0, k1) -> (k1 − k0,)`` (:func:`rows` of a held
-array, or computed per chunk: a profile's sinusoids, an input map).
+the recursion from the state the previous one ended in (the first from the steady state before
+the record), its hold correction reading the neighbouring samples (:func:`window`): the chunk
+length changes the numbers only in their last bits. Raw signals are functions of a row range,
+``raw(k0, k1) -> (k1 − k0,)`` (:func:`rows` of a held array, or computed per chunk).
 """
 
 from __future__ import annotations
@@ -84,17 +80,14 @@ def window(raw: Raw, k0: int, T: int, C: int) -> np.ndarray:
 
 
 def _held(w, foh, first):
-    """(u (C,), u held (C,), its steps (C,)) of a :func:`window` ``w`` (C + 3,): the held
-    samples uₖ − foh·Δ²uₖ/12 (Δ²uₖ = uₖ₊₁ − 2uₖ + uₖ₋₁; on the record's ``first`` chunk the
-    first sample's Δ² is the second's) and their steps foh·(next held − held).
+    """(u, u held, its steps) (C,) each of a :func:`window` ``w`` (C + 3,): uₖ − foh·Δ²uₖ/12
+    (on the ``first`` chunk the first Δ² is the second's) and foh·(next held − held).
 
-    ``foh`` 1.0: a smooth signal under a first-order hold; 0.0: a zero-order-held input (F),
-    unchanged. Between samples a smooth u(t) differs from its linear interpolant by
-    ½ü(t − tₖ)(t − tₖ₊₁), of mean −h²ü/12 over the interval: a low-pass filter sees the
-    interpolant as u − (h²/12)ü, an equation error ∝ (ωh)²/12 that at a few hundred Hz exceeds
-    an encoder's noise and looks like a flexible mode. Subtracting Δ²u/12 ≈ h²ü/12 leaves
-    O(h⁴) (Simpson's rule against the trapezoid). The last sample's Δ² sees the padding (its own
-    value repeated): one row, off by up to Δx/12."""
+    ``foh`` 1.0: a smooth signal under a first-order hold; 0.0: a zero-order-held input (F).
+    A smooth u(t) differs from its linear interpolant by ½ü(t − tₖ)(t − tₖ₊₁), of mean −h²ü/12:
+    a low-pass filter sees u − (h²/12)ü, an equation error ∝ (ωh)²/12 that looks like a flexible
+    mode at a few hundred Hz. Subtracting Δ²u/12 leaves O(h⁴) (Simpson against the trapezoid).
+    The last sample's Δ² sees the padding: one row, off by up to Δx/12."""
     d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]  # Δ² at k0 … k0 + C
     d2 = d2.at[0].set(jnp.where(first, d2[1], d2[0]))
     h = w[1:-1] - foh * d2 / 12.0
@@ -130,26 +123,14 @@ def _pad_rows(a: np.ndarray, n: int) -> np.ndarray:
 
 
 class Filters:
-    """Signals filtered chunk by chunk through one bank, their states carried
-    (:func:`~._filtering.filter_from`); :meth:`step` filters the next chunk of every signal.
+    """Signals ``inputs`` {name: (raw, foh)} filtered chunk by chunk through one bank, their
+    states carried (the first chunk from the steady state of its first held sample). ``kept``
+    (a record of one chunk): outputs {name: (4, T)} read instead of filtered again, where each
+    new one is kept (a name stands for its samples)."""
 
-    ``inputs``: {name: (raw, foh)}, ``foh`` as :func:`_held` takes it. The first chunk starts
-    from the steady state of its first held sample. ``kept``: where given (a record of one
-    chunk), the outputs {name: (4, T)} already filtered, read instead of filtered again, and
-    where each new one is kept (a signal's name stands for its samples)."""
-
-    def __init__(
-        self,
-        dsc: Discrete,
-        T: int,
-        chunk: int,
-        inputs: dict[str, tuple[Raw, float]],
-        kept: dict | None = None,
-    ):
-        self.dsc, self.T, self.chunk = dsc, T, chunk
+    def __init__(self, dsc: Discrete, T: int, chunk: int, inputs: dict, kept: dict | None = None):
+        self.dsc, self.T, self.chunk, self.inputs, self.kept = dsc, T, chunk, inputs, kept
         self.names = list(inputs)
-        self.inputs = inputs
-        self.kept = kept
         self.z: np.ndarray | None = None  # (S, n) states before the next chunk
 
     def step(self, k0: int, k1: int) -> dict:
@@ -179,13 +160,8 @@ class Filters:
             j = min(i + top, S)
             b = next(b for b in BATCHES if b >= j - i)
             pad = ((0, b - (j - i)), (0, 0))
-            out, end = _filter_window(
-                self.dsc,
-                np.pad(W[i:j], pad),
-                np.pad(foh[i:j], pad[0]),
-                np.bool_(first),
-                np.pad(z[i:j], pad),
-            )
+            args = (np.pad(W[i:j], pad), np.pad(foh[i:j], pad[0]), np.bool_(first))
+            out, end = _filter_window(self.dsc, *args, np.pad(z[i:j], pad))
             V[i:j] = np.asarray(out)[: j - i, :, front : front + c]
             z_next[i:j] = np.asarray(end)[: j - i]
         self.z = z_next
@@ -198,15 +174,8 @@ class Filters:
         its c values)."""
         S, c = U.shape
         front = 0 if (c == self.chunk or last) else self.chunk - c
-        W = np.concatenate(
-            [
-                np.repeat(U[:, :1], front + 1, 1),
-                U,
-                np.repeat(U[:, -1:], self.chunk + 2 - front - c, 1),
-            ],
-            1,
-        )
-        return self.step_windows(W, np.zeros(S), c, front)
+        pre, post = U[:, :1].repeat(front + 1, 1), U[:, -1:].repeat(self.chunk + 2 - front - c, 1)
+        return self.step_windows(np.concatenate([pre, U, post], 1), np.zeros(S), c, front)
 
 
 class ModeStages:
@@ -249,8 +218,8 @@ class ModeStages:
 
 
 class FreeRows:
-    """V₁ of the unforced filter from each unit state, C·Φʲ·Φᵏ⁰ at rows k0 + j of a chunk (Φʲ,
-    j < chunk, computed once); zeros where Φᵏ⁰ has decayed to nothing."""
+    """V₁ of the unforced filter from each unit state, C·Φʲ·Φᵏ⁰ at rows k0 + j of a chunk (Φʲ
+    computed once)."""
 
     def __init__(self, dsc: Discrete, chunk: int):
         self.Phi = np.asarray(dsc.Phi, np.float64)
@@ -265,7 +234,6 @@ class FreeRows:
         self.row = np.asarray(dsc.C, np.float64)[0] @ Pw  # (chunk, n): C·Φʲ
 
     def __call__(self, k0: int, k1: int) -> np.ndarray:
-        """(k1 − k0, n) rows [k0, k1)."""
         if k0 == 0:
             return self.row[:k1].copy()
         P = np.linalg.matrix_power(self.Phi, k0)
@@ -304,8 +272,6 @@ class ColumnSource:
 
 
 class HeldColumns(ColumnSource):
-    """Columns given whole (m, K, T)."""
-
     def __init__(self, cols: np.ndarray):
         self.cols = np.asarray(cols, np.float64)
 
@@ -404,9 +370,8 @@ def mode_seed(x, F, dt: float, lam: float, chunk: int):
 
 
 def filtered(dsc: Discrete, u, foh: float, chunk: int | None = None, orders=(0, 1, 2, 3)):
-    """(len(orders), T) outputs ``orders`` of V₁…V₄ of one signal u (T,) under the hold
-    ``foh`` (:func:`_held`), read in chunks of ``chunk`` samples (default
-    :func:`chunk_length`)."""
+    """(len(orders), T) outputs ``orders`` of one signal u (T,) under the hold ``foh``, in chunks
+    of ``chunk`` samples (default :func:`chunk_length`)."""
     T = np.size(u)
     chunk = chunk or chunk_length(T)
     f = Filters(dsc, T, chunk, {0: (rows(u), foh)})
@@ -418,8 +383,7 @@ def filtered(dsc: Discrete, u, foh: float, chunk: int | None = None, orders=(0, 
 
 def zero_phase(x, dt: float, omega: float, chunk: int | None = None):
     """(x smoothed, v̂) (T,) each: x forwards, then backwards through (ω/(s + ω))³ (unit DC
-    gain, the first-order hold of :func:`_held`), then central differences (one-sided at the
-    ends), as :func:`lionjax._model_effects.zero_phase_velocity`; in chunks of ``chunk``."""
+    gain, first-order hold), then central differences (one-sided at the ends)."""
     bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
     dsc = Discrete.of(bank, dt)
     fwd = filtered(dsc, np.asarray(x, np.float64), 1.0, chunk, (0,))[0]
@@ -442,11 +406,8 @@ def mode_filtered(u, foh: float, dt: float, omega: float, zeta: float) -> np.nda
 
 
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
-    """Σh² of ε₁'s response to unit white noise on x (foh) and on b·F (zoh).
-
-    ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F] (unit-DC-gain bank), so a noise σ_x on x and σ_F on F add
-    σ_x²·Σh_x² + b²σ_F²·Σh_F² to the variance of ε₁ (the noise floor).
-    """
+    """(Σh_x², Σh_F²) of ε₁'s responses to unit white noise on x (foh) and F (zoh): as
+    ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F], noises σ_x, σ_F add σ_x²Σh_x² + b²σ_F²Σh_F² to its variance."""
     c = np.asarray(bank.coeffs)
     T = int(round(float(20 * c[-2] / c[-1] / dt))) + 64
     d = np.zeros(T)
