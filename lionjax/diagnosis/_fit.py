@@ -27,7 +27,6 @@ class Fitted:
     theta: np.ndarray
     std: np.ndarray
     physical: dict[str, float]
-    rss_train: float
     ms_valid: float  # mean square ε₁ on validation
     #: (ε₁, the windowed simulation error [m]) on validation, or what computes them when read
     signals: tuple[np.ndarray, np.ndarray] | Callable
@@ -97,7 +96,7 @@ def fit(problem, structure: tuple) -> Fitted:
         for s in searches:
             d = s.run(lambda inputs: fit_batch(rtr, model, inputs)[1], d, problem.st)
     inp = (d.tau, d.fmax)
-    th, rss, cov, cond = fit_batch(rtr, model, [inp])
+    th, _, cov, cond = fit_batch(rtr, model, [inp])
     theta = th[0]
     std = np.sqrt(np.maximum(np.diag(cov[0]), 0))
     phys = {k: float(v) for k, v in model.physical(np.asarray(theta, np.float64)).items()}
@@ -124,7 +123,6 @@ def fit(problem, structure: tuple) -> Fitted:
         theta=theta,
         std=std,
         physical=phys,
-        rss_train=float(rss[0]),
         ms_valid=float(np.mean(r**2)),
         signals=(r, sim) if keep else functools.cache(signals),
         condition=float(cond[0]),

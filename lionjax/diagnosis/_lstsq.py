@@ -31,7 +31,7 @@ from .._models import AbstractModel
 from ..twin._windows import window_span, windowed_errors
 from ._filtering import MIN_PADDED, P_MAX, _capacity, _f, _i, padded_length
 from ._regressors import Regressors, TooWide, columns_of
-from ._streaming import GridColumns, as_source
+from ._streaming import as_source, grid_columns
 
 __all__ = ["TooWide"]
 
@@ -162,7 +162,7 @@ def fit_batch(regs: Regressors, model: AbstractModel, inputs):
         O = np.concatenate([onehot, np.zeros((onehot.shape[0], 1))], 1)  # (K, P + 1)
         Gs = []
         for i in range(0, len(inputs), GRID_PASS):
-            C, D = regs.cross(model, GridColumns(model, inputs[i : i + GRID_PASS]), grid=True)
+            C, D = regs.cross(model, grid_columns(regs, model, inputs[i : i + GRID_PASS]), True)
             Gs.append(_gram_from_blocks(G0, C, D, O))
         coef, rss, gi, cond = solve_grams(np.concatenate(Gs), regs.T)
     s2 = rss / max(regs.T - regs.width(model), 1)
@@ -234,7 +234,7 @@ def residual(regs: Regressors, model: AbstractModel, theta, inp) -> np.ndarray:
     theta = np.asarray(theta, np.float64)
     r0 = np.empty(regs.T)
     g = np.zeros((n - p + 1, n - p + 1))
-    mapped_cols = GridColumns(model, [inp]).blocks(regs) if mapped else None
+    mapped_cols = grid_columns(regs, model, [inp]).blocks(regs) if mapped else None
     for (k0, k1), A in zip(regs.spans, regs.design_blocks(model, grid=mapped), strict=True):
         W = A[:, :p]
         if mapped_cols is not None:

@@ -130,7 +130,7 @@ class Regressors:
     friction balances every force on it, ẍ + aẋ = 0 there, and each force column (order 0: the
     input, an offset, a spring, friction) is built from m·(signal). The input map
     u = sat_Fmax(F(t − τ)) replaces F in every F-dependent signal (F, ξ·F), whose columns are
-    built per input map (:class:`~._streaming.GridColumns`).
+    built per input map (:func:`~._streaming.grid_columns`).
     """
 
     def __init__(self, rs: RecordSignals, bank: FilterBank, force_mask=None, chunk=None, lam=None):

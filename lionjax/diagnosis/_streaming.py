@@ -304,34 +304,21 @@ class FilteredColumns(ColumnSource):
             yield V.reshape(m, K, k1 - k0)
 
 
-class GridColumns(ColumnSource):
+def grid_columns(regs, model, inputs) -> FilteredColumns:
     """A structure's F-dependent columns for each input map (τ, F_max) of ``inputs``, unsigned:
     (m, K, ·), K the structure's slots (zero beyond its F-dependent signals)."""
+    plan = regs.plan(model)
+    mult = [regs.multiplier(model, s) for s in plan.fdep]
 
-    def __init__(self, model, inputs):
-        self.model, self.inputs = model, [(float(t), float(f)) for t, f in inputs]
+    def signal(tau: float, fmax: float, k: int) -> Raw:
+        if k >= len(mult):
+            return lambda k0, k1: np.zeros(k1 - k0)
+        u = lambda k0, k1: input_map(regs.F, regs.dt, tau, fmax, k0, k1)  # noqa: E731
+        return u if mult[k] is None else scaled(mult[k], u)
 
-    def blocks(self, regs) -> Iterator[np.ndarray]:
-        plan = regs.plan(self.model)
-        K = plan.onehot.shape[0]
-        mult = [regs.multiplier(self.model, s) for s in plan.fdep]
-        F, dt = regs.F, regs.dt
-        zero = lambda k0, k1: np.zeros(k1 - k0)  # noqa: E731
-
-        def one(tau, fmax, g):
-            u = lambda k0, k1: input_map(F, dt, tau, fmax, k0, k1)  # noqa: E731
-            return u if g is None else scaled(g, u)
-
-        inputs = {}
-        for i, (tau, fmax) in enumerate(self.inputs):
-            for k in range(K):
-                inputs[(i, k)] = (one(tau, fmax, mult[k]) if k < len(mult) else zero, 0.0)
-        filt = Filters(regs.dsc, regs.T, regs.chunk, inputs)
-        m = len(self.inputs)
-        for k0, k1 in regs.spans:
-            out = filt.step(k0, k1)
-            V = np.stack([out[(i, k)][0] for i in range(m) for k in range(K)])
-            yield V.reshape(m, K, k1 - k0)
+    K = plan.onehot.shape[0]
+    points = [(float(t), float(f)) for t, f in inputs]
+    return FilteredColumns([[(signal(t, f, k), 0.0, 0, 1.0) for k in range(K)] for t, f in points])
 
 
 def mode_seed(x, F, dt: float, lam: float, chunk: int):
