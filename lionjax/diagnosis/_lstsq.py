@@ -1,21 +1,16 @@
-"""Fitting and scoring one model structure on recorded data: least squares on ε₁ and the windowed
-simulation.
+"""Least squares of a structure on ε₁, and the windowed simulation.
 
-A structure is the mass–damper ẍ + aẋ = b·u plus linear effect columns
-(:mod:`lionjax._model_effects`) plus an input map u = sat_Fmax(F(t − τ)), nonlinear in τ and
-F_max (profiled on a grid). The fit uses the first equation error ε₁ = V₃ + aV₂ − bQ₁ + … only:
-the core's ε₂ = dε₁/dt weights by frequency and, with unmodelled high-frequency dynamics, biases
-the viscous term (EMPS at λ = 40 Hz: Fv +86 % with both rows, +0.7 % with ε₁). The float64
-augmented Gram [W | y]ᵀ[W | y] of each design, accumulated over the record's chunks
-(:class:`~._regressors.Regressors`), goes to the core's one solver
-(:func:`lionjax._least_squares.gram_lstsq`), with the filter's initial-state nuisance columns.
+A structure is the mass–damper ẍ + aẋ = b·u plus linear effect columns plus an input map
+u = sat_Fmax(F(t − τ)) (profiled on a grid). The fit uses the first equation error
+ε₁ = V₃ + aV₂ − bQ₁ + … alone: ε₂ = dε₁/dt weights by frequency and, with unmodelled
+high-frequency dynamics, biases the viscous term. The float64 augmented Gram [W | y]ᵀ[W | y],
+accumulated over the record's chunks with the filter's initial-state columns, goes to the
+core's one solver (:func:`lionjax._least_squares.gram_lstsq`).
 
-Compiled programs see bucketed shapes and traced settings only: chunks of a power of two
-(:func:`~._filtering.padded_length`); dt, the poles, τ and F_max as arrays; designs of
-:data:`P_MAX` columns, a structure's unused ones unit vectors outside the record (orthogonal to
-the data, singular value 1: the fit, its Gram inverse and the used columns' condition unchanged);
-Grams solved in batches of :data:`GRID`. So one program fits every structure, and the solve does
-not depend on the record's length.
+Compiled programs see bucketed shapes and traced settings only: designs of :data:`P_MAX`
+columns, a structure's unused ones unit vectors outside the record (orthogonal to the data,
+singular value 1: the fit, its Gram inverse and the used columns' condition unchanged), Grams
+solved in batches of :data:`GRID`: one program fits every structure at any record length.
 """
 
 from __future__ import annotations
@@ -40,16 +35,14 @@ GRID = 32
 #: Grid points (τ, F_max) whose F-dependent columns one pass over the record filters.
 GRID_PASS = 16
 
-# Host memory, measured (benchmarks/results/2026-11-28_diagnosis_lengths.md and
-# 2026-11-28_streamed_diagnosis.md), each with a margin of 20–25 % over the heaviest record.
-#: In one chunk [bytes per padded sample of each record]: the filtered signals and designs are
-#: kept (3.5–5.7 kB measured; friction's stick-masked signals the most).
+# Host memory as measured (benchmarks/results/2026-11-28_diagnosis_lengths.md,
+# 2026-11-28_streamed_diagnosis.md), with 20–25 % over the heaviest record.
+#: In one chunk [bytes per padded sample of each record]: filtered signals and designs kept.
 BYTES_PER_SAMPLE_CACHED = 6_500
-#: Padded lengths above this are read in chunks by default: in one chunk 2¹⁷ samples peak below
-#: 2 GB, 2¹⁸ up to 2.7 GB; in chunks about 1.1 GB at any length, at up to twice the time.
+#: Padded lengths above this are read in chunks by default: in one chunk 2¹⁸ samples peak at up
+#: to 2.7 GB; in chunks about 1.1 GB at any length, at up to twice the time.
 STREAM_ABOVE = 1 << 17
-#: In chunks [bytes per sample of each record]: the raw per-sample signals (x, F, v̂, the start
-#: states, the stick mask, an effect's signals while profiled); 96–115 B measured.
+#: In chunks [bytes per sample of each record]: the raw per-sample signals.
 BYTES_PER_SAMPLE_STREAMED = 160
 #: In chunks, at any length [bytes]: the process, its programs and a chunk's intermediates.
 STREAM_FIXED = 1_200_000_000
@@ -72,8 +65,7 @@ def memory_estimate(*n_samples: int, streamed: bool | None = None) -> int:
 
 def longest_records(budget: float, count: int = 2, streamed: bool | None = None) -> int:
     """The most samples each of ``count`` records may have for :func:`memory_estimate` to stay
-    within ``budget`` [bytes]; 0 when even the shortest bucket does not fit. (The estimate is
-    not monotonic in the length: it drops where the records are read in chunks.)"""
+    within ``budget`` [bytes] (it drops where records are read in chunks); 0 when none fit."""
     fits = [
         _capacity(Tp)
         for Tp in (MIN_PADDED << k for k in range(29))
@@ -205,10 +197,9 @@ def rss_fixed_with_columns(
 
 
 def _refit_gram(A, cols, coef, p: int, n: int, n_fixed: int) -> np.ndarray:
-    """Augmented Grams (m, q + k + 1, q + k + 1) [B | r]ᵀ[B | r] of the refitted columns
-    B = [N | g] and the held residual r = W·c + y on the rows of a design block A (·, P + 1)
-    and columns ``cols`` (m, K, ·), by blocks (N shared: a batched product of [B | r] with
-    itself is slower)."""
+    """[B | r]ᵀ[B | r] (m, q + k + 1, q + k + 1) of the refitted columns B = [N | g] and the held
+    residual r = W·c + y on a design block A (·, P + 1) and ``cols`` (m, K, ·), by blocks (N
+    shared: a batched product of [B | r] with itself is slower)."""
     r = A[:, :p] @ coef[:, :p].T + A[:, P_MAX][:, None]  # (T, m)
     r += np.sum(coef[:, n : n + n_fixed, None] * cols[:, :n_fixed], 1).T
     N, g = A[:, p:n], np.ascontiguousarray(cols[:, n_fixed:])  # (T, q), (m, k, T)
@@ -256,12 +247,11 @@ SIM_SEGMENT = 1 << 16
 def simulate_windows(
     p, u, x_meas, x_start, v_start, dt, H: int, extra=None, t0: float = 0.0
 ) -> np.ndarray:
-    """Windowed simulation error x_sim − x_meas [m] (T,), each window of ``H`` samples started
-    from the estimated state (x_start, v_start) at its first sample; 0 after the last whole
-    window. The twin's exact-hold simulator (:func:`lionjax.twin._windows.windowed_errors`)
-    with traced parameters, windows stepped side by side, on bucketed lengths; a long record in
-    segments of whole windows (windows are independent: the same steps). ``extra``: an optional
-    force term ``extra(x, v, u, t)`` [N], elementwise, t = t0 + k·dt."""
+    """Windowed simulation error x_sim − x_meas [m] (T,) of the twin's exact-hold simulator
+    (:func:`lionjax.twin._windows.windowed_errors`), each window of ``H`` samples started from
+    (x_start, v_start) at its first sample, 0 after the last whole window; a long record in
+    segments of whole windows (independent: the same steps). ``extra``: an optional force term
+    ``extra(x, v, u, t)`` [N], elementwise, t = t0 + k·dt."""
     signals = [np.asarray(a, np.float64) for a in (u, x_meas, x_start, v_start)]
     T, H = signals[0].size, int(H)
     Tn = (T // H) * H
