@@ -35,8 +35,6 @@ class TooWide(ValueError):
 #: Slots for a structure's F-dependent signals (most have F alone, or F and ξF): the smallest
 #: bucket that holds them, one program per bucket.
 K_BUCKETS = (1, 2, 4)
-K_MAX = K_BUCKETS[-1]
-
 
 #: Signals (a function of x) × F, in which the input map u replaces F: {name: the multiplier's
 #: raw signal (None for F itself)}.
@@ -197,7 +195,7 @@ class Regressors:
                     f"P_MAX = {P_MAX}"
                 )
             fdep = [(j, c) for j, c in enumerate(cols) if f_dependent(c.signal)]
-            if len(fdep) > K_MAX or any(c.order != 0 for _, c in fdep):
+            if len(fdep) > K_BUCKETS[-1] or any(c.order != 0 for _, c in fdep):
                 raise ValueError(f"unsupported F-dependent columns {[c for _, c in fdep]}")
             K = next(k for k in K_BUCKETS if k >= len(fdep))
             onehot = np.zeros((K, P_MAX))
