@@ -38,22 +38,10 @@ from lionjax.diagnosis import (
     PositionCandidate,
     SpringCandidate,
 )
-from lionjax.diagnosis._filtering import (
-    LONG_BATCH,
-    P_MAX,
-    Discrete,
-    _filt,
-    _zero_phase,
-    edge_pad,
-    filter_signals,
-    hold_corrected,
-    mode_signals,
-    padded_length,
-)
+from lionjax.diagnosis._filtering import P_MAX, Discrete, filter_from, padded_length
 from lionjax.diagnosis._lstsq import (
     BYTES_PER_SAMPLE_STREAMED,
     STREAM_FIXED,
-    apply_input,
     fit_batch,
     longest_records,
     memory_estimate,
@@ -84,12 +72,13 @@ from lionjax.diagnosis._statistics import (
 from lionjax.diagnosis._streaming import (
     FilteredColumns,
     Filters,
+    filtered,
     input_map,
+    mode_filtered,
     mode_seed,
     rows,
     spans,
     zero_phase,
-    zero_phase_chunked,
 )
 from lionjax.diagnosis.effects._artefacts import MAX_HARMONIC, line_in
 from lionjax.diagnosis.effects._friction import dahl_chunked
@@ -125,9 +114,23 @@ def _regressors(x, F, dt, hz: float, chunk: int | None = None) -> Regressors:
 
 
 def _whole_outputs(dsc, u, foh: float):
-    """(T, 4) outputs V₁…V₄ of one signal filtered over the whole record at once."""
-    T = np.asarray(u).size
-    return filter_signals(dsc, edge_pad(u, padded_length(T))[None], np.array([foh]))[0, :T]
+    """(T, 4) outputs V₁…V₄ of one signal filtered over the whole record in one chunk."""
+    return filtered(dsc, u, foh).T
+
+
+def _hold_corrected(x):
+    """xₖ − Δ²xₖ/12, Δ² of the first and last samples their neighbour's."""
+    d2 = x[2:] - 2 * x[1:-1] + x[:-2]
+    return x - np.concatenate([d2[:1], d2, d2[-1:]]) / 12
+
+
+def _input_reference(F, dt, tau, fmax):
+    """sat_Fmax(F(t − τ)) by numpy's linear interpolation of the held force (F before the
+    record = F[0]); F_max < 0 the soft saturation |F_max|·tanh(F/|F_max|)."""
+    k = np.arange(F.size, dtype=np.float64)
+    Fd = np.interp(k - tau / dt, k, F, left=F[0], right=F[-1])
+    m = abs(fmax)
+    return m * np.tanh(Fd / m) if fmax < 0 else np.clip(Fd, -m, m)
 
 
 def _free_response(dsc, T: int) -> np.ndarray:
@@ -310,56 +313,28 @@ def test_matvec_unrolled_against_numpy():
 
 
 @pytest.mark.filterwarnings("ignore::scipy.signal.BadCoefficients")  # λ³sᵏ: trailing zeros
-def test_filter_signals_against_scipy():
-    """Eleven zero-order-held signals (two batches: 8 and 3 padded to 8) through the diagnosis'
-    bank Λ = (s + λ)³ with unit DC gain: output k (V₁…V₄) is λ³sᵏ/Λ[u] from rest under u[0],
+def test_filter_against_scipy():
+    """Zero-order-held signals read in chunks of 700 samples through the diagnosis' bank
+    Λ = (s + λ)³ with unit DC gain: output k (V₁…V₄) is λ³sᵏ/Λ[u] from rest under u[0],
     against scipy's cont2discrete + dlsim, 1e-9 of each output's peak."""
     from scipy import signal
 
     dt, T, lam = 1 / 1013.0, 2500, 2 * np.pi * 31.0
-    Tp = padded_length(T)
     rng = np.random.default_rng(1)
-    # held steps of random levels, a different switching pattern per signal
-    U = np.stack([np.repeat(rng.standard_normal(T // 50 + 1), 50)[:T] for _ in range(11)])
+    # held steps of random levels
+    U = np.stack([np.repeat(rng.standard_normal(T // 50 + 1), 50)[:T] for _ in range(3)])
     dsc = Discrete.of(_bank(31.0), dt)
-    V = filter_signals(dsc, np.stack([edge_pad(u, Tp) for u in U]), np.zeros(len(U)))
-    assert V.shape == (11, Tp, 4)
+    V = np.stack([filtered(dsc, u, 0.0, 700).T for u in U])
+    assert V.shape == (3, T, 4)
     den = np.poly(np.full(3, -lam))
     for k in range(4):
         num = np.zeros(4)
         num[3 - k] = lam**3  # λ³sᵏ
         A, B, C, D, _ = signal.cont2discrete(signal.tf2ss(num, den), dt, "zoh")
-        for i in (0, 5, 10):
+        for i in range(3):
             x0 = np.linalg.solve(np.eye(3) - A, B[:, 0] * U[i, 0])  # at rest under u[0]
             ref = signal.dlsim((A, B, C, D, dt), U[i], t=np.arange(T) * dt, x0=x0)[1][:, 0]
-            np.testing.assert_allclose(V[i, :T, k], ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))
-
-
-def test_long_records_filter_two_signals_per_call(monkeypatch):
-    """Above :data:`LONG_BATCH` padded samples a filter call takes at most two signals (its
-    intermediates grow with the batch); the outputs agree with the batched ones to rounding
-    (1e-12 of each signal's peak: a batch of another size may round the last bits)."""
-    from lionjax.diagnosis import _filtering
-
-    assert LONG_BATCH < (1 << 20)  # records of 10⁶ samples are filtered two signals at a time
-    rng = np.random.default_rng(2)
-    U = rng.standard_normal((7, 4096)).cumsum(1)
-    foh = np.array([1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0])
-    dsc = Discrete.of(_bank(20.0), 1e-3)
-    batched = filter_signals(dsc, U, foh)
-    sizes = []
-    many = _filtering._filter_many
-
-    def spy(d, u, f):
-        sizes.append(u.shape[0])
-        return many(d, u, f)
-
-    monkeypatch.setattr(_filtering, "_filter_many", spy)
-    monkeypatch.setattr(_filtering, "LONG_BATCH", 2048)
-    long = filter_signals(dsc, U, foh)
-    assert sizes == [2, 2, 2, 1]
-    peak = np.max(np.abs(batched), axis=(1, 2))[:, None, None]
-    assert np.all(np.abs(long - batched) <= 1e-12 * peak)
+            np.testing.assert_allclose(V[i, :, k], ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))
 
 
 def test_diagnosis_filter_products_full_precision():
@@ -372,14 +347,15 @@ def test_diagnosis_filter_products_full_precision():
     dsc = Discrete.of(lj.default_bank(), DT)
     dsc = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), dsc)
     u = jnp.linspace(0.0, 1.0, 256, dtype=jnp.float32)
-    assert _assert_highest(lambda v: _filt(dsc, v, 1.0), u) == []
+    z0 = jnp.zeros(3, jnp.float32)
+    assert _assert_highest(lambda v: filter_from(dsc, v, v, v, z0)[0], u) == []
 
 
 @pytest.mark.parametrize("fs", [400.0, 1000.0])
 def test_hold_correction_is_fourth_order(fs):
     """A smooth x sampled at fs through h = (s²/D)[·] (the mode filter): the first-order hold of
     the raw samples (scipy's lsim) is off by ≈ (ωh)²/12, that of the hold-corrected samples
-    (mode_signals) by O(h⁴). Reference: the exact steady-state response |H(jω)|·sin(ωt + ∠H)
+    (mode_filtered) by O(h⁴). Reference: the exact steady-state response |H(jω)|·sin(ωt + ∠H)
     of each sine (closed form), after the transient (ζ = 0.3: decays as e^{−ζω_n t}, < 1e-12
     of the signal after 0.5 s)."""
     from scipy import signal
@@ -399,9 +375,9 @@ def test_hold_correction_is_fourth_order(fs):
     for h in (1 / fs, 0.5 / fs):
         t = np.arange(int(round(2.0 / h))) * h
         x = sum(a * np.sin(2 * np.pi * f * t) for f, a in zip(freqs, amps, strict=True))
-        keep = (t > 0.5) & (t < t[-1])  # the last sample: see hold_corrected
+        keep = (t > 0.5) & (t < t[-1])  # the last sample's Δ² sees the padding
         ref = exact(t)[keep]
-        ((hx, _),) = mode_signals(x, np.zeros_like(x), h, [(w, z)], padded_length(t.size))
+        hx = mode_filtered(x, 1.0, h, w, z)
         # the plain first-order hold of the raw samples: scipy's lsim (linear interpolation)
         lti = signal.lti([1.0, 0.0, 0.0], [1.0, 2 * z * w, w * w])
         hraw = signal.lsim(lti, x, t, interp=True)[1]
@@ -417,7 +393,7 @@ def test_hold_correction_is_fourth_order(fs):
 
 
 def test_mode_signals_and_input_maps_against_scipy_and_numpy():
-    """h = (s²/D)[·] of the flexible-mode candidate (bucketed batched filter) against scipy's
+    """h = (s²/D)[·] of the flexible-mode candidate against scipy's
     lsim (first-order hold of the hold-corrected samples: linear interpolation) and zero-order-
     hold discretisation, 1e-8; the soft input map against tanh; and the input map u =
     sat(F(t − τ)) of any rows (read per chunk) against the whole record's (numpy's
@@ -431,8 +407,7 @@ def test_mode_signals_and_input_maps_against_scipy_and_numpy():
     w, z = 2 * np.pi * 21.0, 0.07
     num, den = [1.0, 0.0, 0.0], [1.0, 2 * z * w, w * w]
     # x is held first-order after the hold correction xₖ − Δ²xₖ/12 (ends: the neighbour's Δ²)
-    d2 = x[2:] - 2 * x[1:-1] + x[:-2]
-    xc = x - np.concatenate([d2[:1], d2, d2[-1:]]) / 12
+    xc = _hold_corrected(x)
     # (the state sees xc; the feedthrough D·x the samples themselves)
     A, B, C, D = signal.tf2ss(num, den)
     x0_ss = -np.linalg.solve(A, B[:, 0] * xc[0])  # at rest under xc[0], as the filter
@@ -440,17 +415,17 @@ def test_mode_signals_and_input_maps_against_scipy_and_numpy():
     A, B, C, D, _ = signal.cont2discrete(signal.tf2ss(num, den), dt, "zoh")
     x0 = np.linalg.solve(np.eye(2) - A, B[:, 0] * F[0])  # at rest under F[0]: h = 0
     hF_ref = signal.dlsim((A, B, C, D, dt), F, t=t, x0=x0)[1][:, 0]
-    ((hx, hF),) = mode_signals(x, F, dt, [(w, z)], padded_length(T))
+    hx, hF = mode_filtered(x, 1.0, dt, w, z), mode_filtered(F, 0.0, dt, w, z)
     scale = np.max(np.abs(hx_ref))
     # the last sample's Δ² sees the padding (its own value repeated), not the neighbour's Δ²
     np.testing.assert_allclose(hx[:-1], hx_ref[:-1], atol=1e-8 * scale)
     assert abs(hx[-1] - hx_ref[-1]) < 0.01 * scale
     np.testing.assert_allclose(hF, hF_ref, atol=1e-8 * np.max(np.abs(hF_ref)))
-    np.testing.assert_allclose(apply_input(F * 2.0, dt, 0.0, -1.5), 1.5 * np.tanh(F * 2.0 / 1.5))
+    np.testing.assert_allclose(input_map(F * 2.0, dt, 0.0, -1.5), 1.5 * np.tanh(F * 2.0 / 1.5))
     # per rows, as a chunk reads them: a fractional delay, hard and soft clips, no map
     Fr = np.sin(2 * np.pi * 2.3 * t) + 0.3 * np.random.default_rng(4).standard_normal(T)
     for tau, fmax in ((0.0, math.inf), (3.37 * dt, math.inf), (0.0, 0.8), (1.6 * dt, -1.2)):
-        whole = apply_input(Fr, dt, tau, fmax)
+        whole = _input_reference(Fr, dt, tau, fmax)
         got = np.concatenate([input_map(Fr, dt, tau, fmax, k0, k1) for k0, k1 in spans(T, 700)])
         _close(whole, got, 1e-12)
 
@@ -479,10 +454,10 @@ def test_mode_columns_against_scipy(fs, f_filter, f_mode, zeta, chunk):
     w, z, lam = 2 * np.pi * f_mode, zeta, 2 * np.pi * f_filter
     regs = _regressors(x, F, dt, f_filter, chunk)
     assert regs.whole == (chunk is None)
-    blk = np.concatenate(list(regs.blocks(ModeProfileColumns([(w, z)], lam, dt))), -1)
+    blk = np.concatenate(list(ModeProfileColumns([(w, z)], lam, dt).blocks(regs)), -1)
     cx, cF = -blk[0, 0], blk[0, 1]  # the profile's columns carry ε₁'s signs: −x's, +F's
     den = np.polymul(np.poly([-lam] * 3), [1.0, 2 * z * w, w * w])
-    xc = np.asarray(hold_corrected(x, 1.0))
+    xc = _hold_corrected(x)
     tail = slice(int(25 / min(z * w, lam) / dt), T - 1)
     assert tail.start < T // 2
     yF = signal.dlsim(signal.cont2discrete(([lam**3, 0, 0], den), dt, "zoh"), F, t=t)[1][:, 0]
@@ -496,8 +471,8 @@ def test_mode_columns_against_scipy(fs, f_filter, f_mode, zeta, chunk):
 
 
 def test_chunked_filter_equals_whole_record():
-    """:class:`Filters` over chunks of 256 samples (a short last one) against the whole-record
-    filter bank (:func:`filter_signals`), first- and zero-order holds, all four outputs: 1e-12
+    """:class:`Filters` over chunks of 256 samples (a short last one) against one chunk
+    (:func:`filtered`), first- and zero-order holds, all four outputs: 1e-12
     of each output's peak; and the backward pass's short first chunk (:meth:`step_values`,
     padded in front) against the whole reversed record."""
     dt, T = 1 / 997.0, 3001
@@ -505,7 +480,7 @@ def test_chunked_filter_equals_whole_record():
     U = np.cumsum(rng.standard_normal((3, T)), 1) * 1e-3
     dsc = Discrete.of(_bank(30.0), dt)
     foh = np.array([1.0, 0.0, 1.0])
-    whole = filter_signals(dsc, np.stack([edge_pad(u, padded_length(T)) for u in U]), foh)
+    whole = np.stack([_whole_outputs(dsc, u, f) for u, f in zip(U, foh, strict=True)])
     f = Filters(dsc, T, 256, {i: (rows(U[i]), foh[i]) for i in range(3)})
     got = np.zeros((3, T, 4))
     for k0, k1 in spans(T, 256):
@@ -516,7 +491,7 @@ def test_chunked_filter_equals_whole_record():
         _close(whole[i, :T], got[i], 1e-12)
     # backwards: chunks of the reversed record, its first one short (3001 = 11·256 + 185)
     Ur = U[1, ::-1]
-    ref = filter_signals(dsc, edge_pad(Ur, padded_length(T))[None], np.zeros(1))[0, :T, 0]
+    ref = filtered(dsc, Ur, 0.0)[0]
     b = Filters(dsc, T, 256, {0: (None, 0.0)})
     back = np.zeros(T)
     for k0, k1 in reversed(spans(T, 256)):
@@ -527,7 +502,7 @@ def test_chunked_filter_equals_whole_record():
 
 def test_long_record_helpers_in_chunks(monkeypatch):
     """What a long record computes in chunks: the zero-phase velocity (forwards, then
-    backwards, chunk by chunk) against the whole-record program, 1e-12 of its peak; a mains
+    backwards, chunk by chunk) in chunks of 1024 samples against one chunk, 1e-12 of its peak; a mains
     line's least-squares projection in row blocks against numpy's lstsq on the whole design,
     1e-10."""
     from lionjax.diagnosis.effects import _artefacts
@@ -535,11 +510,10 @@ def test_long_record_helpers_in_chunks(monkeypatch):
     rng = np.random.default_rng(5)
     T, dt, om = 20_001, 1e-4, 2 * np.pi * 100
     x = np.cumsum(rng.standard_normal(T)) * 1e-6 + np.sin(np.arange(T) * dt * 30)
-    dsc = Discrete.of(lj.FilterBank.from_poles(np.full(3, -om), unit_dc_gain=True), dt)
-    sm, g = _zero_phase(dsc, edge_pad(x, padded_length(T)), np.int64(T), np.float64(dt))
-    s2, g2 = zero_phase_chunked(dsc, x, dt, 1024)
-    _close(np.asarray(sm)[:T], s2, 1e-12)
-    _close(np.asarray(g)[:T], g2, 1e-12)
+    sm, g = zero_phase(x, dt, om)  # one chunk
+    s2, g2 = zero_phase(x, dt, om, 1024)
+    _close(sm, s2, 1e-12)
+    _close(g, g2, 1e-12)
     t = np.arange(T) * dt
     F = 0.3 * np.sin(2 * np.pi * 50.2 * t + 0.4) + 0.1 * rng.standard_normal(T)
     ks = [k for k in range(1, MAX_HARMONIC + 1) if k * 50.2 < 0.45 / dt]
@@ -665,7 +639,7 @@ def test_fits_hold_only_small_arrays_per_structure():
     Vx, Vg = _whole_outputs(dsc, x, 1.0), _whole_outputs(dsc, g, 1.0)
     N = _free_response(dsc, T)
     for i, (tau, fmax) in enumerate(inputs):
-        u = apply_input(F, dt, tau, fmax)
+        u = _input_reference(F, dt, tau, fmax)
         Qu, Qxu = _whole_outputs(dsc, u, 0.0), _whole_outputs(dsc, xi * u, 0.0)
         D = np.stack([Vx[:, 1], -Qu[:, 0], Vg[:, 1], -Qxu[:, 0]], 1)
         D = np.concatenate([D, N], 1)

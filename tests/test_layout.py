@@ -211,9 +211,8 @@ PRIVATE_IMPORTS = {
         "over the broadcast shapes the recursion uses"
     ),
     ("test_diagnose_kernels.py", "diagnosis._filtering"): (
-        "the filter bank, the hold correction's order and a flexible mode's signals against "
-        "scipy's discretisations at 1e-8 to 1e-9, the long records' batches, and the float32 "
-        "recursion's products traced at full precision"
+        "the float32 recursion's products traced at full precision, and the exact sampled "
+        "filter a test's reference is built from"
     ),
     ("test_diagnose_kernels.py", "diagnosis._lstsq"): (
         "the Gram solve, the profiles' added columns and the input-map grids against numpy's "
@@ -241,8 +240,10 @@ PRIVATE_IMPORTS = {
         "states) against drawn or closed-form truths"
     ),
     ("test_diagnose_kernels.py", "diagnosis._streaming"): (
-        "every recursion read in chunks (the filter bank both ways, the zero-phase velocity, "
-        "the input map, the mode's seed) against one pass over the whole record at 1e-12"
+        "the filter bank, the hold correction's order and a flexible mode's signals against "
+        "scipy's discretisations at 1e-8 to 1e-9; every recursion read in chunks (the filter "
+        "bank both ways, the zero-phase velocity, the input map, the mode's seed) against one "
+        "chunk at 1e-12"
     ),
     ("test_diagnose_kernels.py", "diagnosis.effects._artefacts"): (
         "a mains line's projection in row blocks against numpy's lstsq on the whole design"

@@ -1,11 +1,5 @@
-"""A structure — a tuple of resolved candidates — fitted on the training record and scored on
-the validation record: the pure :func:`fit` and its result :class:`Fitted`.
-
-A structure is the mass–damper ẍ + aẋ = b·u plus its candidates' linear columns plus an input
-map u = sat_Fmax(F(t − τ)) whose parameters are searched per structure
-(:meth:`~.effects.AbstractCandidate.search`). Least squares on the first equation error ε₁ on the
-training record; on the validation record ε₁ with the fitted θ (the filter's initial-state
-columns refitted) and the windowed simulation error (:func:`simulate`)."""
+"""A structure (a tuple of resolved candidates) fitted on the training record and scored on the
+validation record: the pure :func:`fit` and its result :class:`Fitted`."""
 
 from __future__ import annotations
 
@@ -18,8 +12,9 @@ import numpy as np
 
 from ..twin._windows import WINDOW_PARAMETERS
 from ._criteria import DIVERGED
-from ._lstsq import apply_input, fit_batch, residual, simulate_windows
+from ._lstsq import fit_batch, residual, simulate_windows
 from ._statistics import _n_eff
+from ._streaming import input_map
 from .effects import Design, SimulatedForce, design_of
 
 
@@ -32,20 +27,16 @@ class Fitted:
     theta: np.ndarray
     std: np.ndarray
     physical: dict[str, float]
-    rss_train: float
     ms_valid: float  # mean square ε₁ on validation
-    #: (ε₁ on validation, the windowed simulation error on validation [m]), or what computes
-    #: them when read (a long record's fit holds no (T,) array)
+    #: (ε₁, the windowed simulation error [m]) on validation, or what computes them when read
     signals: tuple[np.ndarray, np.ndarray] | Callable
     condition: float
     gap_from: int = 0  # the first sample the gap counts (the second window's)
     #: a simulated gap above this [m] is a diverging simulation (:data:`DIVERGED`)
     diverge_at: float = math.inf
-    #: the simulation error's samples and its rms from :attr:`gap_from` [m]
-    n_sim: int = 0
-    gap_rms: float = math.nan
-    #: the residual's effective sample count where computed when fitted (long records)
-    n_eff_at_fit: float | None = None
+    n_sim: int = 0  # the simulation error's samples
+    gap_rms: float = math.nan  # its rms from gap_from [m]
+    n_eff_at_fit: float | None = None  # the residual's effective sample count (long records)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -62,12 +53,12 @@ class Fitted:
     @property
     def residual(self) -> np.ndarray:
         """ε₁ on validation (T,)."""
-        return self.signals[0] if isinstance(self.signals, tuple) else self.signals()[0]
+        return (self.signals if isinstance(self.signals, tuple) else self.signals())[0]
 
     @property
     def sim_error(self) -> np.ndarray:
         """The windowed simulation error on validation [m] (T,)."""
-        return self.signals[1] if isinstance(self.signals, tuple) else self.signals()[1]
+        return (self.signals if isinstance(self.signals, tuple) else self.signals())[1]
 
     @property
     def gap(self) -> float:
@@ -77,9 +68,8 @@ class Fitted:
 
     @property
     def simulation(self) -> str:
-        """``"ok"``, or ``"diverged"``: the fitted model's windowed simulation left the record's
-        range by :data:`DIVERGED`× or overflowed (an unstable fit, a < 0 or b < 0); its gap and
-        shrink are then reported as ``null``, never as a number."""
+        """``"ok"``, or ``"diverged"``: the simulation left the record's range by :data:`DIVERGED`×
+        or overflowed (an unstable fit, a < 0 or b < 0); its gap is then reported as ``null``."""
         return "ok" if math.isfinite(self.gap) else "diverged"
 
     @property
@@ -93,12 +83,10 @@ class Fitted:
 
 
 def fit(problem, structure: tuple) -> Fitted:
-    """``structure`` fitted on the training record and scored on the validation record.
-
-    Its input map's parameters are searched first (each candidate's :meth:`search`, twice in
-    turn where there are two: each moves the other's optimum); then one least-squares fit of
-    ε₁, the validation residual with θ held (the initial-state columns refitted), and the
-    windowed simulation of the fitted model."""
+    """``structure`` fitted on the training record and scored on the validation record: its
+    input map's parameters searched (each candidate's :meth:`search`, twice in turn where there
+    are two: each moves the other's optimum), one least-squares fit of ε₁, the validation
+    residual with θ held (the initial-state columns refitted), and the windowed simulation."""
     structure = tuple(structure)
     d = design_of(structure)
     rtr, rva = problem.regressors(d)
@@ -108,7 +96,7 @@ def fit(problem, structure: tuple) -> Fitted:
         for s in searches:
             d = s.run(lambda inputs: fit_batch(rtr, model, inputs)[1], d, problem.st)
     inp = (d.tau, d.fmax)
-    th, rss, cov, cond = fit_batch(rtr, model, [inp])
+    th, _, cov, cond = fit_batch(rtr, model, [inp])
     theta = th[0]
     std = np.sqrt(np.maximum(np.diag(cov[0]), 0))
     phys = {k: float(v) for k, v in model.physical(np.asarray(theta, np.float64)).items()}
@@ -121,11 +109,11 @@ def fit(problem, structure: tuple) -> Fitted:
     valid = problem.valid
 
     def signals():
-        u = apply_input(valid.F, problem.st.dt, d.tau, d.fmax)
+        u = input_map(valid.F, problem.st.dt, d.tau, d.fmax)
         return residual(rva, model, theta, inp), simulate(problem, phys, structure, u)
 
     r, sim = signals()
-    keep = rva.whole  # a long record's fit holds no (T,) array: recomputed when read
+    keep = rva.whole  # a long record's fit holds no (T,) array: computed again when read
     with np.errstate(over="ignore", invalid="ignore"):
         g0 = problem.gap_from(sim.size)
         gap = float(np.sqrt(np.mean(sim[g0:] ** 2)))
@@ -135,9 +123,8 @@ def fit(problem, structure: tuple) -> Fitted:
         theta=theta,
         std=std,
         physical=phys,
-        rss_train=float(rss[0]),
         ms_valid=float(np.mean(r**2)),
-        signals=(r, sim) if keep else _Once(signals),
+        signals=(r, sim) if keep else functools.cache(signals),
         condition=float(cond[0]),
         # the first window is not scored where a second one follows: its input before the
         # record is unknown (a delayed input needs τ of it), and the zero-phase start states
@@ -150,24 +137,11 @@ def fit(problem, structure: tuple) -> Fitted:
     )
 
 
-class _Once:
-    """``make()``, computed when first called, then kept."""
-
-    def __init__(self, make):
-        self.make, self.value = make, None
-
-    def __call__(self):
-        if self.value is None:
-            self.value = self.make()
-        return self.value
-
-
 def simulate(problem, phys: dict[str, float], structure, u: np.ndarray) -> np.ndarray:
     """The windowed simulation error x_sim − x_meas [m] of the fitted structure on the validation
-    record (restarting every ``problem.H`` samples from the estimated states), driven by the
-    input ``u`` [N]: the mass–damper with the fitted parameters the simulator reads by name
-    (:data:`~lionjax.twin._windows.WINDOW_PARAMETERS`) and each candidate's own term
-    (:meth:`~.effects.AbstractCandidate.simulation`): simulator parameters, a force term
+    record driven by ``u`` [N]: the mass–damper's fitted parameters the simulator reads by name
+    (:data:`~lionjax.twin._windows.WINDOW_PARAMETERS`) and each candidate's own
+    :meth:`~.effects.AbstractCandidate.simulation` term: simulator parameters, a force term
     (``"extra"``), a correction of the input (``"du"``)."""
     p = {k: float(phys.get(k, 0.0)) for k in WINDOW_PARAMETERS if k != "xc"}
     p["xc"] = float(problem.st.x_center)

@@ -1,7 +1,6 @@
 """What a candidate's search minimises (:class:`Objective`): the training residual sum of
-squares of a base structure with the candidate, or with new columns, the base's Gram computed
-once and kept (the ``init``/``compute`` split of lineax's solvers: the base is the state, each
-point a cheap update); and a fit of new columns scored on the validation record."""
+squares of a base structure with the candidate or with new columns, the base's Gram computed
+once (lineax's ``init``/``compute`` split: the base is the state, each point a cheap update)."""
 
 from __future__ import annotations
 
@@ -15,11 +14,8 @@ from ._regressors import columns_of
 
 class Objective:
     """The searches' objective on ``problem`` for structures that extend ``base`` (a tuple of
-    candidates): :meth:`__call__` a candidate (the training RSS of ``base + (candidate,)``, as a
-    :class:`~.effects.ForceEffect`'s ``profile`` takes it), :meth:`rss_with` / :meth:`fit_with`
-    new columns on the training record, :meth:`validate_with` those columns' fit held on the
-    validation record. Signals of a point's own are dropped once it is scored, so that memory
-    does not grow with a grid."""
+    candidates). A point's own signals are dropped once it is scored: memory does not grow with
+    a grid."""
 
     def __init__(self, problem, base: tuple = ()):
         self.problem, self.base = problem, tuple(base)
@@ -28,17 +24,16 @@ class Objective:
 
     @property
     def train_signals(self):
-        """The training record as the effects read it (:class:`~._regressors.RecordSignals`)."""
         return self.problem.signals("train")
 
     @property
     def force_mask(self):
-        """The base structure's force mask on the training record (None: none)."""
+        """The base structure's force mask on the training record, or None."""
         return self.rtr.force_mask
 
     def __call__(self, cand) -> float:
-        """The training RSS of the base with ``cand``: its new columns on the base's Gram where
-        they are columns of their own signals, else the whole structure fitted."""
+        """The training RSS of ``base + (cand,)``: its new columns on the base's Gram where they
+        are columns of their own signals, else the whole structure fitted."""
         structure = (*self.base, cand)
         rtr = self.problem.regressors_of(structure)[0]
         model = self.problem.model(structure)
@@ -58,7 +53,7 @@ class Objective:
         return residual(self.rtr, self.model, theta, inp)
 
     def drop(self, names) -> None:
-        """Forget the training record's signals ``names`` (a grid point's, once scored)."""
+        """Forget the training record's signals ``names`` (a point's, once scored)."""
         for regs in self.problem.train_regressors():
             regs.drop(names)
 
@@ -67,11 +62,10 @@ class Objective:
         return rss_with_columns(self.rtr, self.model, cols)
 
     def fit_with(self, cols):
-        """(coefficients (m, n + K), RSS (m,), n) of the base with each set of ``cols`` on the
-        training record (n: the base's columns and initial-state columns)."""
+        """(coefficients (m, n + K), RSS (m,), n) of the base with each set of ``cols``."""
         return rss_with_columns(self.rtr, self.model, cols, coef=True)
 
     def validate_with(self, cols, coef, n_fixed: int) -> np.ndarray:
-        """Validation RSS (m,) of the base with ``cols`` (computed on the validation record),
-        the base's columns and the first ``n_fixed`` new ones held at ``coef``."""
+        """Validation RSS (m,) of the base with ``cols``, the base's columns and the first
+        ``n_fixed`` new ones held at ``coef``."""
         return rss_fixed_with_columns(self.rva, self.model, cols, coef, n_fixed)

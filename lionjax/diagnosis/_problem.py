@@ -1,7 +1,6 @@
-"""A diagnosis problem (:class:`Problem`): the two records, the settings adapted to them, the
-windowed simulation's restart interval and start states, where the axis sticks, and what the
-candidates are judged against. Immutable; it keeps a memo of what it computed (regressors,
-filtered signals, profiles), which never changes an answer."""
+"""A diagnosis problem (:class:`Problem`): the two records and what every fit of a diagnosis
+shares. Immutable; its memo of what it computed (regressors, signals, profiles) never changes
+an answer."""
 
 from __future__ import annotations
 
@@ -14,6 +13,7 @@ from .._errors import InputError
 from .._models import Augmented, MassDamper
 from .._record import Record
 from ._criteria import Criteria
+from ._filtering import padded_length
 from ._regressors import RecordSignals, Regressors
 from ._settings import STICK_MIN_S, WINDOWS_LEAST, Settings
 from ._statistics import _long_runs, _noise_gain, _position_noise, _start_states
@@ -32,17 +32,15 @@ class Problem:
     """The records and what every fit of a diagnosis shares.
 
     Attributes:
-        train, valid: the records.
-        st: the settings adapted to the training record (:func:`~._settings.settings`).
-        crit: the thresholds.
-        H: the windowed simulation's restart interval [samples].
-        x_start, v_start: its start states at every validation sample [m], [m/s];
-            ``state_hz`` the band they are estimated in (:func:`~._statistics._start_states`).
+        train, valid: the records; ``v_train``, ``v_valid`` their zero-phase velocities [m/s].
+        st: the settings adapted to the training record; ``crit`` the thresholds.
+        x_start, v_start: the windowed simulation's start states at every validation sample
+            [m], [m/s], estimated in the band ``state_hz`` (:func:`~._statistics._start_states`).
         stuck: (train, valid) (T,) True where the axis sticks (:func:`stuck_mask`).
+        streamed: whether the records are read in chunks (of ``chunk`` samples where given).
+        H: the windowed simulation's restart interval [samples].
         limits: what plausibility is judged against (set once the baseline is fitted).
-        streamed: whether the records are read in chunks (else each in one); ``chunk``: the
-            chunk length where given.
-        memo: what the problem computed, by key (a cache: no answer depends on it).
+        memo: what the problem computed, by key.
     """
 
     train: Record
@@ -67,7 +65,6 @@ class Problem:
         dt, wv = st.dt, 2 * math.pi * st.velocity_hz
         v_valid = zero_phase(valid.x, dt, wv)[1]
         v_train = v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
-        # the windowed simulation's start states: a wider band than v̂'s (_start_states)
         state_hz, x_start, v_start = _start_states(
             np.asarray(valid.x, np.float64), dt, st.velocity_hz, v_valid
         )
@@ -78,10 +75,9 @@ class Problem:
         )  # fmt: skip
 
     def with_window(self, scale: float) -> Problem:
-        """The problem with its restart interval H set from the record's time scale ``scale``
-        [s] (:func:`~._run.dynamics`): the settings' ``window_s``, else the time scale within
-        [20 dt, 2 s] and short enough that the validation record holds
-        :data:`~._settings.WINDOWS_LEAST` windows (the gap's evidence counts windows)."""
+        """The problem with its restart interval H: the settings' ``window_s``, else the record's
+        time scale ``scale`` [s] within [20 dt, 2 s], short enough for the validation record to
+        hold :data:`~._settings.WINDOWS_LEAST` windows."""
         dt, Hs = self.st.dt, self.st.window_s
         if Hs is None:
             Hs = min(max(scale, 20 * dt), 2.0, self.valid.n_samples * dt / WINDOWS_LEAST)
@@ -100,8 +96,8 @@ class Problem:
 
     @property
     def hold_gap(self) -> float:
-        """The rms error [m] of holding each window's start position for the window (the gap of
-        a model that predicts no motion), scored as the gaps are."""
+        """The rms error [m] of holding each window's start position (the gap of a model that
+        predicts no motion), scored as the gaps are."""
         key = ("hold_gap",)
         if key not in self.memo:
             H, x = self.H, np.asarray(self.valid.x, np.float64)
@@ -121,25 +117,21 @@ class Problem:
         """Whether the axis sticks anywhere on either record."""
         return any(bool(np.any(m)) for m in self.stuck)
 
-    def _chunk(self, rec: Record) -> int:
-        T = rec.n_samples
-        from ._filtering import padded_length
-
-        return self.chunk or (chunk_length(T) if self.streamed else padded_length(T))
-
     def signals(self, role: str) -> RecordSignals:
         """The record ``role`` ("train" or "valid") as the effects read it, once."""
         key = ("signals", role)
         if key not in self.memo:
             rec, v = (self.train, self.v_train) if role == "train" else (self.valid, self.v_valid)
             x, F = (np.asarray(a, np.float64) for a in (rec.x, rec.F))
-            self.memo[key] = RecordSignals(rec, x, F, np.asarray(v), self._chunk(rec))
+            T = rec.n_samples
+            chunk = self.chunk or (chunk_length(T) if self.streamed else padded_length(T))
+            self.memo[key] = RecordSignals(rec, x, F, np.asarray(v), chunk)
         return self.memo[key]
 
     def regressors(self, d: Design) -> tuple[Regressors, Regressors]:
         """(train, valid) regressors of a design: force-masked where the axis sticks
-        (``d.stick``); the validation record's position signals held beyond train's (``d.held``:
-        their own regressors, the signals' names being the same)."""
+        (``d.stick``); with ``d.held`` (the position signals held beyond train's range) the
+        validation record's own, the signals' names being the same."""
         lam = 2 * math.pi * self.st.filter_hz
         out = []
         for i, (role, key) in enumerate((("train", (d.stick,)), ("valid", (d.stick, d.held)))):
@@ -152,7 +144,6 @@ class Problem:
         return out[0], out[1]
 
     def regressors_of(self, structure) -> tuple[Regressors, Regressors]:
-        """The regressors of a structure's design."""
         return self.regressors(design_of(structure))
 
     def train_regressors(self) -> list[Regressors]:

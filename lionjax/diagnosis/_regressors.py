@@ -1,6 +1,5 @@
 """ε₁ regressors of one record (:class:`Regressors`): the fits' statistics accumulated chunk by
-chunk (:mod:`._streaming`). A record of one chunk keeps what it filtered (its signals' outputs,
-its structures' designs): a short record is a long one in a single chunk, plus a cache."""
+chunk (:mod:`._streaming`). A short record is a long one in a single chunk, plus a cache."""
 
 from __future__ import annotations
 
@@ -14,22 +13,14 @@ from .._filters import FilterBank
 from .._model_effects import LOCAL_F_MULTIPLIERS, MAX_POSITION_DEGREE, position_terms
 from .._models import AbstractModel
 from .._record import Record
-from ._filtering import (
-    MODE_BUCKETS,
-    P_MAX,
-    Discrete,
-    _batches,
-    _f,
-    _mode_stages,
-    mode_free_responses,
-    padded_length,
-)
+from ._filtering import P_MAX, Discrete, mode_free_responses
 from ._streaming import (
     ColumnSource,
     Filters,
     FreeRows,
     ModeStages,
     chunk_length,
+    filtered,
     rows,
     scaled,
     spans,
@@ -37,32 +28,28 @@ from ._streaming import (
 
 
 class TooWide(ValueError):
-    """A structure with more columns (its own and the refitted initial-state ones) than
-    :data:`P_MAX`: the default library's widest stack of three (a cubic a(x), b(x), asymmetric
-    friction and a flexible mode) has 12 + 5."""
+    """A structure with more columns (its own and its initial-state ones) than :data:`P_MAX`
+    (the default library's widest stack of three has 12 + 5)."""
 
 
-#: Slots for F-dependent signals in one structure: the smallest bucket that holds them (one
-#: compiled program per bucket; most structures have F alone, or F and ξF).
+#: Slots for a structure's F-dependent signals (most have F alone, or F and ξF): the smallest
+#: bucket that holds them, one program per bucket.
 K_BUCKETS = (1, 2, 4)
-K_MAX = K_BUCKETS[-1]
 
-
-#: Signals whose value is (a function of x) × F: the input map u replaces F in them; the value
-#: is the name of the multiplier's raw signal (``known``), None for F itself.
+#: Signals (a function of x) × F, in which the input map u replaces F: {name: the multiplier's
+#: raw signal (None for F itself)}.
 F_DEP = {"F": None} | {
     f: m for f, m in (position_terms(k)[1:] for k in range(1, MAX_POSITION_DEGREE + 1))
 }
 
 
 def f_dependent(signal: str) -> bool:
-    """Whether ``signal`` is (a function of x) × F (:data:`F_DEP`, or a localized position's,
-    :data:`~lionjax._model_effects.LOCAL_F_MULTIPLIERS`)."""
+    """Whether ``signal`` is (a function of x) × F (:data:`F_DEP`, or a localized position's)."""
     return signal in F_DEP or signal.startswith(tuple(LOCAL_F_MULTIPLIERS))
 
 
 def f_multiplier(signal: str) -> str | None:
-    """The raw signal name of an F-dependent signal's multiplier (None for F itself)."""
+    """The raw signal of an F-dependent signal's multiplier (None for F itself)."""
     if signal in F_DEP:
         return F_DEP[signal]
     pre = next(p for p in LOCAL_F_MULTIPLIERS if signal.startswith(p))
@@ -81,8 +68,7 @@ class _Plan(NamedTuple):
 _PER_STRUCTURE = ("plan", "gram", "design", "width")
 
 #: (model, its columns, its key) by id(model): the fits ask a structure for its columns many
-#: times (a profile grid, a plan, a design, a Gram), and building them costs ~0.5 ms (each
-#: column an equinox Module). Holding the model keeps its id from being reused; bounded.
+#: times, at ~0.5 ms each (equinox Modules). Holding the model keeps its id from being reused.
 _COLUMNS: dict[int, tuple] = {}
 
 
@@ -102,17 +88,15 @@ def columns_of(model) -> tuple:
 
 
 def model_key(model) -> tuple:
-    """The structure's columns as (signal, order, sign) tuples: the cache key of its plan,
-    design and Gram."""
+    """The structure's columns as (signal, order, sign): the key of its cached plan and Gram."""
     return _columns_and_key(model)[1]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class RecordSignals:
-    """A record as the diagnosis' effects read it (their ``signals(rs)``): ``x`` [m] and ``F``
-    [N] in float64, the zero-phase velocity ``v`` [m/s], ``dt`` and ``t0`` [s], the chunk the
-    record is read in, and a ``memo`` of costly raw signals (Dahl's states) shared by the
-    record's regressors."""
+    """A record as the effects' ``signals(rs)`` read it: ``x`` [m], ``F`` [N] in float64, the
+    zero-phase velocity ``v`` [m/s] (every friction column reads the same v̂), the chunk it is
+    read in, and a ``memo`` of costly raw signals (Dahl's states) its regressors share."""
 
     record: Record
     x: np.ndarray
@@ -135,68 +119,44 @@ class RecordSignals:
 
 
 class Regressors:
-    """ε₁ regressors of :class:`~lionjax.Augmented` structures on one record, built from the
-    models' own :meth:`columns` and the signals of :meth:`signals`, every product the fits read
-    (Grams, cross products with a profile's columns, a validation residual's refitted part)
-    accumulated over chunks of ``chunk`` samples (default :func:`~._streaming.chunk_length`).
+    """ε₁ regressors of :class:`~lionjax.Augmented` structures on one record, from the models'
+    :meth:`columns` and their effects' ``signals`` on :class:`RecordSignals`; every product the
+    fits read accumulated over chunks of ``chunk`` samples. A record of one chunk
+    (:attr:`whole`) keeps its filtered signals by name and its structures' designs.
 
-    The effects' raw signals come from their ``signals`` on the record as the diagnosis reads
-    it (:class:`RecordSignals`: with its zero-phase velocity v̂, so that every friction column
-    reads the same v̂).
-
-    ``force_mask``: optional (T,) weights m ∈ {0, 1} of the forces: while the axis sticks
-    (m = 0) static friction balances every force on it, ẍ + aẋ = 0 there, and each force
-    column (order 0: the input u, an offset, a spring, friction) is built from m·(signal).
-
-    The input u = sat_Fmax(F(t − τ)) replaces F in every F-dependent signal (``"F"`` and the
-    position-dependent ``ξ·F``); those columns are built per input map
-    (:class:`~._streaming.GridColumns`).
-
-    A record of one chunk (:attr:`whole`) keeps its signals' filtered outputs by name and its
-    structures' designs: the same numbers, computed once.
+    ``force_mask``: optional (T,) weights m ∈ {0, 1}: while the axis sticks (m = 0) static
+    friction balances every force on it, ẍ + aẋ = 0 there, and each force column (order 0: the
+    input, an offset, a spring, friction) is built from m·(signal). The input map
+    u = sat_Fmax(F(t − τ)) replaces F in every F-dependent signal (F, ξ·F), whose columns are
+    built per input map (:func:`~._streaming.grid_columns`).
     """
 
-    def __init__(
-        self,
-        rs: RecordSignals,
-        bank: FilterBank,
-        force_mask: np.ndarray | None = None,
-        chunk: int | None = None,
-        lam: float | None = None,
-    ):
-        self.rs, self.record, self.bank = rs, rs.record, bank
+    def __init__(self, rs: RecordSignals, bank: FilterBank, force_mask=None, chunk=None, lam=None):
+        self.rs, self.record, self.lam = rs, rs.record, lam
         self.force_mask = None if force_mask is None else np.asarray(force_mask, np.float64)
         self.T = rs.n_samples
-        self.Tp = padded_length(self.T)
         self.dt = float(rs.dt)
         self.dsc = Discrete.of(bank, self.dt)
         self.x, self.F = rs.x, rs.F
         self.cache: dict = {}
-        #: raw signals {name: (samples (T,) or a raw signal of rows, hold)}, from the effects'
-        #: ``signals`` on :attr:`rs`, kept
+        #: raw signals {name: (samples (T,) or a raw signal, hold)}, kept
         self.known: dict = {}
         #: signals whose columns are computed, not filtered: {name: (ω, ζ, "x" | "F")} of the
-        #: flexible modes' exact columns (an effect's signal of hold ``"mode"``)
+        #: flexible modes' columns (an effect's signal of hold ``"mode"``)
         self.derived: dict[str, tuple[float, float, str]] = {}
-        self.lam = lam
         self.chunk = int(chunk or chunk_length(self.T))
         self.spans = spans(self.T, self.chunk)
         self.free = FreeRows(self.dsc, self.chunk)
-        self.n_bank = int(np.asarray(self.dsc.Phi).shape[0])
         #: filtered outputs {name: (4, T)} of a record of one chunk (None: not kept)
         self.outputs: dict | None = {} if self.whole else None
 
     @property
     def whole(self) -> bool:
-        """Whether the record is one chunk (then its filtered signals and designs are kept)."""
         return len(self.spans) == 1
 
-    # ------------------------------------------------------------------ structures
-
     def drop(self, names) -> None:
-        """Forget raw and filtered signals ``names`` and every cached plan, design and Gram
-        that uses them (profiled columns: one structure per grid point would otherwise stay in
-        memory)."""
+        """Forget signals ``names`` and every cached plan, design and Gram that uses them (a
+        profile's grid point's, which would otherwise stay in memory)."""
         names = set(names)
         for n in names:
             self.known.pop(n, None)
@@ -214,18 +174,16 @@ class Regressors:
         return self.cache[key]
 
     def width(self, model: AbstractModel) -> int:
-        """The structure's columns and its initial-state columns (the filter's free response
-        and each effect's own, a flexible mode's): the slots of the design it fills."""
+        """The design slots the structure fills: its columns and its initial-state columns (the
+        filter's free response and each effect's own, a flexible mode's)."""
 
         def make():
-            extra = self._extra_free(model, 0, 1)
-            return len(columns_of(model)) + self.n_bank + sum(np.shape(r)[1] for r in extra)
+            return len(columns_of(model)) + self.nuisance_rows(model, 0, 1).shape[1]
 
         return self._cached(("width", model_key(model)), make)
 
     def plan(self, model: AbstractModel) -> _Plan:
-        """The structure's slots in the design (:class:`_Plan`; small, cached per structure):
-        its column count and its F-dependent columns' signals, slots and signs."""
+        """The structure's slots in the design (:class:`_Plan`), cached per structure."""
 
         def make():
             cols = columns_of(model)
@@ -237,11 +195,8 @@ class Regressors:
                     f"P_MAX = {P_MAX}"
                 )
             fdep = [(j, c) for j, c in enumerate(cols) if f_dependent(c.signal)]
-            for _, c in fdep:
-                if c.order != 0:
-                    raise ValueError(f"unsupported F-dependent column {c}")
-            if len(fdep) > K_MAX:
-                raise ValueError(f"unsupported F-dependent column {fdep[K_MAX][1]}")
+            if len(fdep) > K_BUCKETS[-1] or any(c.order != 0 for _, c in fdep):
+                raise ValueError(f"unsupported F-dependent columns {[c for _, c in fdep]}")
             K = next(k for k in K_BUCKETS if k >= len(fdep))
             onehot = np.zeros((K, P_MAX))
             for kk, (j, c) in enumerate(fdep):
@@ -251,9 +206,8 @@ class Regressors:
         return self._cached(("plan", model_key(model)), make)
 
     def _raw(self, model: AbstractModel, names: Sequence[str]) -> dict:
-        """Raw signals ``names``: kept, else the owning effect's ``signals`` on the record
-        (:class:`RecordSignals`), then kept; a signal of hold ``"mode"`` (a flexible mode's
-        column) is registered in :attr:`derived` instead. {name: (raw, hold)} of the others."""
+        """{name: (raw, hold)} of signals ``names``: kept, else the owning effect's ``signals``
+        on the record, then kept; a signal of hold ``"mode"`` goes to :attr:`derived` instead."""
         missing = {n for n in names if n not in self.known and n not in self.derived}
         for e in model.effects:
             own = {c.signal for c in e.columns()} & missing
@@ -267,11 +221,11 @@ class Regressors:
                         self.known[n] = (u if callable(u) else np.asarray(u, np.float64), hold)
         return {n: self.known.get(n, (None, None)) for n in names if n not in self.derived}
 
-    def _multiplier(self, model, signal: str):
-        """g(x) of an F-dependent signal g(x)·F: from ``known``, else from the signals of the
-        effect that owns it on a record with F = 1 (then kept in ``known``)."""
-        name = f_multiplier(signal)
-        if name not in self.known:
+    def multiplier(self, model, signal: str):
+        """g(x) of an F-dependent signal g(x)·F times the force mask, held (T,) or raw; None for
+        1. g is kept, else the owning effect's signal on a record with F = 1."""
+        name, g = f_multiplier(signal), None
+        if name is not None and name not in self.known:
             ones = Record(self.record.x, np.ones(np.shape(self.record.x)), self.record.dt)
             owner = next(
                 (e for e in model.effects if signal in {c.signal for c in e.columns()}),
@@ -279,49 +233,29 @@ class Regressors:
             )
             g = owner.signals(ones)[signal][0]
             self.known[name] = g if callable(g) else np.asarray(g, np.float64)
-        return self.known[name]
-
-    def multiplier(self, model, signal: str):
-        """g(x) of an F-dependent signal times the force mask, held (T,) or a raw signal; None
-        for 1."""
-        g = None if f_multiplier(signal) is None else self._multiplier(model, signal)
+        if name is not None:
+            g = self.known[name]
         if self.force_mask is not None:
             g = self.force_mask if g is None else scaled(self.force_mask, rows(g))
         return g
 
-    def _extra_free(self, model, k0: int, k1: int) -> list[np.ndarray]:
-        """Rows [k0, k1) of each effect's own initial-state columns (a mode's free response)."""
-        out = []
-        for e in model.effects:
-            r = e.free_response(self.dt, k1, k0)
-            if r is not None:
-                out.append(np.asarray(r, np.float64))
-        return out
-
     def nuisance_rows(self, model, k0: int, k1: int) -> np.ndarray:
         """Rows [k0, k1) of the structure's initial-state columns: the filter's free response
-        from each unit state, then each effect's own."""
-        extra = self._extra_free(model, k0, k1)
-        N = self.free(k0, k1)
-        return np.concatenate([N, *extra], 1) if extra else N
-
-    # ------------------------------------------------------------------ passes over the record
+        from each unit state, then each effect's own (a flexible mode's)."""
+        own = (e.free_response(self.dt, k1, k0) for e in model.effects)
+        return np.concatenate([self.free(k0, k1), *(r for r in own if r is not None)], 1)
 
     def mean_square(self, u, hold: str, order: int) -> float:
-        """The mean over the record of the square of output ``order`` (V₁…V₄) of the raw
-        signal ``u`` (T,) under ``hold``."""
-        filt = Filters(self.dsc, self.T, self.chunk, {0: (rows(u), 1.0 if hold == "foh" else 0.0)})
-        return (
-            sum(float(np.sum(filt.step(k0, k1)[0][order] ** 2)) for k0, k1 in self.spans) / self.T
-        )
+        """The mean square of output ``order`` (V₁…V₄) of ``u`` (T,) under ``hold``."""
+        V = filtered(self.dsc, u, 1.0 if hold == "foh" else 0.0, self.chunk, (order,))[0]
+        return float(np.sum(V**2)) / self.T
 
     def design_pass(self, model, grid: bool = False) -> _DesignPass:
         return _DesignPass(self, model, grid)
 
     def design_blocks(self, model, grid: bool = False) -> Iterator[np.ndarray]:
-        """[W | ε₁'s x column] (c, P_MAX + 1) of each chunk: W the design with u = F, or with
-        ``grid`` its fixed columns only (the F-dependent slots 0, filled per input map); the
-        unused slots 0. A record of one chunk keeps each structure's."""
+        """[W | ε₁'s x column] (c, P_MAX + 1) of each chunk, the unused slots 0: W the design
+        with u = F, or with ``grid`` its fixed columns only (the F-dependent slots 0)."""
         if self.whole:
             key = ("design", model_key(model), grid)
             if key not in self.cache:
@@ -333,11 +267,10 @@ class Regressors:
             yield d.block(k0, k1)
 
     def design_gram(self, model, *, grid: bool = False, n_free: int = 0) -> np.ndarray:
-        """G = AᵀA of the design (P_MAX + 1)² plus a unit diagonal in the unused slots (the Gram
-        of unit columns outside the record: the solver's system keeps one size, and the unused
-        coefficients come out 0), except the ``n_free`` slots after the structure's columns,
-        left 0 for :func:`~._lstsq.rss_with_columns` to fill. Cached per structure (it is small):
-        the τ and F_max profiles and the flexible mode's (ω, ζ) profile reuse it."""
+        """G = AᵀA (P_MAX + 1)² of the design plus a unit diagonal in the unused slots (unit
+        columns outside the record: one system size, the unused coefficients 0), except the
+        ``n_free`` slots after the structure's, left 0 for :func:`~._lstsq.rss_with_columns`.
+        Cached per structure: the profiles reuse it."""
 
         def make():
             G = np.zeros((P_MAX + 1, P_MAX + 1))
@@ -352,28 +285,21 @@ class Regressors:
         G[pads, pads] += 1.0
         return G
 
-    def blocks(self, source: ColumnSource) -> Iterator[np.ndarray]:
-        """The (m, K, c) blocks of a profile's columns, chunk by chunk (a record of one chunk:
-        the source's one block, which the source may keep)."""
-        if self.whole:
-            yield source.full(self)
-        else:
-            yield from source.blocks(self)
-
     def cross(self, model, source: ColumnSource, grid: bool = False):
         """(C = VᵀA (m, K, P_MAX + 1), D = VᵀV (m, K, K)) of the structure's design A and the
         columns V of ``source``, accumulated over chunks."""
         C = D = None
-        for A, V in zip(self.design_blocks(model, grid), self.blocks(source), strict=True):
-            c, d = _cross_blocks(A, V)
+        for A, V in zip(self.design_blocks(model, grid), source.blocks(self), strict=True):
+            m, K, T = V.shape
+            # one product for the batch (A read once; a batched V @ A multiplies m thin blocks)
+            c = (V.reshape(m * K, T) @ A).reshape(m, K, -1)
+            d = V @ np.swapaxes(V, 1, 2)
             C, D = (c, d) if C is None else (C + c, D + d)
         return C, D
 
     def added_columns(self, model, base):
-        """A :class:`~._streaming.ColumnSource` of the columns ``model`` adds to ``base``, for
-        :func:`~._lstsq.rss_with_columns` on ``base``; None where it adds more than columns of
-        its own signals (an F-dependent column, initial-state columns) or lacks one of
-        ``base``'s."""
+        """The columns ``model`` adds to ``base`` (a :class:`DesignColumns`), or None where it
+        adds more than columns of its own signals or lacks one of ``base``'s."""
         have = set(model_key(base))
         keys = model_key(model)
         js = [j for j, k in enumerate(keys) if k not in have]
@@ -387,27 +313,11 @@ class Regressors:
         return DesignColumns(model, js)
 
 
-def _cross_blocks(A: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(VᵀA (m, K, P + 1), VᵀV (m, K, K)) of a design A (T, P + 1) and columns V (m, K, T)."""
-    m, K, T = V.shape
-    # one product for the whole batch (A read once; a batched V @ A multiplies m thin blocks)
-    C = (V.reshape(m * K, T) @ A).reshape(m, K, -1)  # (m, K, P + 1)
-    D = V @ np.swapaxes(V, 1, 2)  # (m, K, K)
-    return C, D
-
-
 class DesignColumns(ColumnSource):
     """Columns ``js`` of a structure's design (u = F), one point (1, K, ·)."""
 
     def __init__(self, model, js):
         self.model, self.js = model, list(js)
-
-    def shape(self, regs) -> tuple[int, int]:
-        return 1, len(self.js)
-
-    def full(self, regs: Regressors) -> np.ndarray:
-        (A,) = regs.design_blocks(self.model)
-        return A[:, self.js].T[None]
 
     def blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
         for A in regs.design_blocks(self.model):
@@ -415,16 +325,13 @@ class DesignColumns(ColumnSource):
 
 
 class _DesignPass:
-    """A structure's design chunk by chunk (:meth:`Regressors.design_blocks`), its filters' and
-    mode stages' states held between chunks; :meth:`state` and :meth:`restore` let a pass
-    revisit chunks (the periodic screen reads them backwards)."""
+    """A structure's design chunk by chunk, its filters' and mode stages' states carried;
+    :meth:`state` and :meth:`restore` let a pass revisit chunks."""
 
     def __init__(self, regs: Regressors, model, grid: bool):
-        self.regs, self.model, self.grid = regs, model, grid
-        plan = regs.plan(model)
-        self.plan = plan
-        self.cols = columns_of(model)
-        self.n = regs.width(model)
+        self.regs, self.model = regs, model
+        self.plan = plan = regs.plan(model)
+        self.cols, self.n = columns_of(model), regs.width(model)
         fixed = sorted({c.signal for c in self.cols if not f_dependent(c.signal)} - {"x"})
         raw = regs._raw(model, fixed)
         missing = [s for s, (u, _) in raw.items() if u is None]
@@ -446,19 +353,13 @@ class _DesignPass:
                 nm = f"{s}·F"
                 inputs[nm] = (u, 0.0)
                 self.fdep.append((k, int(np.flatnonzero(plan.onehot[k])[0]), nm))
-        modes = sorted({regs.derived[c.signal][:2] for c in self.cols if c.signal in regs.derived})
-        self.modes = modes
+        self.modes = modes = sorted(
+            {regs.derived[c.signal][:2] for c in self.cols if c.signal in regs.derived}
+        )
         self.stages = None
         if modes:
             inputs.setdefault("F", (rows(regs.F), 0.0))
-            (whole, _), *_ = _batches(np.asarray(modes, np.float64), MODE_BUCKETS[-1:])
-            b = next(b for b in MODE_BUCKETS if b >= len(modes))
-            st = _mode_stages(whole[:, 0], whole[:, 1], _f(regs.lam), _f(regs.dt))
-            zeta = np.concatenate(
-                [whole[: len(modes), 1], np.repeat(whole[-1:, 1], b - len(modes))]
-            )
-            stages = tuple(np.asarray(a)[:b] for a in st)
-            self.stages = ModeStages(stages, zeta, float(regs.lam), regs.chunk)
+            self.stages = ModeStages(modes, regs.lam, regs.dt, regs.chunk)
         self.filters = Filters(regs.dsc, regs.T, regs.chunk, inputs, regs.outputs)
 
     def state(self):
@@ -495,9 +396,9 @@ class _DesignPass:
 
 
 class ModeProfileColumns(ColumnSource):
-    """The flexible mode's columns for each mode (ω [rad/s], ζ) of ``modes``: −(s²/Λ)[h_x],
-    (1/Λ)[h_F] and the mode's free response (2), (m, 4, ·), then the columns ``keep``: the
-    mode's stages chunk by chunk (a record of one chunk: computed once for every ``keep``)."""
+    """A flexible mode's columns −(s²/Λ)[h_x], (1/Λ)[h_F] and its free response (2) for each
+    mode (ω [rad/s], ζ) of ``modes``, (m, 4, ·), its columns ``keep`` taken (a record of one
+    chunk: computed once for every ``keep``)."""
 
     def __init__(self, modes, lam: float, dt: float, keep=slice(None)):
         self.modes = np.asarray(modes, np.float64).reshape(-1, 2)
@@ -505,47 +406,28 @@ class ModeProfileColumns(ColumnSource):
         self._full: dict = {}
 
     def select(self, keep) -> ModeProfileColumns:
-        """The same modes' columns ``keep`` (sharing what :meth:`full` computed)."""
+        """The same modes' columns ``keep`` (sharing a record of one chunk's block)."""
         out = ModeProfileColumns(self.modes, self.lam, self.dt, keep)
         out._full = self._full
         return out
 
-    def shape(self, regs) -> tuple[int, int]:
-        return len(self.modes), len(np.arange(4)[self.keep])
-
-    def full(self, regs: Regressors) -> np.ndarray:
-        if id(regs) not in self._full:
-            (blk,) = self._blocks(regs)
-            self._full[id(regs)] = (regs, blk)
-        return self._full[id(regs)][1][:, self.keep]
-
     def blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
-        for blk in self._blocks(regs):
-            yield blk[:, self.keep]
+        if not regs.whole:
+            for blk in self._blocks(regs):
+                yield blk[:, self.keep]
+            return
+        if id(regs) not in self._full:
+            self._full[id(regs)] = (regs, next(self._blocks(regs)))
+        yield self._full[id(regs)][1][:, self.keep]
 
     def _blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
-        filt = Filters(
-            regs.dsc,
-            regs.T,
-            regs.chunk,
-            {"x": (rows(regs.x), 1.0), "F": (rows(regs.F), 0.0)},
-            regs.outputs,
-        )
-        stages = []
-        for chunk, m in _batches(self.modes, MODE_BUCKETS):
-            b = len(chunk)
-            (whole, _), *_ = _batches(chunk, MODE_BUCKETS[-1:])
-            st = _mode_stages(whole[:, 0], whole[:, 1], _f(self.lam), _f(regs.dt))
-            st = tuple(np.asarray(a)[:b] for a in st)
-            stages.append((ModeStages(st, chunk[:, 1], self.lam, regs.chunk), m))
+        xF = {"x": (rows(regs.x), 1.0), "F": (rows(regs.F), 0.0)}
+        filt = Filters(regs.dsc, regs.T, regs.chunk, xF, regs.outputs)
+        stages = ModeStages(self.modes, self.lam, regs.dt, regs.chunk)
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
-            cx, cF = [], []
-            for ms, m in stages:
-                a, b = ms.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
-                cx.append(a[:m])
-                cF.append(b[:m])
+            cx, cF = stages.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
             blk = np.empty((len(self.modes), 4, k1 - k0))
-            blk[:, 0], blk[:, 1] = -np.concatenate(cx), np.concatenate(cF)
+            blk[:, 0], blk[:, 1] = -cx, cF
             blk[:, 2:] = mode_free_responses(self.modes, self.dt, k1, k0)
             yield blk

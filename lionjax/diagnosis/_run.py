@@ -11,13 +11,13 @@ import numpy as np
 from .._errors import InputError
 from .._record import Record
 from ._criteria import Criteria
-from ._filtering import impulse_gains
 from ._fit import Fitted, fit
 from ._lstsq import TooWide
 from ._problem import ROLES, Problem
 from ._result import EffectScore
 from ._settings import settings
 from ._statistics import _check_memory, _feedback, _position_noise, _robust_diff_std
+from ._streaming import impulse_gains
 from .effects import AbstractCandidate, Design, Limits
 
 

@@ -1,17 +1,7 @@
-"""Searches over a candidate's nonlinear parameters: typed Modules, each minimising a host
-function of its points (a residual sum of squares) in the pattern of optimistix's minimisers
+"""Searches over a candidate's nonlinear parameters: typed Modules minimising a host function
+of their points (a residual sum of squares), in the pattern of optimistix's minimisers
 (``GoldenSearch``, ``BestSoFarMinimiser``): the search is a value, the function its argument.
-
-- :class:`GridSearch`: the best of a grid's points (the function takes a batch of points);
-- :class:`ParabolaStep`: the vertex of the parabola through a grid's best point and its
-  neighbours (optionally in the logarithm of the parameter);
-- :class:`GoldenSection`: golden-section steps between the best point's neighbours;
-- :class:`PatternSearch`: a compass search in two parameters, halving its steps where no
-  neighbour is better;
-- :func:`best_so_far`: the best of several searches' results.
-
-Every function here is evaluated on batches of points (a batch is one pass over the record)
-and returns one value per point.
+Functions take a batch of points (one pass over the record) and return one value per point.
 """
 
 from __future__ import annotations
@@ -26,18 +16,6 @@ import numpy as np
 from .._progress import counted
 
 Batch = Callable[[Sequence[Any]], np.ndarray]
-
-
-def parabola_vertex(g, r) -> float | None:
-    """The abscissa of the vertex of the parabola through (gₖ, rₖ), k = 0, 1, 2 (any spacing),
-    held within [g₀, g₂]; None where the parabola does not open upward."""
-    (g0, g1, g2), (r0, r1, r2) = (float(v) for v in g), (float(v) for v in r)
-    den = (g0 - g1) * (g0 - g2) * (g1 - g2)
-    A = (g2 * (r1 - r0) + g1 * (r0 - r2) + g0 * (r2 - r1)) / den
-    B = (g2**2 * (r0 - r1) + g1**2 * (r2 - r0) + g0**2 * (r1 - r2)) / den
-    if not A > 0:
-        return None
-    return min(max(-B / (2 * A), min(g0, g2)), max(g0, g2))
 
 
 class GridSearch(eqx.Module):
@@ -63,9 +41,9 @@ class GridSearch(eqx.Module):
 
 
 class ParabolaStep(eqx.Module):
-    """The vertex of the parabola through the grid's point ``i`` and its two neighbours, in
-    the parameter or its logarithm (``log``); None on the grid's edge, where the three do not
-    bracket a minimum, or where the parabola does not open upward."""
+    """The vertex −B/(2A) of the parabola Ag² + Bg + C through the grid's point ``i`` and its
+    two neighbours (g the parameter or its logarithm, ``log``), held within them; None on the
+    grid's edge or where the parabola does not open upward."""
 
     log: bool = False
 
@@ -73,16 +51,20 @@ class ParabolaStep(eqx.Module):
         if not 0 < i < len(grid) - 1:
             return None
         g = np.asarray(grid[i - 1 : i + 2], np.float64)
-        v = parabola_vertex(np.log(g) if self.log else g, values[i - 1 : i + 2])
-        if v is None:
+        g0, g1, g2 = (float(v) for v in (np.log(g) if self.log else g))
+        r0, r1, r2 = (float(v) for v in values[i - 1 : i + 2])
+        den = (g0 - g1) * (g0 - g2) * (g1 - g2)
+        A = (g2 * (r1 - r0) + g1 * (r0 - r2) + g0 * (r2 - r1)) / den
+        B = (g2**2 * (r0 - r1) + g1**2 * (r2 - r0) + g0**2 * (r1 - r2)) / den
+        if not A > 0:
             return None
+        v = min(max(-B / (2 * A), min(g0, g2)), max(g0, g2))
         return math.exp(v) if self.log else v
 
 
 class GoldenSection(eqx.Module):
     """``steps`` golden-section steps of a scalar function between ``lo`` and ``hi`` (the bracket
-    shrinks by 0.618 per step): (the best point seen, its value), starting from ``best`` with the
-    value ``best_value``."""
+    shrinks by 0.618 per step): (the best point seen, its value), from ``best``, ``best_value``."""
 
     steps: int = 16
 

@@ -17,7 +17,10 @@ from ._streaming import zero_phase
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
-    """Record-derived settings of a diagnosis (all SI). See the module docstring."""
+    """Record-derived settings of a diagnosis (all SI): the filter's and the zero-phase
+    velocity's corners [Hz], the smoothed sign's scale v_ε [m/s], the restart interval [s], the
+    profile grids (τ [s], F_max [N], mode frequencies [Hz]) and the training positions' centre,
+    scale and range [m]."""
 
     dt: float
     filter_hz: float
@@ -29,62 +32,51 @@ class Settings:
     mode_grid: tuple[float, ...]
     x_center: float
     x_scale: float
-    x_range: tuple[float, float] = (-math.inf, math.inf)  # the training positions' [min, max]
-    #: the band [Hz] the training force excites (:func:`excited_band`)
-    excited: tuple[float, float] = (0.0, math.inf)
+    x_range: tuple[float, float] = (-math.inf, math.inf)
+    excited: tuple[float, float] = (0.0, math.inf)  # the force's band [Hz] (excited_band)
 
     def bank(self) -> FilterBank:
         w = 2 * math.pi * self.filter_hz
         return FilterBank.from_poles(np.full(3, -w), unit_dc_gain=True)
 
 
-#: Upper bound of the default filter corner [Hz]: f_s/25 up to 1 kHz records, then fixed, so
-#: a record of the same device sampled faster is weighted the same way (and the filter's poles
-#: stay far from the noise band of a 10 kHz encoder).
+#: Upper bound of the default filter corner [Hz] (f_s/25 below): a record of the same device
+#: sampled faster is weighted the same way, and the poles stay far from an encoder's noise band.
 MAX_FILTER_HZ = 40.0
-#: Least corner of v̂'s zero-phase filter [Hz] (below 0.3·f_s): 2.5× the filter corner, f_s/10
-#: below 1 kHz, cut into the excited band of slowly sampled records (their excitation reaches
-#: f_s/10 too) and moved sgn v̂'s reversals, so that a dead zone's look-alike, acting with the sign
-#: of the force, fitted closed-loop friction at 310–630 Hz better than friction did.
+#: Least corner of v̂'s zero-phase filter [Hz] (below 0.3·f_s): 2.5× the filter corner cuts into
+#: the excited band of slowly sampled records and moves sgn v̂'s reversals.
 VELOCITY_MIN_HZ = 100.0
 #: Longest delay of the default profile grid [s] (at least 60 samples).
 MAX_DELAY_S = 0.03
-#: Flexible-mode grid: frequencies from MODE_BAND[0]·f_filter to MODE_BAND[1]·f_filter (below
-#: 0.2·f_s), and up to MODE_OVER_BAND times the top of the excited band (below MODE_FS·f_s):
-#: a resonance anywhere in the excited band is searched for; MODE_N frequencies per the
-#: factor MODE_BAND[1]/MODE_BAND[0] (a step of 28 %, then refined by the pattern search).
+#: Flexible-mode grid: from MODE_BAND[0]·f_filter to MODE_BAND[1]·f_filter (below 0.2·f_s) or
+#: MODE_OVER_BAND × the excited band's top (below MODE_FS·f_s), MODE_N frequencies per factor
+#: MODE_BAND[1]/MODE_BAND[0] (steps of 28 %, refined by the pattern search).
 MODE_BAND = (0.1, 4.0)
 MODE_N = 16
 MODE_OVER_BAND = 1.25
 MODE_FS = 0.4
-#: The share of the training force's power below the excited band's lower edge and above its
-#: upper edge (:func:`excited_band`).
+#: The share of the force's power below the excited band and above it (:func:`excited_band`).
 EXCITED_TAIL = 0.01
 #: Soft-saturation levels in the F_max grid.
 SOFT_N = 15
 #: Shortest stick [s] that counts where the axis sticks (:func:`~._problem.stuck_mask`).
 STICK_MIN_S = 0.01
 
-
-#: Least number of windows the validation record holds for the windowed simulation (the
-#: window is the baseline's time constant 1/a unless that is longer): the gap's evidence
-#: counts windows (:meth:`~._run.Run.sim_score`).
+#: Least number of windows the validation record holds (the gap's evidence counts windows).
 WINDOWS_LEAST = 8
 
 
 def settings(
     train: Record, *, filter_hz: float | None = None, window_s: float | None = None
 ) -> Settings:
-    """Settings adapted to the training record: sample rate, velocity and force ranges.
-
-    Every setting is checked finite and valid; a record that cannot support one (no motion,
-    no force) gets an :class:`~lionjax.InputError` naming it.
-    """
+    """Settings adapted to the training record; a record that cannot support one (no motion,
+    no force) gets an :class:`~lionjax.InputError` naming it."""
     dt = float(train.dt)
     fs = 1.0 / dt
     # the band the excitation covers: the force less a controller's answer to the position
     # (in closed loop F also carries the position noise fed back, broadband)
-    F_ref = _feedback(np.asarray(train.x, np.float64), np.asarray(train.F, np.float64))[1]
+    x, F = np.asarray(train.x, np.float64), np.asarray(train.F, np.float64)
+    F_ref = _feedback(x, F)[1]
     excited = excited_band(F_ref, dt)
     fh = min(fs / 25.0, MAX_FILTER_HZ) if filter_hz is None else float(filter_hz)
     if not (0 < fh < fs / 2):
@@ -92,11 +84,9 @@ def settings(
             f"filter_hz: expected 0 < filter_hz < f_s/2 = {fs / 2:.6g} Hz, got {filter_hz!r}."
         )
     vh = max(min(2.5 * fh, 0.15 * fs), min(VELOCITY_MIN_HZ, 0.3 * fs))
-    x = np.asarray(train.x, np.float64)
-    v = zero_phase(train.x, dt, 2 * math.pi * vh)[1]
-    # speed scale: a record that sticks most of the time (friction, quantised encoder) has v̂
-    # ≈ 0 on more than half of its samples
-    # (the median is then the smoothing's tail, ~1e-8 m/s): take it over the moving samples
+    v = zero_phase(x, dt, 2 * math.pi * vh)[1]
+    # speed scale: a record that sticks most of the time has v̂ ≈ 0 on more than half of its
+    # samples (the median is then the smoothing's tail): take it over the moving samples
     va = np.abs(v)
     ok = bool(np.all(np.isfinite(va)))
     med = float(np.median(va)) if ok else math.nan
@@ -113,12 +103,9 @@ def settings(
             "record a motion that covers the range of interest."
         )
     v_eps = 0.02 * med
-    Fa = np.abs(np.asarray(train.F, np.float64))
-    n = train.n_samples
-    tau_max = max(60 * dt, MAX_DELAY_S)
-    tau_max = min(tau_max, 0.1 * n * dt)
+    tau_max = min(max(60 * dt, MAX_DELAY_S), 0.1 * train.n_samples * dt)
     taus = np.geomspace(0.25 * dt, max(tau_max, dt), 32)
-    fq = np.quantile(Fa, np.linspace(0.3, 0.995, 28))
+    fq = np.quantile(np.abs(F), np.linspace(0.3, 0.995, 28))
     fq = np.unique(fq[fq > 0])
     if fq.size == 0:
         raise InputError(
@@ -148,9 +135,8 @@ def settings(
 
 
 def excited_band(F: np.ndarray, dt: float) -> tuple[float, float]:
-    """(f_lo, f_hi) [Hz]: the frequencies below which :data:`EXCITED_TAIL` and above which
-    :data:`EXCITED_TAIL` of the force's power (its mean and linear trend removed) lie, from its
-    periodogram (Hann window): the band the record excites."""
+    """(f_lo, f_hi) [Hz] the force excites: below and above them lies :data:`EXCITED_TAIL` of
+    its power each (periodogram, Hann window, mean and linear trend removed)."""
     n = F.size
     if n < 16:
         return 0.0, 0.5 / dt

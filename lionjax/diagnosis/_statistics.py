@@ -13,7 +13,6 @@ from ._lstsq import (
     decimation_to_fit,
     longest_records,
     memory_estimate,
-    memory_estimate_streamed,
     physical_memory,
     streamed_by_default,
 )
@@ -40,10 +39,9 @@ def decimation_for(
     streamed: bool | None = None,
 ) -> int:
     """The least factor r for which :func:`diagnose` of ``train.decimate(r)`` and
-    ``valid.decimate(r)`` (:meth:`lionjax.Record.decimate`) fits the host memory
-    (``max_memory_gb``, default this machine's; ``streamed`` as :func:`diagnose` takes it):
-    1 when the records fit as they are; 0 when no factor helps. ``lionjax diagnose --decimate
-    auto`` uses it."""
+    ``valid.decimate(r)`` fits the host memory (``max_memory_gb``, default this machine's;
+    ``streamed`` as :func:`diagnose` takes it): 1 when the records fit as they are, 0 when no
+    factor helps (``lionjax diagnose --decimate auto``)."""
     valid = train if valid is None else valid
     have = _memory_budget(max_memory_gb)
     if have is None:
@@ -51,53 +49,46 @@ def decimation_for(
     return decimation_to_fit(have, train.n_samples, valid.n_samples, streamed=streamed)
 
 
-def _check_memory(
-    n_train: int, n_valid: int, max_memory_gb: float | None, streamed: bool | int | None = None
-) -> bool:
-    """Whether the records are diagnosed streamed (``streamed``: True, False, a chunk length
-    in samples (streamed), or None: by their length, :func:`~._lstsq.streamed_by_default`);
-    InputError when records of these lengths need more host memory than allowed."""
-    ok = streamed is None or isinstance(streamed, bool)
-    ok = ok or (isinstance(streamed, numbers.Integral) and 16 <= streamed)
-    if not ok:
+def _check_memory(n_train: int, n_valid: int, max_memory_gb, streamed=None) -> bool:
+    """Whether the records are read in chunks (``streamed``: True, False, a chunk length, or
+    None: by their length); InputError when they need more host memory than allowed."""
+    if not (
+        streamed is None
+        or isinstance(streamed, bool)
+        or (isinstance(streamed, numbers.Integral) and streamed >= 16)
+    ):
         raise InputError(
             "diagnose: streamed must be True, False, None or a chunk length of at least 16 "
             f"samples, got {streamed!r}."
         )
-    if streamed is None:
-        streamed = streamed_by_default(n_train, n_valid)
-    streamed = bool(streamed)
+    streamed = streamed_by_default(n_train, n_valid) if streamed is None else bool(streamed)
     have = _memory_budget(max_memory_gb)
-    if streamed:
-        need = memory_estimate_streamed(n_train, n_valid)
-        if have is None or need <= have:
-            return True
-        raise InputError(
-            f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need "
-            f"about {need / 1e9:.3g} GB of host memory streamed, more than "
-            f"{'max_memory_gb' if max_memory_gb is not None else 'this machine'} "
-            f"({have / 1e9:.3g} GB). Diagnose shorter excerpts or decimate both records "
-            f"(Record.decimate; CLI: --decimate)."
-        )
-    need = memory_estimate(n_train, n_valid, streamed=False)
+    need = memory_estimate(n_train, n_valid, streamed=streamed)
     if have is None or need <= have:
-        return False
+        return streamed
+    limit = "this machine" + ("" if streamed else "'s physical memory")
+    head = (
+        f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
+        f"{need / 1e9:.3g} GB of host memory{' streamed' if streamed else ''}, more than "
+        f"{'max_memory_gb' if max_memory_gb is not None else limit} ({have / 1e9:.3g} GB)."
+    )
+    if streamed:
+        raise InputError(
+            f"{head} Diagnose shorter excerpts or decimate both records (Record.decimate; CLI: "
+            "--decimate)."
+        )
     n = longest_records(have, streamed=False)
     r = decimation_to_fit(have, n_train, n_valid, streamed=False)
-    limit = "max_memory_gb" if max_memory_gb is not None else "this machine's physical memory"
-    if n:
-        how = (
-            f"Decimate both records by {r} or more (train.decimate({r}), valid.decimate({r}): "
-            f"the diagnosis then runs at {r}× the sample interval; CLI: --decimate {r}, or "
-            f"--decimate auto), diagnose shorter excerpts (at most about {n} samples each), or"
-        )
-    else:
-        how = "Even the shortest records do not fit:"
+    how = (
+        f"Decimate both records by {r} or more (train.decimate({r}), valid.decimate({r}): "
+        f"the diagnosis then runs at {r}× the sample interval; CLI: --decimate {r}, or "
+        f"--decimate auto), diagnose shorter excerpts (at most about {n} samples each), or"
+        if n
+        else "Even the shortest records do not fit:"
+    )
     raise InputError(
-        f"diagnose: the train and valid records ({n_train} and {n_valid} samples) need about "
-        f"{need / 1e9:.3g} GB of host memory, more than {limit} ({have / 1e9:.3g} GB). "
-        f"{how} diagnose them streamed (streamed=True; CLI: --streamed on), or pass a larger "
-        f"max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
+        f"{head} {how} diagnose them streamed (streamed=True; CLI: --streamed on), or pass a "
+        "larger max_memory_gb (CLI: --max-memory-gb) on a machine with swap."
     )
 
 
@@ -113,16 +104,14 @@ def _long_runs(flag: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-#: Largest noise of the start velocity of the windowed simulation, as a share of the rms of
-#: v̂ (:func:`_start_states`).
+#: Largest noise of the windowed simulation's start velocity, as a share of the rms of v̂.
 STATE_NOISE = 0.02
 
 
 def _noise_gain(dt: float, omega: float | None) -> float:
-    """‖h‖₂ of the velocity estimator's impulse response: white position noise of σ [m] gives
-    the estimate the noise σ·‖h‖₂ [m/s]. ``omega`` [rad/s] is the zero-phase filter's corner
-    (:func:`~._streaming.zero_phase`); None is the five-point derivative of the raw samples
-    (:func:`_five_point`), √130/(12·dt)."""
+    """‖h‖₂ of the velocity estimator's impulse response: white position noise σ [m] gives the
+    estimate the noise σ·‖h‖₂ [m/s]. ``omega`` [rad/s]: the zero-phase filter's corner; None:
+    the five-point derivative (:func:`_five_point`), √130/(12·dt)."""
     if omega is None:
         return math.sqrt(130.0) / (12.0 * dt)
     imp = np.zeros(2048)
@@ -135,15 +124,12 @@ def _start_states(
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """(f [Hz], x₀, v₀): the states the windowed simulation restarts from, at each sample.
 
-    Estimated in the widest band whose velocity noise (the position noise σ through the
-    estimator, :func:`_noise_gain`) stays within :data:`STATE_NOISE` of the rms of ``v`` (v̂ at
-    ``velocity_hz``): the raw samples and their five-point derivative (f = ∞) where they are
-    precise enough, else the zero-phase filter at 8, 4 or 2 × ``velocity_hz`` (below
-    0.3·f_s), else at ``velocity_hz`` itself. v̂'s own band suits sgn ẋ, not the states: its
-    filter (1 + (f/f_v)²)⁻³ keeps 1/8 of the motion at f_v, which lies at the excited band's
-    edge at low sample rates (f_v = f_s/10): at 277 Hz the smoothed start states were 161 µm and
-    25 % of the rms velocity off (from the raw samples: 3 µm), and the true model simulated worse
-    than the rigid baseline."""
+    Estimated in the widest band whose velocity noise (σ through the estimator,
+    :func:`_noise_gain`) stays within :data:`STATE_NOISE` of the rms of ``v`` (v̂ at
+    ``velocity_hz``): the raw samples and their five-point derivative (f = ∞), else the
+    zero-phase filter at 8, 4 or 2 × ``velocity_hz`` (below 0.3·f_s), else at ``velocity_hz``.
+    v̂'s own band suits sgn ẋ, not the states: its filter (1 + (f/f_v)²)⁻³ keeps 1/8 of the
+    motion at f_v, which lies at the excited band's edge at low sample rates."""
     # the white noise's least upper bound, but never below the encoder's count: a slow axis's
     # quantisation error is a staircase, not white, and hides from the top of the spectrum
     sx = max(min(_robust_diff_std(x), _high_band_noise(x)), _lattice_step(x) / math.sqrt(12.0))
@@ -161,10 +147,9 @@ def _start_states(
 
 
 def _five_point(x: np.ndarray, dt: float) -> np.ndarray:
-    """ẋ [m/s] of samples x [m] by the five-point stencil (x₋₂ − 8x₋₁ + 8x₁ − x₂)/(12·dt),
-    np.gradient's second-order differences at the two samples of each end. Its gain on a sine
-    at ωdt is (8 sin ωdt − sin 2ωdt)/(6ωdt) = 1 − (ωdt)⁴/30 + …: 0.3 % low at f_s/11, where
-    central differences are 5 % low."""
+    """ẋ [m/s] of x [m] by the five-point stencil (x₋₂ − 8x₋₁ + 8x₁ − x₂)/(12·dt) (second-order
+    differences at the ends): gain (8 sin ωdt − sin 2ωdt)/(6ωdt) = 1 − (ωdt)⁴/30 + … on a sine,
+    0.3 % low at f_s/11 where central differences are 5 % low."""
     v = np.gradient(x, dt, edge_order=2)
     if x.size >= 5:
         v[2:-2] = (x[:-4] - 8.0 * x[1:-3] + 8.0 * x[3:-1] - x[4:]) / (12.0 * dt)
@@ -173,11 +158,10 @@ def _five_point(x: np.ndarray, dt: float) -> np.ndarray:
 
 def _high_band_noise(x: np.ndarray) -> float:
     """σ [m] of white position noise from the top of the spectrum: the median periodogram of
-    Δx (Hann window) over 0.3–0.5·f_s, divided by Δ's gain 4·sin²(πf/f_s) and by ln 2 (the
-    median of an exponential's sample over its mean). Motion there counts as noise, so it is an
-    upper bound like :func:`_position_noise`, but a different one: the third differences of a
-    motion at f_s/11 (a record sampled at 277 Hz excited to 25 Hz) are 0.18× its amplitude, and
-    took a 1 mm sine for 60 µm of noise; its spectrum above 0.3·f_s holds the encoder's 3 µm."""
+    Δx (Hann window) over 0.3–0.5·f_s, divided by Δ's gain 4·sin²(πf/f_s) and by ln 2 (an
+    exponential's median over its mean). An upper bound (motion there counts as noise) that,
+    unlike the third differences, holds when the excitation reaches f_s/11 (Δ³ of a sine there
+    is 0.18× its amplitude)."""
     d = np.diff(np.asarray(x, np.float64))
     n = d.size
     if n < 16:
@@ -192,21 +176,17 @@ def _high_band_noise(x: np.ndarray) -> float:
 
 def _position_noise(x: np.ndarray) -> float:
     """σ [m] of a position record's noise: the larger of the third-difference estimate
-    (:func:`_robust_diff_std`) and q/√12 of its encoder's count q (:func:`_lattice_step`) — a
+    (:func:`_robust_diff_std`) and q/√12 of its encoder's count q (:func:`_lattice_step`): a
     quantised position's error is uniform over one count when the axis moves several counts per
-    sample, and the third differences then miss it (a 2.3 µm encoder at 3.1 kHz: 0.46 µm for
-    0.66)."""
+    sample, and the third differences then miss it."""
     return max(_robust_diff_std(x), _lattice_step(x) / math.sqrt(12.0))
 
 
 def _robust_diff_std(u: np.ndarray) -> float:
-    """σ of white noise on a smooth signal from its third differences: Var(Δ³n) = 20σ².
-
-    The larger of two estimates of std(Δ³n): the MAD (Gaussian noise) and the RMS of the 99 %
-    smallest |Δ³u| (rare outliers such as stick–slip events left out). A coarse encoder on a
-    slowly moving axis gives sparse noise — Δ³ is 0 except around each step of the count — whose
-    variance the MAD misses (a 20 µm encoder at 2.8 kHz: 3.6× too low), and the diagnosis then
-    fits the steps as an effect."""
+    """σ of white noise on a smooth signal from its third differences (Var(Δ³n) = 20σ²): the
+    larger of the MAD (Gaussian noise) and the RMS of the 99 % smallest |Δ³u| (stick–slip
+    outliers left out). A coarse encoder on a slow axis gives sparse noise (Δ³ = 0 except around
+    each count's step), whose variance the MAD misses."""
     d = np.diff(u, 3)
     if d.size == 0:
         return 0.0
@@ -219,21 +199,17 @@ def _robust_diff_std(u: np.ndarray) -> float:
 def _feedback(
     x: np.ndarray, F: np.ndarray, lags: int = 4, past: int = 8
 ) -> tuple[float, np.ndarray]:
-    """(share, F_ref): a controller on the measured position read from the record.
+    """(share, F_ref): a controller on the measured position, read from the record.
 
-    ``share`` is the part of the force's innovation that the position just measured explains:
-    on third differences (they whiten the position noise and leave a slow drift out), Δ³F is
-    regressed on its own past (lags 1…``past``) and on Δ³x at lags 2…``past``, then Δ³x at lags
-    0 and 1 is added; ``share`` = 1 − RSS(with)/RSS(without). In open loop F is exogenous: the
-    measured position, a response to past forces plus noise, predicts nothing new about it. A
-    controller that answers the position it reads makes it large; a loop whose answer to the
-    position is small against the excitation's own innovation counts as open loop. (The R² of
-    Δ³F on Δ³x alone reads open loops at low rates as closed: a rough excitation is partly
-    predicted from the plant's response to it.)
-    F_ref = F − C∗x [N] is the force less the controller's answer to the measured position (C a
-    causal FIR on lags 0…``lags`` fitted on the third differences): the excitation, up to a slow
-    drift — what a closed-loop residual test correlates against, since F itself carries the
-    position noise that ε₁ also carries."""
+    ``share``: the part of the force's innovation that the position just measured explains. On
+    third differences (they whiten the position noise and drop a slow drift), Δ³F is regressed
+    on its own lags 1…``past`` and Δ³x at lags 2…``past``, then Δ³x at lags 0 and 1 is added:
+    share = 1 − RSS(with)/RSS(without). In open loop F is exogenous and the position just
+    measured predicts nothing new about it (the R² of Δ³F on Δ³x alone does not hold: a rough
+    excitation is partly predicted from the plant's response to it).
+    F_ref = F − C∗x [N] (C a causal FIR on lags 0…``lags`` fitted on the third differences):
+    the excitation up to a slow drift, which a closed-loop residual test correlates against
+    (F itself carries the position noise that ε₁ also carries)."""
     x = np.asarray(x, np.float64)
     F = np.asarray(F, np.float64)
     dx, dF = np.diff(x, 3), np.diff(F, 3)
@@ -261,12 +237,10 @@ def _feedback(
 
 
 def _lattice_step(u: np.ndarray) -> float:
-    """The step q of the lattice a quantised signal's samples lie on (an encoder's count), or 0.
-
-    q₀ is the smallest nonzero |Δu| (its 1 % quantile), refined by least squares over every
-    step as a whole number k of counts (q = Σ|Δu|·k/Σk²: a float32 record's q₀ is off by 10⁻⁴,
-    a count after 10⁴ counts); the samples lie on the lattice when 99 % of them are within 1 % of
-    q from a multiple of it (offset by u₀)."""
+    """The step q of the lattice a quantised signal's samples lie on (an encoder's count), or 0:
+    q₀ the 1 % quantile of the nonzero |Δu|, refined by least squares over every step as k
+    counts (q = Σ|Δu|·k/Σk²: a float32 record's q₀ is off by 10⁻⁴); on the lattice when 99 % of
+    the samples lie within 1 % of q of a multiple of it (offset by u₀)."""
     u = np.asarray(u, np.float64)
     du = np.abs(np.diff(u))
     nz = du[du > 0]

@@ -1,18 +1,12 @@
 """The record in chunks: the diagnosis' filters with their states carried from chunk to chunk,
-and column sources whose products a chunked fit accumulates (:class:`~._regressors.Regressors`).
+and the column sources whose products a fit accumulates (:class:`~._regressors.Regressors`).
 
-A long record's filtered signals, designs and profile columns are never held whole: every
-product the fits read (Grams, cross products with a profile's columns, a validation residual's
-refitted part) is a sum over rows, so it is accumulated chunk by chunk of :data:`CHUNK` samples.
-Each chunk runs the same recursion as a whole record (:func:`~._filtering.filter_from`,
-:func:`~._filtering.mode_cascade_from`) from the state the previous chunk ended in; the first
-starts from the steady state before the record, as the whole-record filter does, and the
-hold correction of each chunk reads its neighbours' samples (:func:`window`). So a chunked pass
-gives the whole record's numbers, rounded differently in the last bits.
-
-Raw signals are functions of a row range, ``raw(k0, k1) -> (k1 − k0,)`` (:func:`rows` of a held
-array, or computed per chunk: a profile's sinusoids, an input map): a pass holds one chunk of
-each.
+Every product the fits read is a sum over rows, so it is accumulated chunk by chunk: a long
+record's filtered signals are never held whole, and a short record is one chunk. Each chunk runs
+the recursion from the state the previous one ended in (the first from the steady state before
+the record), its hold correction reading the neighbouring samples (:func:`window`): the chunk
+length changes the numbers only in their last bits. Raw signals are functions of a row range,
+``raw(k0, k1) -> (k1 − k0,)`` (:func:`rows` of a held array, or computed per chunk).
 """
 
 from __future__ import annotations
@@ -26,26 +20,22 @@ import numpy as np
 
 from .._filters import FilterBank
 from ._filtering import (
-    LONG_BATCH,
     Discrete,
     _f,
-    _i,
-    _seed_discretes,
-    _zero_phase,
-    edge_pad,
+    _mode_stages,
     filter_from,
     mode_cascade_from,
     padded_length,
-    seed_design,
-    seed_mode,
+    seed_discrete,
 )
 
-#: Samples per chunk of a streamed pass. A chunk of 32 signals holds (32, 2¹⁶, 4) float64
-#: outputs (67 MB); the passes' cost per sample does not depend on it above a few 10⁴.
+#: Samples per chunk of a long record: 32 signals' outputs take 67 MB, and the cost per sample
+#: does not depend on it above a few 10⁴.
 CHUNK = 1 << 16
-#: Signals filtered per call of a chunk's filter (the smallest that holds them; one program per
-#: batch and chunk length).
+#: Signals filtered per call, and modes whose stages one call computes: the smallest batch that
+#: holds them (one program per batch).
 BATCHES = (1, 2, 4, 8, 16, 32)
+MODE_BUCKETS = (1, 2, 4)
 
 Raw = Callable[[int, int], np.ndarray]
 
@@ -59,8 +49,7 @@ def rows(a) -> Raw:
 
 
 def scaled(m, raw: Raw) -> Raw:
-    """``m·raw`` for a multiplier ``m`` (a force mask, a position's multiplier), held (T,) or
-    a raw signal."""
+    """``m·raw`` for a multiplier ``m`` (a force mask, a position's), held (T,) or raw."""
     m = rows(m)
     return lambda k0, k1: m(k0, k1) * raw(k0, k1)
 
@@ -71,16 +60,15 @@ def spans(T: int, chunk: int) -> list[tuple[int, int]]:
 
 
 def chunk_length(T: int) -> int:
-    """The chunk of a record of ``T`` samples: :data:`CHUNK`, or the record's own padded length
-    where that is shorter (a short record is one chunk, on the in-memory path's bucket)."""
+    """The chunk of a record of ``T`` samples: :data:`CHUNK`, or the record's padded length
+    where that is shorter (a short record is one chunk)."""
     return min(CHUNK, padded_length(T))
 
 
 def window(raw: Raw, k0: int, T: int, C: int) -> np.ndarray:
     """u[k0 − 1 … k0 + C + 1] (C + 3,) of a signal of ``T`` samples: the rows a chunk of ``C``
-    samples from ``k0`` reads for its hold correction; samples beyond the record repeat its last
-    (the whole record's edge padding), and u[−1] is a stand-in (:func:`_held` replaces its
-    Δ²)."""
+    samples from ``k0`` reads for its hold correction; beyond the record its last sample
+    repeated, u[−1] a stand-in (:func:`_held` replaces its Δ²)."""
     lo, hi = max(k0 - 1, 0), min(k0 + C + 2, T)
     w = np.asarray(raw(lo, hi), np.float64)
     off = 1 if k0 == 0 else 0
@@ -92,10 +80,14 @@ def window(raw: Raw, k0: int, T: int, C: int) -> np.ndarray:
 
 
 def _held(w, foh, first):
-    """(u (C,), u held (C,), its steps (C,)) of a :func:`window` ``w`` (C + 3,), as
-    :func:`~._filtering._filt` forms them on the whole record: u − foh·Δ²u/12
-    (:func:`~._filtering.hold_corrected`; with ``first``, the record's first chunk, Δ² of the
-    first sample is the second's) and foh·(next held − held)."""
+    """(u, u held, its steps) (C,) each of a :func:`window` ``w`` (C + 3,): uₖ − foh·Δ²uₖ/12
+    (on the ``first`` chunk the first Δ² is the second's) and foh·(next held − held).
+
+    ``foh`` 1.0: a smooth signal under a first-order hold; 0.0: a zero-order-held input (F).
+    A smooth u(t) differs from its linear interpolant by ½ü(t − tₖ)(t − tₖ₊₁), of mean −h²ü/12:
+    a low-pass filter sees u − (h²/12)ü, an equation error ∝ (ωh)²/12 that looks like a flexible
+    mode at a few hundred Hz. Subtracting Δ²u/12 leaves O(h⁴) (Simpson against the trapezoid).
+    The last sample's Δ² sees the padding: one row, off by up to Δx/12."""
     d2 = w[2:] - 2.0 * w[1:-1] + w[:-2]  # Δ² at k0 … k0 + C
     d2 = d2.at[0].set(jnp.where(first, d2[1], d2[0]))
     h = w[1:-1] - foh * d2 / 12.0
@@ -103,7 +95,7 @@ def _held(w, foh, first):
 
 
 def _window_filter(dsc: Discrete, w, foh, first, z):
-    """(outputs (4, C), end state (n,)) of one signal's :func:`window` ``w`` held and filtered
+    """(outputs (r, C), end state (n,)) of one signal's :func:`window` ``w`` held and filtered
     from the state ``z``, or with ``first`` from the steady state of its first held sample."""
     u_at, h, du = _held(w, foh, first)
     z = jnp.where(first, jnp.zeros_like(z).at[0].set(h[0] / dsc.c_last), z)
@@ -113,15 +105,8 @@ def _window_filter(dsc: Discrete, w, foh, first, z):
 
 @jax.jit
 def _filter_window(dsc: Discrete, W, foh, first, z0):
-    """:func:`_window_filter` of signals W (B, C + 3) through one filter: (B, 4, C), (B, n)."""
+    """:func:`_window_filter` of signals W (B, C + 3) through one filter: (B, r, C), (B, n)."""
     return jax.vmap(_window_filter, in_axes=(None, 0, 0, None, 0))(dsc, W, foh, first, z0)
-
-
-@jax.jit
-def _systems_window(dsc: Discrete, W, foh, first, z0):
-    """:func:`_window_filter` of signals W (B, C + 3), each through its own filter (a batch of
-    :class:`~._filtering.Discrete`)."""
-    return jax.vmap(_window_filter, in_axes=(0, 0, 0, None, 0))(dsc, W, foh, first, z0)
 
 
 @jax.jit
@@ -138,33 +123,18 @@ def _pad_rows(a: np.ndarray, n: int) -> np.ndarray:
 
 
 class Filters:
-    """Signals filtered chunk by chunk through one bank, their states carried
-    (:func:`~._filtering.filter_from`); :meth:`step` filters the next chunk of every signal.
+    """Signals ``inputs`` {name: (raw, foh)} filtered chunk by chunk through one bank, their
+    states carried (the first chunk from the steady state of its first held sample). ``kept``
+    (a record of one chunk): outputs {name: (4, T)} read instead of filtered again, where each
+    new one is kept (a name stands for its samples)."""
 
-    ``inputs``: {name: (raw, foh)}, ``foh`` 1.0 (first-order hold of the hold-corrected
-    samples) or 0.0 (zero-order hold). The first chunk starts from the steady state of its
-    first (held) sample, as the whole-record filter does. ``kept``: where given (a record of
-    one chunk), the outputs {name: (4, T)} already filtered, read instead of filtered again,
-    and where each new one is kept (a signal's name stands for its samples)."""
-
-    def __init__(
-        self,
-        dsc: Discrete,
-        T: int,
-        chunk: int,
-        inputs: dict[str, tuple[Raw, float]],
-        kept: dict | None = None,
-    ):
-        self.dsc, self.T, self.chunk = dsc, T, chunk
+    def __init__(self, dsc: Discrete, T: int, chunk: int, inputs: dict, kept: dict | None = None):
+        self.dsc, self.T, self.chunk, self.inputs, self.kept = dsc, T, chunk, inputs, kept
         self.names = list(inputs)
-        self.inputs = inputs
-        self.kept = kept
         self.z: np.ndarray | None = None  # (S, n) states before the next chunk
 
     def step(self, k0: int, k1: int) -> dict:
-        """{name: (4, c) outputs V₁…V₄} of rows [k0, k1), in order (one compiled call per
-        batch of :data:`BATCHES`: each signal's window u[k0 − 1 … k0 + chunk + 1] held and
-        filtered inside it, :func:`_filter_window`)."""
+        """{name: (r, c) outputs (V₁…V₄ of the diagnosis' bank)} of rows [k0, k1), in order."""
         kept = {} if self.kept is None else self.kept
         todo = [n for n in self.names if n not in kept]
         out = {}
@@ -177,90 +147,79 @@ class Filters:
         return {n: out[n] if n in out else kept[n] for n in self.names}
 
     def step_windows(self, W: np.ndarray, foh: np.ndarray, c: int, front: int = 0) -> np.ndarray:
-        """(S, 4, c) outputs of the next chunk from the signals' windows W (S, chunk + 3)
-        (:func:`window`), its c samples from ``front`` on; the states carried (after a short
-        last chunk they are never read)."""
+        """(S, r, c) outputs of the next chunk from the signals' windows W (S, chunk + 3), its c
+        samples from ``front`` on, in batches of :data:`BATCHES`; the states carried."""
         S = W.shape[0]
         n = np.asarray(self.dsc.Phi).shape[0]
         first = self.z is None
         z = np.zeros((S, n)) if first else self.z
-        V = np.empty((S, 4, c))
+        V = np.empty((S, np.shape(self.dsc.C)[0], c))
         z_next = np.empty_like(z)
         top = BATCHES[-1]
         for i in range(0, S, top):
             j = min(i + top, S)
             b = next(b for b in BATCHES if b >= j - i)
             pad = ((0, b - (j - i)), (0, 0))
-            out, end = _filter_window(
-                self.dsc,
-                np.pad(W[i:j], pad),
-                np.pad(foh[i:j], pad[0]),
-                np.bool_(first),
-                np.pad(z[i:j], pad),
-            )
+            args = (np.pad(W[i:j], pad), np.pad(foh[i:j], pad[0]), np.bool_(first))
+            out, end = _filter_window(self.dsc, *args, np.pad(z[i:j], pad))
             V[i:j] = np.asarray(out)[: j - i, :, front : front + c]
             z_next[i:j] = np.asarray(end)[: j - i]
         self.z = z_next
         return V
 
     def step_values(self, U: np.ndarray, last: bool) -> np.ndarray:
-        """(S, 4, c) outputs of the next chunk of zero-order-held values U (S, c) (a pass
-        backwards in time hands them over, no raw signal to read). A short chunk is padded
-        behind where it is the ``last`` and in front otherwise (a first chunk: its first value
-        repeated, the state steady there, so that its end state is the one after its c
-        values)."""
+        """(S, r, c) outputs of the next chunk of zero-order-held values U (S, c) (handed over by
+        a pass backwards in time). A short chunk is padded behind where it is the ``last``, else
+        in front with its first value (the state steady there: its end state is the one after
+        its c values)."""
         S, c = U.shape
         front = 0 if (c == self.chunk or last) else self.chunk - c
-        W = np.concatenate(
-            [
-                np.repeat(U[:, :1], front + 1, 1),
-                U,
-                np.repeat(U[:, -1:], self.chunk + 2 - front - c, 1),
-            ],
-            1,
-        )
-        return self.step_windows(W, np.zeros(S), c, front)
+        pre, post = U[:, :1].repeat(front + 1, 1), U[:, -1:].repeat(self.chunk + 2 - front - c, 1)
+        return self.step_windows(np.concatenate([pre, U, post], 1), np.zeros(S), c, front)
 
 
 class ModeStages:
-    """The flexible mode's stages (:func:`~._filtering.mode_cascade_from`) of modes ``stages``
-    (a batch, :func:`~._filtering._mode_stages`) chunk by chunk, their states carried; fed each
-    chunk's filtered x and F and x's held samples."""
+    """Flexible modes' stages (:func:`~._filtering.mode_cascade_from`) of modes (ω [rad/s], ζ)
+    (m, 2) chunk by chunk, their states carried; in groups of four, the last padded to a bucket
+    of :data:`MODE_BUCKETS` by repeating its last mode (one program per bucket)."""
 
-    def __init__(self, stages, zeta: np.ndarray, lam: float, chunk: int):
-        self.stages, self.zeta, self.lam, self.chunk = stages, zeta, lam, chunk
-        self.p: np.ndarray | None = None
+    def __init__(self, modes, lam: float, dt: float, chunk: int):
+        modes = np.asarray(modes, np.float64).reshape(-1, 2)
+        self.m, self.lam, self.chunk = len(modes), float(lam), chunk
+        self.groups = []  # (stages, ζ) of each group
+        top = MODE_BUCKETS[-1]
+        for i in range(0, self.m, top):
+            g = modes[i : i + top]
+            full = np.concatenate([g, np.repeat(g[-1:], top - len(g), 0)])
+            b = next(b for b in MODE_BUCKETS if b >= len(g))
+            st = _mode_stages(full[:, 0], full[:, 1], _f(lam), _f(dt))
+            self.groups.append((tuple(np.asarray(a)[:b] for a in st), full[:b, 1]))
+        self.p: list | None = None  # each group's states (2b, 2)
 
     def step(self, Vx, Vf, x: np.ndarray, F: np.ndarray, k0: int, k1: int):
-        """(x's columns (m, c), F's columns (m, c)) of rows [k0, k1); ``Vx``, ``Vf`` the
-        filtered x and F of the chunk ((4, c) each, :meth:`Filters.step`), ``x``, ``F`` the
-        records."""
+        """(x's columns (m, c), F's columns (m, c)) of rows [k0, k1), from the chunk's filtered
+        x and F ``Vx``, ``Vf`` (4, c) and the records ``x``, ``F``."""
         c, C = k1 - k0, self.chunk
-        m = self.zeta.shape[0]
         first = self.p is None
         if first:  # x steady at 0 in p, F steady at F[0]: p = (F[0], 0)
-            self.p = np.zeros((2 * m, 2))
-            self.p[m:, 0] = F[k0]
-        pad = lambda a: _pad_rows(a, C).T  # noqa: E731
-        cx, cF, end = _mode_chunk(
-            self.stages,
-            self.zeta,
-            np.float64(self.lam),
-            pad(Vx),
-            window(rows(x), k0, x.size, C),
-            pad(Vf),
-            _pad_rows(np.asarray(F[k0:k1], np.float64), C),
-            self.p,
-            np.bool_(first),
-        )
-        self.p = np.asarray(end)
-        return np.asarray(cx)[:, :c], np.asarray(cF)[:, :c]
+            self.p = [np.zeros((2 * len(z), 2)) for _, z in self.groups]
+            for p, (_, z) in zip(self.p, self.groups, strict=True):
+                p[len(z) :, 0] = F[k0]
+        wx = window(rows(x), k0, x.size, C)
+        Vx, Vf = _pad_rows(Vx, C).T, _pad_rows(Vf, C).T
+        Fc = _pad_rows(np.asarray(F[k0:k1], np.float64), C)
+        out = [
+            _mode_chunk(st, zeta, np.float64(self.lam), Vx, wx, Vf, Fc, p, np.bool_(first))
+            for (st, zeta), p in zip(self.groups, self.p, strict=True)
+        ]
+        self.p = [np.asarray(end) for *_, end in out]  # a new list: a saved state stays valid
+        cx, cF = (np.concatenate([np.asarray(o[i])[:, :c] for o in out])[: self.m] for i in (0, 1))
+        return cx, cF
 
 
 class FreeRows:
-    """V₁ of the unforced filter from each unit state at any rows:
-    C·Φʲ·Φᵏ⁰ for rows k0 + j of a chunk (Φʲ for j < chunk computed once); zeros where Φᵏ⁰ has
-    decayed to nothing."""
+    """V₁ of the unforced filter from each unit state, C·Φʲ·Φᵏ⁰ at rows k0 + j of a chunk (Φʲ
+    computed once)."""
 
     def __init__(self, dsc: Discrete, chunk: int):
         self.Phi = np.asarray(dsc.Phi, np.float64)
@@ -275,7 +234,6 @@ class FreeRows:
         self.row = np.asarray(dsc.C, np.float64)[0] @ Pw  # (chunk, n): C·Φʲ
 
     def __call__(self, k0: int, k1: int) -> np.ndarray:
-        """(k1 − k0, n) rows [k0, k1)."""
         if k0 == 0:
             return self.row[:k1].copy()
         P = np.linalg.matrix_power(self.Phi, k0)
@@ -284,11 +242,14 @@ class FreeRows:
         return self.row[: k1 - k0] @ P
 
 
-def input_map(F: np.ndarray, dt: float, tau: float, fmax: float, k0: int, k1: int) -> np.ndarray:
-    """Rows [k0, k1) of u = sat_Fmax(F(t − τ)) (:func:`~._lstsq.apply_input`'s formula: τ/dt =
-    n + φ, F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1], F before the record = F[0]; F_max < 0
-    the soft saturation)."""
+def input_map(F, dt: float, tau: float, fmax: float, k0: int = 0, k1: int | None = None):
+    """Rows [k0, k1) (default all) of u = sat_Fmax(F(t − τ)) [N] for a force F held between
+    samples: with τ = (n + φ)·dt the delayed force averaged over each interval is
+    F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0]). F_max > 0 the hard
+    clip; F_max < 0 the soft saturation |F_max|·tanh(F/|F_max|) (one grid holds both)."""
+    F = np.asarray(F, np.float64)
     T = F.shape[0]
+    k1 = T if k1 is None else k1
     s = tau / dt
     n = np.floor(s)
     phi = s - n
@@ -303,34 +264,16 @@ def input_map(F: np.ndarray, dt: float, tau: float, fmax: float, k0: int, k1: in
 
 
 class ColumnSource:
-    """Columns (m, K, ·) of a profile (m points, K columns each) that a fit adds to a
-    structure's design, chunk by chunk (:meth:`blocks`, one (m, K, c) block per chunk;
-    :meth:`full`, the one block of a record of one chunk)."""
-
-    def shape(self, regs) -> tuple[int, int]:
-        """(m, K)."""
-        raise NotImplementedError
-
-    def full(self, regs) -> np.ndarray:
-        """The columns of a record of one chunk (m, K, T)."""
-        (blk,) = self.blocks(regs)
-        return blk
+    """Columns of m points, K columns each, that a fit adds to a structure's design:
+    :meth:`blocks` yields one (m, K, c) block per chunk of ``regs.spans``."""
 
     def blocks(self, regs) -> Iterator[np.ndarray]:
         raise NotImplementedError
 
 
 class HeldColumns(ColumnSource):
-    """Columns given whole (m, K, T)."""
-
     def __init__(self, cols: np.ndarray):
         self.cols = np.asarray(cols, np.float64)
-
-    def shape(self, regs) -> tuple[int, int]:
-        return self.cols.shape[:2]
-
-    def full(self, regs) -> np.ndarray:
-        return self.cols
 
     def blocks(self, regs) -> Iterator[np.ndarray]:
         for k0, k1 in regs.spans:
@@ -342,137 +285,121 @@ def as_source(cols) -> ColumnSource:
 
 
 class FilteredColumns(ColumnSource):
-    """Filtered raw signals, one output each, signed: ``signals`` [[(raw, foh, order, sign)
-    × K] × m] (the raw signals computed per chunk), chunk by chunk."""
+    """Raw signals filtered, one output each, signed: ``signals`` [[(raw, foh, order, sign)
+    × K] × m]."""
 
     def __init__(self, signals: Sequence[Sequence[tuple[Raw, float, int, float]]]):
         self.signals = [list(s) for s in signals]
 
-    def _flat(self):
-        return [s for point in self.signals for s in point]
-
-    def shape(self, regs) -> tuple[int, int]:
-        return len(self.signals), len(self.signals[0])
-
     def blocks(self, regs) -> Iterator[np.ndarray]:
-        flat = self._flat()
+        flat = [s for point in self.signals for s in point]
         m, K = len(self.signals), len(self.signals[0])
         filt = Filters(
             regs.dsc, regs.T, regs.chunk, {i: (raw, foh) for i, (raw, foh, _, _) in enumerate(flat)}
         )
-        orders = [o for _, _, o, _ in flat]
         signs = np.array([s for *_, s in flat])[:, None]
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
-            V = np.stack([out[i][orders[i]] for i in range(len(flat))]) * signs
+            V = np.stack([out[i][order] for i, (_, _, order, _) in enumerate(flat)]) * signs
             yield V.reshape(m, K, k1 - k0)
+
+
+def grid_columns(regs, model, inputs) -> FilteredColumns:
+    """A structure's F-dependent columns for each input map (τ, F_max) of ``inputs``, unsigned:
+    (m, K, ·), K the structure's slots (zero beyond its F-dependent signals)."""
+    plan = regs.plan(model)
+    mult = [regs.multiplier(model, s) for s in plan.fdep]
+
+    def signal(tau: float, fmax: float, k: int) -> Raw:
+        if k >= len(mult):
+            return lambda k0, k1: np.zeros(k1 - k0)
+        u = lambda k0, k1: input_map(regs.F, regs.dt, tau, fmax, k0, k1)  # noqa: E731
+        return u if mult[k] is None else scaled(mult[k], u)
+
+    K = plan.onehot.shape[0]
+    points = [(float(t), float(f)) for t, f in inputs]
+    return FilteredColumns([[(signal(t, f, k), 0.0, 0, 1.0) for k in range(K)] for t, f in points])
 
 
 def mode_seed(x, F, dt: float, lam: float, chunk: int):
     """A first guess of a flexible mode's (ω [rad/s], ζ) from one linear fit, or None.
 
     With the mode, ẍ + aẋ − μ·s²h[x] = b(u − κh[u]) (h = (s²/D)[·], D = s² + 2ζωs + ω²) is,
-    multiplied by D, the 4th-order equation
-
-        (1 − μ)s⁴x + (a + Z)s³x + (W + aZ)s²x + aW·sx = b(1 − κ)s²u + bZ·su + bW·u,
-
-    W = ω², Z = 2ζω: linear in its six coefficients (divided by 1 − μ), which an equation-error
-    least-squares fit through the filter 1/(s + λ)⁵ gives in one solve (its first 10/λ seconds
-    dropped: the filters' start), its Gram accumulated chunk by chunk and solved on its scaled
-    normal equations. Then r = Z/W = c₅/c₆ and W = c₃/(c₁ + r²c₃ − rc₂). Biased by noise (an
-    equation error on derivatives) and by any other effect, it only starts the exact profile's
-    search, whose RSS valley in (ω, ζ) is a few per cent wide for a lightly damped mode: a
-    coarse grid misses it. None when the fit gives no real, positive (ω, ζ)."""
-    x, F = np.asarray(x, np.float64), np.asarray(F, np.float64)
-    T = x.size
-    dsc = _seed_discretes(np.float64(lam), np.float64(dt))
+    multiplied by D, (1 − μ)s⁴x + (a + Z)s³x + (W + aZ)s²x + aW·sx = b(1 − κ)s²u + bZ·su + bW·u
+    (W = ω², Z = 2ζω): linear in its six coefficients over 1 − μ, fitted by equation-error least
+    squares through 1/(s + λ)⁵ (the first 10/λ seconds dropped), its Gram accumulated chunk by
+    chunk. Then r = Z/W = c₅/c₆ and W = c₃/(c₁ + r²c₃ − rc₂). Biased by noise and by any other
+    effect, it only starts the profile's search, whose RSS valley in (ω, ζ) is a few per cent
+    wide for a lightly damped mode (a coarse grid misses it)."""
+    T = np.size(x)
+    dsc = seed_discrete(np.float64(lam), np.float64(dt))
+    f = Filters(dsc, T, chunk, {"x": (rows(x), 1.0), "F": (rows(F), 0.0)})
     n0 = min(int(math.ceil(10.0 / (lam * dt))), T // 4)
     M = np.zeros((7, 7))
-    z = np.zeros((2, 5))
     for k0, k1 in spans(T, chunk):
-        c = k1 - k0
-        W = np.stack([window(rows(u), k0, T, chunk) for u in (x, F)])
-        V, z = _systems_window(dsc, W, np.array([1.0, 0.0]), np.bool_(k0 == 0), z)
-        V, z = np.swapaxes(np.asarray(V, np.float64), 1, 2)[:, :c], np.asarray(z)
+        out = f.step(k0, k1)
         lo = max(n0 - k0, 0)
-        if lo < c:
-            A, y = seed_design(V[0, lo:], V[1, lo:])
-            B = np.concatenate([A, y[:, None]], 1)
+        if lo < k1 - k0:
+            X, Fv = out["x"][1:, lo:], out["F"][:4, lo:]  # x's s¹…s⁴, F's s⁰…s³
+            B = np.stack([-X[2], -X[1], -X[0], Fv[2], Fv[1], Fv[0], X[3]], 1)
             M += B.T @ B
     N = T - n0
     scale = np.maximum(np.sqrt(np.diag(M)[:6] / N), 1e-300)
     G = M[:6, :6] / np.outer(scale, scale)
-    c = np.linalg.lstsq(G, M[:6, 6] / scale, rcond=None)[0] / scale
-    return seed_mode(c)
+    c1, c2, c3, _, c5, c6 = np.linalg.lstsq(G, M[:6, 6] / scale, rcond=None)[0] / scale
+    with np.errstate(all="ignore"):
+        r = c5 / c6
+        W = c3 / (c1 + r * r * c3 - r * c2)
+        zeta = r * math.sqrt(W) / 2 if W > 0 else math.nan
+    if not (math.isfinite(W) and W > 0 and math.isfinite(zeta) and zeta > 0):
+        return None
+    return math.sqrt(W), zeta
 
 
-def zero_phase_chunked(dsc: Discrete, x: np.ndarray, dt: float, chunk: int = CHUNK):
-    """:func:`zero_phase` of a long record chunk by chunk: V₁ of the record
-    filtered forwards, then of that filtered backwards (both under the first-order hold of the
-    hold-corrected samples, from steady states), then central differences (one-sided at the
-    ends); (x smoothed, v̂) (T,) each."""
-    T = x.size
-    fwd = np.empty(T)
-    f = Filters(dsc, T, chunk, {0: (rows(x), 1.0)})
+def filtered(dsc: Discrete, u, foh: float, chunk: int | None = None, orders=(0, 1, 2, 3)):
+    """(len(orders), T) outputs ``orders`` of one signal u (T,) under the hold ``foh``, in chunks
+    of ``chunk`` samples (default :func:`chunk_length`)."""
+    T = np.size(u)
+    chunk = chunk or chunk_length(T)
+    f = Filters(dsc, T, chunk, {0: (rows(u), foh)})
+    out = np.empty((len(orders), T))
     for k0, k1 in spans(T, chunk):
-        fwd[k0:k1] = f.step(k0, k1)[0][0]
-    rev = fwd[::-1]
-    sm = np.empty(T)
-    b = Filters(dsc, T, chunk, {0: (rows(rev), 1.0)})
-    for k0, k1 in spans(T, chunk):
-        sm[k0:k1] = b.step(k0, k1)[0][0]
-    sm = sm[::-1].copy()
-    g = np.empty(T)
+        out[:, k0:k1] = f.step(k0, k1)[0][list(orders)]
+    return out
+
+
+def zero_phase(x, dt: float, omega: float, chunk: int | None = None):
+    """(x smoothed, v̂) (T,) each: x forwards, then backwards through (ω/(s + ω))³ (unit DC
+    gain, first-order hold), then central differences (one-sided at the ends)."""
+    bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
+    dsc = Discrete.of(bank, dt)
+    fwd = filtered(dsc, np.asarray(x, np.float64), 1.0, chunk, (0,))[0]
+    sm = filtered(dsc, fwd[::-1], 1.0, chunk, (0,))[0][::-1].copy()
+    g = np.empty(sm.size)
     g[1:-1] = (sm[2:] - sm[:-2]) / (2 * dt)
     g[0] = (sm[1] - sm[0]) / dt
     g[-1] = (sm[-1] - sm[-2]) / dt
     return sm, g
 
 
-def zero_phase(x, dt: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
-    """(x smoothed, v̂) of :func:`lionjax._model_effects.zero_phase_lowpass` /
-    ``zero_phase_velocity`` (forward and backward through (ω/(s + ω))³, then central
-    differences), on bucketed shapes."""
-    x = np.asarray(x, np.float64)
-    T = x.size
-    Tp = padded_length(T)
-    bank = FilterBank.from_poles(np.full(3, -float(omega)), unit_dc_gain=True)
+def mode_filtered(u, foh: float, dt: float, omega: float, zeta: float) -> np.ndarray:
+    """h = (s²/D)[u] (T,), D = s² + 2ζωs + ω² (ω [rad/s]), under the hold ``foh``: V₄ + ωV₃ of
+    the bank (s + ω)·D, exactly."""
+    w, z = float(omega), float(zeta)
+    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
+    bank = FilterBank.from_poles(np.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
+    V = filtered(Discrete.of(bank, dt), u, foh)
+    return V[3] + w * V[2]
+
+
+def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
+    """(Σh_x², Σh_F²) of ε₁'s responses to unit white noise on x (foh) and F (zoh): as
+    ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F], noises σ_x, σ_F add σ_x²Σh_x² + b²σ_F²Σh_F² to its variance."""
+    c = np.asarray(bank.coeffs)
+    T = int(round(float(20 * c[-2] / c[-1] / dt))) + 64
+    d = np.zeros(T)
+    d[1] = 1.0
     dsc = Discrete.of(bank, dt)
-    if Tp > LONG_BATCH:  # a long record: filtered chunk by chunk, forwards then backwards
-        return zero_phase_chunked(dsc, x, dt)
-    sm, g = _zero_phase(dsc, edge_pad(x, Tp), _i(T), _f(dt))
-    return np.asarray(sm)[:T], np.asarray(g)[:T]
-
-
-class GridColumns(ColumnSource):
-    """The F-dependent columns (m, K, ·) of a structure for each input map (τ, F_max) in
-    ``inputs`` (in-memory :func:`~._fit._grid_columns`, unsigned: rows of K slots, zero beyond
-    the structure's F-dependent signals)."""
-
-    def __init__(self, model, inputs):
-        self.model, self.inputs = model, [(float(t), float(f)) for t, f in inputs]
-
-    def shape(self, regs) -> tuple[int, int]:
-        return len(self.inputs), regs.plan(self.model).onehot.shape[0]
-
-    def blocks(self, regs) -> Iterator[np.ndarray]:
-        plan = regs.plan(self.model)
-        K = plan.onehot.shape[0]
-        mult = [regs.multiplier(self.model, s) for s in plan.fdep]
-        F, dt = regs.F, regs.dt
-        zero = lambda k0, k1: np.zeros(k1 - k0)  # noqa: E731
-
-        def one(tau, fmax, g):
-            u = lambda k0, k1: input_map(F, dt, tau, fmax, k0, k1)  # noqa: E731
-            return u if g is None else scaled(g, u)
-
-        inputs = {}
-        for i, (tau, fmax) in enumerate(self.inputs):
-            for k in range(K):
-                inputs[(i, k)] = (one(tau, fmax, mult[k]) if k < len(mult) else zero, 0.0)
-        filt = Filters(regs.dsc, regs.T, regs.chunk, inputs)
-        m = len(self.inputs)
-        for k0, k1 in regs.spans:
-            out = filt.step(k0, k1)
-            V = np.stack([out[(i, k)][0] for i in range(m) for k in range(K)])
-            yield V.reshape(m, K, k1 - k0)
+    Vx, VF = filtered(dsc, d, 1.0), filtered(dsc, d, 0.0)
+    hx = Vx[2] + a * Vx[1]
+    return float(np.sum(hx * hx)), float(np.sum(VF[0] * VF[0]))

@@ -20,10 +20,10 @@ import numpy as np
 from jaxtyping import Array
 
 from ..._models import AbstractEffect, Column
-from .._filtering import mode_free_responses, mode_signals, padded_length
+from .._filtering import mode_free_responses
 from .._regressors import ModeProfileColumns
 from .._search import PatternSearch, best_so_far
-from .._streaming import mode_seed
+from .._streaming import mode_filtered, mode_seed
 from ._base import AbstractCandidate, b_positive
 
 #: Largest plausible mass ratio of a flexible mode: friction's pre-sliding stiffness (Dahl) fits
@@ -297,8 +297,7 @@ class FlexibleModeCandidate(AbstractCandidate):
         key = ("mode", "deflection", mode)
         if key not in problem.memo:  # the mode's deflection μ·(s²/D)[x] on validation
             v = problem.valid
-            ((hx, _),) = mode_signals(v.x, v.F, problem.st.dt, [mode], padded_length(v.n_samples))
-            problem.memo[key] = float(np.std(hx[: v.n_samples]))
+            problem.memo[key] = float(np.std(mode_filtered(v.x, 1.0, problem.st.dt, *mode)))
         return {
             "f_mode": self.omega / (2 * math.pi),
             "zeta_mode": self.zeta,
