@@ -208,9 +208,11 @@ def test_new_class_makes_a_case(cls, source):
         stuck = max(info["stick_share"], info["stick_share_train"])
         assert lo <= stuck <= hi or not info["size_in_band"]
         assert 1 <= info["setup_draws"] <= blind.SETUP_DRAWS
-    elif cls == "triple":
+    elif cls in ("triple", "saturation_triple"):
         names = info["truth"]
         assert len(set(names)) == 3 and "+".join(names) in blind.TRIPLES
+        if cls == "saturation_triple":  # the triple drawn before its redraw, kept whole
+            assert names == ["saturation", "coulomb_friction", "offset"]
         if "+".join(names) in blind.OPEN_LOOP_TRIPLES:
             assert not info["closed_loop"]
         if "saturation" in names:  # the command leaves saturation on each record, or flagged
@@ -219,7 +221,7 @@ def test_new_class_makes_a_case(cls, source):
             share = [max(np.mean(f > f_max), np.mean(f < -f_max)) for f in F]
             assert info["saturated_share"] == pytest.approx(share)
             held = max(share) <= blind.SATURATED_MOST
-            assert held or info["setup_draws"] == blind.SETUP_DRAWS
+            assert held or info["setup_draws"] == blind.SETUP_DRAWS or cls == "saturation_triple"
     elif cls == "quadratic_drag":
         assert eff[0]["params"]["c2"] > 0
     else:  # artefacts: sized by A/F_rms; the device is the clean run

@@ -202,15 +202,20 @@ DETECTION_MOST = 0.5
 REVERSALS_LEAST = 10
 
 
-def inconclusive(run: Run, detection: float, worst: float, decided: bool) -> dict | None:
+def inconclusive(
+    run: Run, detection: float, worst: float, decided: bool, absent: bool
+) -> dict | None:
     """Why the records cannot decide whether an effect is there, and what to record instead; or
     None. Two reasons, unless a look-alike explains the gap (``decided``: the record shows that
     effect): the validation residual's effective sample count below :data:`N_EFF_LEAST` (its
     evidence too coarse: nothing named is then no evidence of no effect, and a residual with
-    structure no evidence of one outside the library); or the detection limit (``worst``, the
-    size an effect needs to be seen) at or above :data:`DETECTION_MOST` of the input's term."""
+    structure no evidence of one outside the library); or, where the verdict would claim no
+    effect (``absent``: "none"), the detection limit (``worst``, the size an effect needs to be
+    seen) at or above :data:`DETECTION_MOST` of the input's term. A significant gap no
+    candidate removes ("unexplained") is decided however large the limit: a large unmodelled
+    residual itself raises it."""
     n = run.base.n_eff
-    few, blind = n < N_EFF_LEAST, worst >= DETECTION_MOST
+    few, blind = n < N_EFF_LEAST, absent and worst >= DETECTION_MOST
     if decided or not (few or blind):
         return None
     reasons, advice = [], []
@@ -328,7 +333,9 @@ def weigh(
         confidence *= doubt
     undecided = None
     if not stk.cands:
-        undecided = inconclusive(run, detection, detection_worst, bool(v.decided_by))
+        undecided = inconclusive(
+            run, detection, detection_worst, bool(v.decided_by), verdict == "none"
+        )
     if undecided is not None:
         # nothing named on a record that cannot decide: a statement about the record
         verdict, confidence, ambiguous = "inconclusive", 1.0, []

@@ -61,8 +61,9 @@ class Diagnosis:
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
         series: validation signals for plotting (not in the JSON).
         inconclusive: where the verdict is ``inconclusive`` (the records cannot decide whether
-            an effect is there: too few effective samples, or a detection limit of half the
-            input's term), ``{"reason", "advice"}``: why, and what to record instead; else None.
+            an effect is there: too few effective samples, or, with nothing significant left, a
+            detection limit of half the input's term), ``{"reason", "advice"}``: why, and what
+            to record instead; else None.
         units: the records' unit system, ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad],
             F [N·m]): the units every figure and text of the diagnosis states
             (:meth:`in_units`).
