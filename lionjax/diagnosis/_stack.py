@@ -1,6 +1,6 @@
-"""Greedy stacking (:func:`stack_effects`): the best significant candidate on the current stack
-until none is; a stand-in, a pair or three effects that hide each other where no single one
-is (:func:`_stand_in`, :func:`_pair`, :func:`_hidden`). The :class:`Stack` is immutable."""
+"""Greedy stacking (:func:`stack_effects`) on an immutable :class:`Stack`: the best significant
+candidate on the stack until none is; then a stand-in, a pair or three effects that hide each
+other (:func:`_stand_in`, :func:`_pair`, :func:`_hidden`)."""
 
 from __future__ import annotations
 
@@ -15,39 +15,36 @@ from .effects._lookalikes import structure_key
 
 @dataclasses.dataclass(frozen=True)
 class Stack:
-    """The greedy stack: its candidates in the order added (resolved: their chosen forms), the
-    steps' scores, its fit, which stand-in replaced which candidate (``stands_for``), the score
-    of each step that added candidates together (a stand-in or a pair), under the first of them
-    (``together``: their joint evidence, which none of them has alone, and the names of that
-    step), and the stand-ins among those steps (``laws``: the candidates that stand in for one
-    implausible or unneeded candidate, one law in several columns)."""
+    """The greedy stack: its candidates in the order added (in their chosen forms), the steps'
+    scores and its fit."""
 
     cands: tuple[AbstractCandidate, ...]
     steps: tuple[EffectScore, ...]
     fit: Fitted
+    #: which stand-in replaced which candidate
     stands_for: dict[str, str] = dataclasses.field(default_factory=dict)
+    #: (joint score, names) of each step that added candidates together (a stand-in or a pair),
+    #: under the first of them: evidence none of them has alone
     together: dict[str, tuple[float, tuple[str, ...]]] = dataclasses.field(default_factory=dict)
+    #: the stand-ins among those steps: candidates standing in for one, one law in several columns
     laws: tuple[tuple[str, ...], ...] = ()
 
     @property
     def size(self) -> int:
-        """The effects the stack holds, against ``Criteria.max_effects``: a candidate another
-        stacked one contains (an offset beside a spring, whose equilibrium holds a constant
-        force) adds no column and takes no place."""
+        """The effects held, against ``Criteria.max_effects``: a candidate another stacked one
+        contains (an offset beside a spring) adds no column and takes no place."""
         inside = {n for k in self.cands for n in k.subsumes}
         return sum(c.name not in inside for c in self.cands)
 
 
 def _excludes(k: AbstractCandidate, c: AbstractCandidate) -> bool:
-    """Whether ``k`` excludes ``c`` or a candidate ``c`` contains (asymmetric friction excludes
-    an offset, so also a spring or a drifting offset, which hold one)."""
+    """Whether ``k`` excludes ``c`` or a candidate ``c`` contains."""
     return bool(set(k.excludes) & {c.name, *c.subsumes})
 
 
 def fits_with(c: AbstractCandidate, added) -> bool:
-    """Whether ``c`` may still be stacked after the candidates ``added``: not after one that
-    contains it (spring ⊃ offset) nor with one the data cannot tell apart from it or from what
-    it contains."""
+    """Whether ``c`` may be stacked after ``added``: not after one that contains it (spring ⊃
+    offset), nor beside one the data cannot tell apart from it or from what it contains."""
     return all(
         c.name != k.name
         and c.name not in k.subsumes
@@ -58,15 +55,13 @@ def fits_with(c: AbstractCandidate, added) -> bool:
 
 
 def compatible(c: AbstractCandidate, k: AbstractCandidate) -> bool:
-    """Whether ``c`` and ``k`` may be added together (neither contains nor excludes the other;
-    greedy stacking, :func:`fits_with`, lets a candidate follow one it contains)."""
+    """Whether ``c`` and ``k`` may be added together: neither contains nor excludes the other."""
     return fits_with(c, (k,)) and k.name not in c.subsumes
 
 
 def fit_on(run: Run, stk: Stack, ks: tuple) -> Fitted | None:
-    """The candidates ``ks`` fitted on the stack in each combination of their
-    :meth:`~.effects.AbstractCandidate.stack_variants`: the best validated fit (its structure
-    holds the forms chosen), or None where the design is too wide."""
+    """The best validated fit of ``ks`` on the stack over the combinations of their
+    ``stack_variants`` (its structure holds the forms chosen); None where too wide."""
     combos: list[tuple] = [()]
     for k in ks:
         combos = [(*cmb, w) for cmb in combos for w in k.stack_variants()]
@@ -76,22 +71,21 @@ def fit_on(run: Run, stk: Stack, ks: tuple) -> Fitted | None:
 
 
 def step_of(run: Run, stk: Stack, ks: tuple, f: Fitted):
-    """(score, fit, ks) of the candidates ``ks`` fitted with the stack in ``f``, where they are
-    significant as one step; else None."""
+    """(score, fit, ks) of ``ks`` fitted on the stack in ``f`` where significant as one step;
+    else None."""
     sc = run.assess(stk.fit, f, ks, run.floor_of((*stk.cands, *ks)))
     return (sc, f, ks) if sc.significant else None
 
 
 def as_one_step(run: Run, stk: Stack, ks: tuple):
-    """(score, fit, ks) of the candidates ``ks`` added to the stack together, where they are
-    significant as one step; else None (also where the design would be too wide)."""
+    """:func:`step_of` ``ks`` added to the stack together (None also where too wide)."""
     f = fit_on(run, stk, ks)
     return None if f is None else step_of(run, stk, ks, f)
 
 
 def _stand_in(run: Run, trials, pool, stk: Stack):
-    """(score, fit, candidates) of the first implausible trial's stand-in (``simpler``: two or
-    more candidates of the pool) that is significant as one step, in score order; or None."""
+    """The first implausible trial's stand-in (``simpler``: two or more candidates of the pool)
+    significant as one step, in score order; or None."""
     names = {c.name: c for c in pool}
     for t in trials:
         c = t[2]
@@ -107,12 +101,10 @@ def _stand_in(run: Run, trials, pool, stk: Stack):
 
 
 def _pair(run: Run, trials, stk: Stack):
-    """(score, fit, candidates) of the best pair of plausible trials that gain on the current
-    stack (share > 0) and are significant together as one step, or None: of the 2n best (n =
-    ``Criteria.pair_from``), the n(n − 1)/2 compatible pairs of the highest summed scores are
-    tried; not tried once the stack removes ``explained_full`` of the baseline's excess.
-    Effects that hide each other (each's misfit leaves the other's residual so correlated that
-    few effective samples remain) are found together."""
+    """The best pair of plausible trials that gain on the stack (share > 0), significant as
+    one step (effects that hide each other), or None: the n(n − 1)/2 compatible pairs of the
+    highest summed scores of the 2n best (n = ``pair_from``); none once the stack removes
+    ``explained_full`` of the baseline's excess."""
     if stk.size + 2 > run.crit.max_effects:
         return None
     ex0 = run.excess(run.base.ms_valid)
@@ -123,26 +115,20 @@ def _pair(run: Run, trials, stk: Stack):
     pairs = [
         (ti, tj) for i, ti in enumerate(top) for tj in top[i + 1 :] if compatible(ti[2], tj[2])
     ]
-    # the n(n − 1)/2 compatible pairs of the highest summed scores: near-duplicates (an offset,
-    # a drifting offset, a spring) cannot pair with each other and would fill the best n
+    # compatible pairs only: near-duplicates (an offset, a drifting offset, a spring) cannot
+    # pair with each other and would fill the best n
     pairs.sort(key=lambda p: -(p[0][0].score + p[1][0].score))
-    found = []
-    for ti, tj in pairs[: n * (n - 1) // 2]:
-        step = as_one_step(run, stk, (ti[2], tj[2]))
-        if step is not None:
-            found.append(step)
-    return max(found, key=lambda t: t[0].score, default=None)
+    found = [as_one_step(run, stk, (ti[2], tj[2])) for ti, tj in pairs[: n * (n - 1) // 2]]
+    return max((s for s in found if s is not None), key=lambda t: t[0].score, default=None)
 
 
 def _hidden(run: Run, trials, stk: Stack):
-    """(score, fit, candidates) of effects that hide each other, or None: where nothing is
-    significant on the stack, alone or as :func:`_pair`'s pairs, the stack's error lies above
-    ``floor_factor`` times the floor and two more effects fit, every compatible pair of the
-    device candidates (fitted alone plausibly or with implausible parameters: one's misfit can
-    bias another's sign; columns that fit any residual in part left out) is fitted on the
-    stack, then the ``pair_from`` best pairs each with every compatible third. The best
-    combination that is significant as one step and removes at least ``explained_full`` of the
-    stack's excess is taken: effects hidden so are a whole explanation together, while an
+    """Effects that hide each other, or None. Where the stack's error lies above
+    ``floor_factor`` × the floor and two more effects fit: every compatible pair of the device
+    candidates (plausible alone, or implausible for their own parameters: one's misfit can bias
+    another's sign), then the ``pair_from`` best pairs each with every compatible third, fitted
+    on the stack. The best significant as one step that removes ``explained_full`` of the
+    stack's excess is taken: hidden effects are a whole explanation together, an
     out-of-library effect fitted so leaves more."""
     crit = run.crit
     room = crit.max_effects - stk.size
@@ -183,15 +169,13 @@ def _hidden(run: Run, trials, stk: Stack):
 def stack_effects(
     run: Run, alone: dict[str, tuple[EffectScore, Fitted]], start: Stack | None = None
 ) -> tuple[Run, Stack]:
-    """Greedy stacking: the best significant candidate on the current stack (empty, or
-    ``start``: after a parsimony pass put a stand-in in, what the candidate it replaced
-    excluded may join), until none is. When none is, or when an implausible candidate outranks
-    the best one, the stand-in of an implausible candidate that is significant as one step is
-    tried, and the better score is taken (asymmetric friction with F⁺ < 0 < F⁻ is Coulomb
-    friction and an offset larger than it); then a pair, then effects that hide each other.
-    Every validated fit bounds the fitted floor from above (the run returned)."""
+    """Greedy stacking on an empty stack (or ``start``: after a stand-in, what the candidate it
+    replaced excluded may join): the best significant candidate until none is. When none is,
+    or an implausible candidate outranks the best, an implausible candidate's stand-in
+    significant as one step is tried and the better score taken; then a pair, then effects
+    that hide each other. Every validated fit lowers the fitted floor (the run returned)."""
     stk = Stack((), (), run.base) if start is None else start
-    # (a candidate a stand-in replaced does not come back: its own parameters were not needed)
+    # a candidate a stand-in replaced does not come back: its own parameters were not needed
     gone = set(stk.stands_for.values())
     lib = [run.resolved.get(c.name, c) for c in run.candidates]
     pool = [c for c in lib if fits_with(c, stk.cands) and c.name not in gone]
@@ -200,40 +184,37 @@ def stack_effects(
         fits = [(c, f) for c, f in fits if f is not None]
         if not fits:
             break
-        # every validated fit bounds the floor from above, this step's too: else the first
-        # effect's fit is the floor and no second effect can gain on it
+        # this step's fits lower the floor too: else the first effect's fit is the floor and no
+        # second effect can gain on it
         run = run.lowered([((*stk.cands, c), f) for c, f in fits])
         trials = [(run.assess(stk.fit, f, c, run.floor_of((*stk.cands, c))), f, c) for c, f in fits]
         trials.sort(key=lambda t: -t[0].score)
         best = next((t for t in trials if t[0].significant), None)
         above = [t for t in trials if best is None or t[0].score > best[0].score]
         alt = _stand_in(run, above, pool, stk) if above else None
-        if best is not None and (alt is None or alt[0].score <= best[0].score):
-            steps = (*stk.steps, best[0])
-            together, laws = stk.together, stk.laws
-        else:
+        joint = best is None or (alt is not None and alt[0].score > best[0].score)
+        if joint:
             best = alt or _pair(run, trials, stk) or _hidden(run, trials, stk)
             if best is None:
                 break
-            names = tuple(k.name for k in best[2])
-            together = {**stk.together, names[0]: (best[0].score, names)}
-            laws = (*stk.laws, names) if best is alt else stk.laws
-            added = best[1].structure[len(stk.cands) :]
-            steps = (
-                *stk.steps,
-                *(
-                    dataclasses.replace(
-                        best[0],
-                        name=k.name,
-                        params=k.report(best[1].physical),
-                        reason="significant together with "
-                        + ", ".join(o.name for o in added if o.name != k.name)
-                        + " (not alone)",
-                    )
-                    for k in added
-                ),
+        sc, f, ks = best
+        added = f.structure[len(stk.cands) :]  # the forms the fit chose
+        together, laws, steps = stk.together, stk.laws, (sc,)
+        if joint:
+            names = tuple(k.name for k in ks)
+            together = {**together, names[0]: (sc.score, names)}
+            laws = (*laws, names) if best is alt else laws
+            steps = tuple(
+                dataclasses.replace(
+                    sc,
+                    name=k.name,
+                    params=k.report(f.physical),
+                    reason="significant together with "
+                    + ", ".join(o.name for o in added if o.name != k.name)
+                    + " (not alone)",
+                )
+                for k in added
             )
-        added = best[1].structure[len(stk.cands) :]  # the forms the fit chose
-        stk = Stack((*stk.cands, *added), steps, best[1], stk.stands_for, together, laws)
+        stk = Stack((*stk.cands, *added), (*stk.steps, *steps), f, stk.stands_for, together, laws)
         pool = [c for c in pool if fits_with(c, added)]
     return run, stk

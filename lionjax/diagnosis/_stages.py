@@ -1,7 +1,6 @@
-"""The diagnosis' stages around the greedy stack (:mod:`._stack`): every candidate alone
+"""The stages around the greedy stack (:mod:`._stack`): every candidate alone
 (:func:`fit_alone`), the parsimony pass (:func:`parsimony`) and backward elimination
-(:func:`prune`). Each is a function of the immutable :class:`~._run.Run` and
-:class:`~._stack.Stack`, returning new ones."""
+(:func:`prune`), each returning a new :class:`~._run.Run` or :class:`~._stack.Stack`."""
 
 from __future__ import annotations
 
@@ -13,7 +12,7 @@ from typing import Any
 from .._errors import InputError
 from .._progress import counted
 from ._filtering import P_MAX
-from ._fit import Fitted
+from ._fit import Fitted, fit
 from ._objective import Objective
 from ._run import Run
 from ._stack import Stack
@@ -21,9 +20,8 @@ from .effects import AbstractCandidate, check_library
 
 
 def resolve(run: Run, cand: AbstractCandidate, base: tuple = ()) -> AbstractCandidate:
-    """``cand`` with its nonlinear parameters found (:meth:`~.effects.AbstractCandidate.profile`)
-    with ``base`` on the training record; an :class:`~lionjax.InputError` where the search
-    returns something else than the candidate's own class."""
+    """``cand`` with its nonlinear parameters found beside ``base`` on the training record
+    (:meth:`~.effects.AbstractCandidate.profile`)."""
     out = cand.profile(Objective(run.problem, base), run.limits)
     # the candidate's own class, or one it derives from (a subclass may search its parent's
     # grid), of the same name
@@ -38,41 +36,31 @@ def resolve(run: Run, cand: AbstractCandidate, base: tuple = ()) -> AbstractCand
     return out
 
 
-def _alone(run: Run, cand: AbstractCandidate) -> Fitted:
-    """``cand`` fitted alone on the baseline; an :class:`~lionjax.InputError` where its columns
-    alone make a design wider than the diagnosis fits (a candidate of too many parameters)."""
-    f = run.try_fit((cand,))
-    if f is None:
-        raise InputError(
-            f"diagnose: candidate {cand.name!r} ({type(cand).__name__}) has too many columns: "
-            f"with the mass–damper's a and b and the filter's initial-state columns, its design "
-            f"alone is wider than the {P_MAX} columns a diagnosis fits; give it fewer "
-            f"parameters."
-        )
-    return f
-
-
 def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
-    """Every candidate alone on the baseline, in each of its forms
-    (:meth:`~.effects.AbstractCandidate.variants`, each profiled), the form kept by the
-    candidate's :meth:`~.effects.AbstractCandidate.pick` of their validated scores (each paying
-    its own parameters; counted from the estimated floor where its columns can fit the position
-    noise, else from nothing yet). Returns the run with the resolved candidates, every form's
-    fit and the fitted floor, and each candidate's chosen fit."""
+    """Every candidate alone on the baseline in each of its ``variants``, each profiled; the
+    candidate's ``pick`` of their validated scores (counted from the estimated floor where its
+    columns can fit the position noise) keeps one. Returns the run with the resolved candidates,
+    every variant's fit and the fitted floor, and each candidate's chosen fit."""
     resolved, fits, variant_fits = {}, {}, {}
     for c in counted(run.candidates, "fitting the candidates alone", "candidates"):
         tries = []
         for v in c.variants(run.limits, tuple(resolved.values())):
             v = resolve(run, v)
-            f = _alone(run, v)
+            f = run.try_fit((v,))
+            if f is None:
+                raise InputError(
+                    f"diagnose: candidate {v.name!r} ({type(v).__name__}) has too many columns: "
+                    f"with the mass–damper's a and b and the filter's initial-state columns, its "
+                    f"design alone is wider than the {P_MAX} columns a diagnosis fits; give it "
+                    f"fewer parameters."
+                )
             lo = run.floor if v.fits_noise() else 0.0
-            tries.append((run.score_of(run.base, f, v.params(), lo), f, v))
+            tries.append((run.score_ms(run.base, f.ms_valid, v.params(), lo), f, v))
         variant_fits[c.name] = [(v, f) for _, f, v in tries]
         _, fits[c.name], resolved[c.name] = tries[c.pick(tries, run.limits)]
-    # the floor scores and shares count from: the estimate is an upper bound only for white,
-    # independent noise on x and F (in closed loop F carries the controller's answer to the
-    # position noise, which partly cancels it in ε₁), while the validation error of any fitted
-    # model bounds the true floor from above — unless its columns can fit that noise
+    # the estimated floor is an upper bound only for white, independent noise on x and F (in
+    # closed loop F carries the controller's answer to it); the validation error of any fitted
+    # model bounds the true floor from above, unless its columns can fit that noise
     run = dataclasses.replace(
         run,
         resolved=resolved,
@@ -83,17 +71,12 @@ def fit_alone(run: Run) -> tuple[Run, dict[str, Fitted]]:
 
 
 def parsimony(run: Run, stk: Stack) -> Stack:
-    """A candidate with a simpler stand-in (spring → offset: in closed loop a constant force
-    shifts the equilibrium; asymmetric friction → Coulomb + offset: while the axis moves, a
-    direction-dependent level is a constant force) is replaced by it unless its own extra
-    parameters are significant on validation data. The stand-in must itself explain the gap:
-    significant, plausible, of practical size, where the candidate stood (its step then carries
-    its own figures, from the stack without the candidate). Where the windowed simulation
-    models both, the
-    candidate must not make the simulated gap worse than its stand-in, and with no more
-    parameters than it, it must make it better: asymmetric friction with F⁺, F⁻ > 0 and
-    Coulomb friction with an offset |F₀| < F_c are one law (levels F_c ∓ F₀), which only the
-    smoothed sign near reversals tells apart in ε₁."""
+    """A stacked candidate with a simpler stand-in (spring → offset, asymmetric friction →
+    Coulomb + offset) is replaced by it unless its own extra parameters are significant on
+    validation, provided the stand-in is itself a significant, plausible step where the
+    candidate stood. Where the windowed simulation models both, the candidate must not make the
+    simulated gap worse than its stand-in, and with no more parameters it must make it better:
+    asymmetric friction with F⁺, F⁻ > 0 and Coulomb friction with |F₀| < F_c are one law."""
     by_name, crit = run.by_name, run.crit
     for c in list(stk.cands):
         names_now = [k.name for k in stk.cands]
@@ -103,12 +86,12 @@ def parsimony(run: Run, stk: Stack) -> Stack:
         simpler = [by_name[n] for n in missing]
         i = names_now.index(c.name)
         alt = (*stk.cands[:i], *simpler, *stk.cands[i + 1 :])
-        f_alt = run.fit(alt)
+        f_alt = fit(run.problem, alt)
         rest = tuple(k for k in stk.cands if k.name != c.name)
-        prev = run.fit(rest) if rest else run.base
+        prev = fit(run.problem, rest) if rest else run.base
         cur = stk.fit
         extra = c.params() - run.params(simpler)
-        keep = run.score_of(f_alt, cur, extra, run.floor_of(stk.cands)) > crit.threshold
+        keep = run.score_ms(f_alt, cur.ms_valid, extra, run.floor_of(stk.cands)) > crit.threshold
         if c.simulated() and all(k.simulated() for k in simpler) and math.isfinite(f_alt.gap):
             keep = keep and cur.gap <= (1 + crit.max_worsening) * f_alt.gap
             if extra <= 0:
@@ -116,24 +99,19 @@ def parsimony(run: Run, stk: Stack) -> Stack:
         step = run.assess(prev, f_alt, tuple(simpler), run.floor_of(alt))
         if step.significant and not keep:
             # the stand-in's own step: its figures from the stack without the candidate
-            j = [s.name for s in stk.steps].index(c.name)
             why = f"stands in for {c.name} (its own parameters not needed)"
-            steps = (
-                *stk.steps[:j],
-                *(
-                    dataclasses.replace(
-                        step, name=k.name, params=k.report(f_alt.physical), reason=why
-                    )
-                    for k in simpler
-                ),
-                *stk.steps[j + 1 :],
-            )
+            steps = list(stk.steps)
+            j = [s.name for s in steps].index(c.name)
+            steps[j : j + 1] = [
+                dataclasses.replace(step, name=k.name, params=k.report(f_alt.physical), reason=why)
+                for k in simpler
+            ]
             laws = (*stk.laws, tuple(k.name for k in simpler)) if len(simpler) > 1 else stk.laws
             stk = dataclasses.replace(
                 stk,
                 cands=alt,
                 fit=f_alt,
-                steps=steps,
+                steps=tuple(steps),
                 stands_for={**stk.stands_for, simpler[0].name: c.name},
                 laws=laws,
             )
@@ -141,12 +119,11 @@ def parsimony(run: Run, stk: Stack) -> Stack:
 
 
 def prune(run: Run, stk: Stack) -> Stack:
-    """Backward elimination: while some stacked candidate's evidence given all the others
-    (:meth:`~._run.Run.evidence` of the stack against the stack without it) is at most the
-    threshold, the weakest is dropped: a candidate stacked early can lose its place to later
-    ones that explain what it stood in for. A dropped candidate's joint step
-    (``Stack.together``) passes its evidence to the step's next member. The candidates of a
-    stand-in (``Stack.laws``) are one law and are kept."""
+    """Backward elimination: while some stacked candidate's evidence given all the others is at
+    most the threshold, the weakest is dropped (an early step can lose its place to later ones
+    that explain what it stood in for). A dropped candidate's joint step (``Stack.together``)
+    passes its evidence to the step's next member; a stand-in's candidates (``Stack.laws``) are
+    one law and stay."""
     in_law = {n for law in stk.laws for n in law}
     while len(stk.cands) > 1:
         weakest = None
@@ -164,7 +141,7 @@ def prune(run: Run, stk: Stack) -> Stack:
             break
         sc, c, f = weakest
         together = dict(stk.together)
-        if c.name in together:  # the joint step's evidence passes to its next member
+        if c.name in together:
             score, names = together.pop(c.name)
             left = tuple(n for n in names if n != c.name)
             if left:
