@@ -12,7 +12,7 @@ import numpy as np
 from ._fit import Fitted
 from ._result import EffectScore
 from ._run import Run
-from ._stack import Stack
+from ._stages import Stack
 from ._verdict import Verdict, exact_tolerance
 from .effects import AbstractCandidate
 
@@ -192,7 +192,7 @@ def inconclusive(run: Run, detection: float, decided: bool) -> dict | None:
         f"{detection:.2g} of the input's term b·F"
     )
     advice = ["record longer, or with an excitation that changes faster"]
-    lo, hi = run.st.excited
+    lo, hi = run.problem.st.excited
     v = np.asarray(run.problem.v_valid, np.float64)
     moving = np.abs(v) > 0.1 * float(np.quantile(np.abs(v), 0.9))
     s = np.sign(v[moving])
@@ -204,7 +204,7 @@ def inconclusive(run: Run, detection: float, decided: bool) -> dict | None:
         )
     advice.append(
         f"excite the band the model is to hold (this record: {lo:.3g}–{hi:.3g} Hz; up to the "
-        f"filter corner {run.st.filter_hz:.3g} Hz and beyond)"
+        f"filter corner {run.problem.st.filter_hz:.3g} Hz and beyond)"
     )
     return {"reason": reason, "advice": "; ".join(advice)}
 
@@ -240,20 +240,15 @@ def _unexplained(run: Run, effects: list[EffectScore], v: Verdict, hidden: float
 
 
 def weigh(
-    run: Run,
-    effects: list[EffectScore],
-    stk: Stack,
-    v: Verdict,
-    unseen: tuple[dict[str, float], list[str]],
-    below: float = 0.0,
+    run: Run, effects: list[EffectScore], stk: Stack, v: Verdict, fitted: dict[str, Fitted]
 ) -> Confidence:
-    """The verdict's confidence; ``unseen``: the rivals and readings of :func:`uncounted`;
-    ``below``: the size of an effect the record may hold unnamed (:func:`unresolved`)."""
+    """The verdict's confidence, from the candidates alone (``effects``, ``fitted``), the stack
+    and its verdict."""
     crit = run.crit
-    blind, also = unseen
+    blind, also = uncounted(run, stk)
     weights = _weights(run, effects, stk)
     detection, detection_worst = _detection(run)
-    detection_worst = max(detection_worst, below)
+    detection_worst = max(detection_worst, unresolved(run, fitted, effects))
     bar = run.bar(stk)
     rivals = _rivals(run, effects, stk, blind, bar)
     # the rivals' odds against the verdict's evidence (the look-alikes' against the stack's

@@ -1,7 +1,7 @@
 """``lionjax.diagnose``: where, which and how far is the sim-to-real gap, on recorded data alone
 (layer 3). A pipeline of functions of immutable values (docs/method.md, "Diagnosis", states
 every rule and why it holds): :func:`~._run.prepare` (settings, the baseline ẍ + aẋ = bF, the
-noise floor of ε₁), :func:`~._stages.fit_alone`, :func:`~._stack.stack_effects`,
+noise floor of ε₁), :func:`~._stages.fit_alone`, :func:`~._stages.stack_effects`,
 :func:`~._stages.parsimony`, :func:`~._stages.prune`, :func:`~._verdict.judge`,
 :func:`~._confidence.weigh` and :func:`~._report.report`."""
 
@@ -20,14 +20,13 @@ from .._errors import InputError
 from .._progress import status
 from .._record import Record
 from .._validity import check_record
-from ._confidence import uncounted, unresolved, weigh
+from ._confidence import weigh
 from ._criteria import Criteria
 from ._problem import ROLES
 from ._report import report
 from ._result import RESERVED, Diagnosis
 from ._run import prepare
-from ._stack import stack_effects
-from ._stages import check_candidates, fit_alone, parsimony, prune
+from ._stages import check_candidates, fit_alone, parsimony, prune, stack_effects
 from ._verdict import judge
 from .effects import DEFAULT_CANDIDATES, DEFAULT_LOOKALIKES, AbstractCandidate
 
@@ -204,9 +203,7 @@ def _pipeline(run, st) -> Diagnosis:
     stk = prune(run, stk)
     st.stage("verdict")
     verdict = judge(run, stk)
-    confidence = weigh(
-        run, effects, stk, verdict, uncounted(run, stk), unresolved(run, fitted, effects)
-    )
+    confidence = weigh(run, effects, stk, verdict, fitted)
     return report(run, effects, stk, verdict, confidence).in_units(run.problem.train.units)
 
 

@@ -54,14 +54,6 @@ class Run:
         return self.problem.limits
 
     @property
-    def valid(self) -> Record:
-        return self.problem.valid
-
-    @property
-    def st(self):
-        return self.problem.st
-
-    @property
     def by_name(self) -> dict[str, AbstractCandidate]:
         """The library's candidates (resolved alone, where they are) by name."""
         return {c.name: self.resolved.get(c.name, c) for c in self.candidates}
@@ -166,12 +158,12 @@ class Run:
         )
         size = math.sqrt(max(cur.ms_valid - new.ms_valid, 0.0)) / self.force_rms
         # an artefact lives in F, which the filter's passband does not bound: sized against F
-        own = [k.measured_rms(new.physical, self.valid, self.problem.v_valid) for k in ks]
+        own = [k.measured_rms(new.physical, self.problem.valid, self.problem.v_valid) for k in ks]
         if all(r is not None for r in own):
-            F_rms = float(np.sqrt(np.mean(np.square(np.asarray(self.valid.F, np.float64)))))
+            F_rms = float(np.sqrt(np.mean(np.square(np.asarray(self.problem.valid.F, np.float64)))))
             size = max(size, sum(own) / max(F_rms, 1e-300))
         if by_sim and math.isfinite(new.gap):  # likewise: the simulated gap it removes
-            x_std = max(float(np.std(np.asarray(self.valid.x, np.float64))), 1e-300)
+            x_std = max(float(np.std(np.asarray(self.problem.valid.x, np.float64))), 1e-300)
             size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / x_std)
         # where the baseline is qualitatively wrong, or after a first effect whose misfit the
         # equation error keeps, the simulated gap's share may stand in for the equation error's

@@ -10,8 +10,7 @@ import math
 import numpy as np
 
 from ._run import Run, prepare, sim_share
-from ._stack import Stack
-from ._stages import resolve
+from ._stages import Stack, resolve
 from ._where import structure
 from .effects import LookalikeTest
 
@@ -43,8 +42,8 @@ def judge(run: Run, stk: Stack) -> Verdict:
     """The first of the stack, provided the stack explains the residual's structure as well as
     its size and no look-alike explains the gap better; else ``none`` (a residual without
     structure, or a negligible gap) or ``unexplained``."""
-    crit, base, cur, st = run.crit, run.base, stk.fit, run.st
-    F = np.asarray(run.valid.F)
+    crit, base, cur, st = run.crit, run.base, stk.fit, run.problem.st
+    F = np.asarray(run.problem.valid.F)
     at_floor = base.equation_gap <= crit.floor_factor * run.floor
     s_final = structure(cur.residual, F, st)
     s_base = structure(base.residual, F, st)
@@ -115,8 +114,9 @@ def _reverse(run: Run, stk: Stack) -> tuple[float, float, str] | None:
     ways, as the same effect. None for other stacks."""
     if not any(c.exactness() is not None for c in stk.cands):
         return None
-    args = (run.candidates, run.lookalikes, run.crit, run.st.filter_hz, run.st.window_s, math.inf)
-    rv = prepare(run.valid, run.problem.train, *args)
+    st = run.problem.st
+    args = (run.candidates, run.lookalikes, run.crit, st.filter_hz, st.window_s, math.inf)
+    rv = prepare(run.problem.valid, run.problem.train, *args)
     lib = {c.name: c for c in run.candidates}
     forms = [lib.get(c.name, c) for c in stk.cands]
     done = {c.name: c for c in forms if c.profiled()}
