@@ -50,20 +50,18 @@ def _diagnosis_context(fn):
 def _check_excites(nm: str, rec: Record) -> None:
     """Refuse a record whose position or force never changes (a dead sensor, the wrong column,
     the drive off): nothing can be identified on it, nor an effect sized against b·F."""
-    for col, unit, what in (("x", "m", "position"), ("F", "N", "force")):
+    for col, unit, what, fix in (
+        ("x", "m", "position", "of the device moving (check the column mapping and the units)"),
+        ("F", "N", "force", "with a varying force (check the column mapping and the logging)"),
+    ):
         v = np.asarray(getattr(rec, col), np.float64)
         scale = float(np.max(np.abs(v))) if v.size else 0.0
         if v.size and float(np.ptp(v)) <= 64 * np.finfo(np.float64).eps * scale:
-            fix = (
-                "a record of the device moving (check the column mapping and the units)"
-                if col == "x"
-                else "a record with a varying force (an excitation; check the column mapping "
-                "and that the force was logged)"
-            )
             raise InputError(
                 f"diagnose: the {ROLES[nm]} has a constant {what}: {col} ≡ {float(v[0]):g} "
                 f"{unit} over all {v.size} samples, so it does not excite the model and nothing "
-                f"can be {'identified' if nm == 'train' else 'validated'} on it. Pass {fix}."
+                f"can be {'identified' if nm == 'train' else 'validated'} on it. Pass a record "
+                f"{fix}."
             )
 
 

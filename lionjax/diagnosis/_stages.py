@@ -130,34 +130,29 @@ def fit_on(run: Run, stk: Stack, ks: tuple) -> Fitted | None:
     return min((f for f in fits if f is not None), key=lambda f: f.ms_valid, default=None)
 
 
-def step_of(run: Run, stk: Stack, ks: tuple, f: Fitted):
-    """(score, fit, ks) of ``ks`` fitted on the stack in ``f`` where significant as one step;
-    else None."""
+def step_of(run: Run, stk: Stack, ks: tuple, f: Fitted | None = None):
+    """(score, fit, ks) of ``ks`` added to the stack as one step, fitted in ``f`` (default
+    :func:`fit_on`), where significant; else None (also where the design is too wide)."""
+    f = fit_on(run, stk, ks) if f is None else f
+    if f is None:
+        return None
     sc = run.assess(stk.fit, f, ks, run.floor_of((*stk.cands, *ks)))
     return (sc, f, ks) if sc.significant else None
-
-
-def as_one_step(run: Run, stk: Stack, ks: tuple):
-    """:func:`step_of` ``ks`` added to the stack together (None also where too wide)."""
-    f = fit_on(run, stk, ks)
-    return None if f is None else step_of(run, stk, ks, f)
 
 
 def _stand_in(run: Run, trials, pool, stk: Stack):
     """The first implausible trial's stand-in (``simpler``: two or more candidates of the pool)
     significant as one step, in score order; or None."""
     names = {c.name: c for c in pool}
-    for t in trials:
-        c = t[2]
-        if t[0].plausible or len(c.simpler) < 2 or not all(n in names for n in c.simpler):
-            continue
-        ks = tuple(names[n] for n in c.simpler)
-        if stk.size + len(ks) > run.crit.max_effects:
-            continue
-        step = as_one_step(run, stk, ks)
-        if step is not None:
-            return step
-    return None
+    stand_ins = (
+        tuple(names[n] for n in c.simpler)
+        for sc, _, c in trials
+        if not sc.plausible and len(c.simpler) >= 2 and all(n in names for n in c.simpler)
+    )
+    steps = (
+        step_of(run, stk, ks) for ks in stand_ins if stk.size + len(ks) <= run.crit.max_effects
+    )
+    return next((s for s in steps if s is not None), None)
 
 
 def _pair(run: Run, trials, stk: Stack):
@@ -178,7 +173,7 @@ def _pair(run: Run, trials, stk: Stack):
     # compatible pairs only: near-duplicates (an offset, a drifting offset, a spring) cannot
     # pair with each other and would fill the best n
     pairs.sort(key=lambda p: -(p[0][0].score + p[1][0].score))
-    found = [as_one_step(run, stk, (ti[2], tj[2])) for ti, tj in pairs[: n * (n - 1) // 2]]
+    found = [step_of(run, stk, (ti[2], tj[2])) for ti, tj in pairs[: n * (n - 1) // 2]]
     return max((s for s in found if s is not None), key=lambda t: t[0].score, default=None)
 
 
@@ -336,20 +331,17 @@ def prune(run: Run, stk: Stack) -> Stack:
     one law and stay."""
     in_law = {n for law in stk.laws for n in law}
     while len(stk.cands) > 1:
-        weakest = None
+        weak = []
         for c in stk.cands:
-            if c.name in in_law:
-                continue
             rest = tuple(k for k in stk.cands if k.name != c.name)
-            f = run.try_fit(rest)
-            if f is None:
-                continue
-            sc = run.evidence(f, stk.fit, (c,), run.floor_of(stk.cands))
-            if sc <= run.crit.threshold and (weakest is None or sc < weakest[0]):
-                weakest = (sc, c, f)
-        if weakest is None:
+            f = None if c.name in in_law else run.try_fit(rest)
+            if f is not None:
+                sc = run.evidence(f, stk.fit, (c,), run.floor_of(stk.cands))
+                if sc <= run.crit.threshold:
+                    weak.append((sc, c, f))
+        if not weak:
             break
-        sc, c, f = weakest
+        sc, c, f = min(weak, key=lambda w: w[0])
         together = dict(stk.together)
         if c.name in together:
             score, names = together.pop(c.name)
