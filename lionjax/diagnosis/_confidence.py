@@ -43,12 +43,11 @@ def uncounted(run: Run, stk: Stack) -> tuple[dict[str, float], list[str]]:
     candidate alone, counted from no floor, outscores :meth:`~._run.Run.bar`, and the stack adds
     nothing significant to it. A rival, or, where it ``imitates`` a stacked name and the
     baseline lies below its floor, a second reading of the record."""
+    if not stk.cands:
+        return {}, []
     rivals: dict[str, float] = {}
     readings: list[str] = []
-    held = {c.name for c in stk.cands}
-    if not stk.cands:
-        return rivals, readings
-    bar = run.bar(stk)
+    held, bar = {c.name for c in stk.cands}, run.bar(stk)
     for c in run.candidates:
         if not c.fits_noise() or c.name in held:
             continue
@@ -107,15 +106,16 @@ def _holds_stand_in(held: set[str], c: AbstractCandidate) -> bool:
 def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) -> list[str]:
     """Candidates fitted alone implausibly, perhaps only by bias (``stand_in_doubtful``), whose
     whole stand-in, ``verdict`` among it, the stack holds: the stack is a reading of them too."""
-    held = {c.name for c in stk.cands}
-    out = []
-    for s in effects:
-        c = run.by_name[s.name]
-        if s.plausible or s.name in held or verdict not in c.simpler:
-            continue
-        if _holds_stand_in(held, c) and c.stand_in_doubtful(s.params):
-            out.append(s.name)
-    return out
+    held, by_name = {c.name for c in stk.cands}, run.by_name
+    return [
+        s.name
+        for s in effects
+        if not s.plausible
+        and s.name not in held
+        and verdict in by_name[s.name].simpler
+        and _holds_stand_in(held, by_name[s.name])
+        and by_name[s.name].stand_in_doubtful(s.params)
+    ]
 
 
 def _detection(run: Run) -> tuple[float, float]:

@@ -109,9 +109,7 @@ def _check_pairs(pairs) -> list[tuple[str, Any, Any]]:
                 f"each record a lionjax.Record or a file path, got {p!r:.80}."
             )
         for role, r in zip(("train", "valid"), p[1:], strict=True):
-            if not isinstance(r, Record | str | os.PathLike) and not (
-                role == "valid" and r is None
-            ):
+            if not (isinstance(r, Record | str | os.PathLike) or (role == "valid" and r is None)):
                 raise InputError(
                     f"diagnose_many: pairs[{i}] ({p[0]!r}): {role} must be a lionjax.Record or "
                     f"a file path (.csv, .npz, .mat), got {type(r).__name__}."

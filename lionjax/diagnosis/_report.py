@@ -77,8 +77,7 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
 
 def _series_and_where(run: Run, stk: Stack, v: Verdict):
     """The validation signals for plotting and the ``where`` findings on them."""
-    problem, base, cur = run.problem, run.base, stk.fit
-    valid = problem.valid
+    problem, base, cur, valid = run.problem, run.base, stk.fit, run.problem.valid
     series = {
         "t": float(valid.t0) + float(valid.dt) * np.arange(valid.n_samples),
         "x": np.asarray(valid.x),
@@ -120,8 +119,7 @@ def _baseline(run: Run, v: Verdict) -> dict[str, Any]:
 
 
 def _settings_json(run: Run) -> dict[str, Any]:
-    problem, crit = run.problem, run.crit
-    st = problem.st
+    problem, crit, st = run.problem, run.crit, run.problem.st
     return {
         "dt": st.dt,
         "filter_hz": st.filter_hz,
