@@ -1,14 +1,12 @@
-"""Sim-to-real gap diagnosis: ``lionjax.diagnosis`` (layer 3 of docs/method.md).
+"""Sim-to-real gap diagnosis (layer 3 of docs/method.md), on recorded data alone.
 
-:func:`diagnose` works on recorded data alone: it names the unmodelled effect that explains the
-model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figure;
-:func:`decimation_for` gives the least decimation that lets long records fit the memory;
-:func:`diagnose_many` diagnoses many (train, valid) pairs in one process, one row per pair.
-The library is open: a :class:`ForceEffect` subclass is a candidate of the user's own
-(docs/effects.md), passed as ``candidates=DEFAULT_CANDIDATES + (MyEffect(),)`` or loaded from a
-file by :func:`load_candidates`. The candidates live in :mod:`lionjax.diagnosis.effects`, one
-module per family. ``lionjax.diagnose`` is the same function as
-:func:`lionjax.diagnosis.diagnose`.
+:func:`diagnose` (also ``lionjax.diagnose``) names the unmodelled effect that explains the
+model's error, with a confidence; :func:`diagnose_many` runs many (train, valid) pairs, one row
+each; :func:`plot_diagnosis` draws the one-page figure; :func:`decimation_for` gives the least
+decimation that lets long records fit the memory. The library (:mod:`lionjax.diagnosis.effects`,
+one module per family) is open: a :class:`ForceEffect` subclass is a candidate of one's own
+(docs/effects.md), passed as ``DEFAULT_CANDIDATES + (MyEffect(),)`` or loaded from a file by
+:func:`load_candidates`.
 """
 
 from . import effects as effects

@@ -1,6 +1,6 @@
-"""The verdict's confidence (:func:`weigh`; :func:`lionjax.diagnose`'s docstring, "Confidence"):
-BIC weights of the plausible candidates and of "no effect", the part of the excess the stack
-explains, the record's detection limit, and the odds of the rivals the record prefers."""
+"""The verdict's confidence (:func:`weigh`; docs/method.md, "The confidence"): BIC weights of
+the plausible candidates and of "no effect", the part of the excess the stack explains, the
+record's detection limit, and the odds of the rivals the record prefers."""
 
 from __future__ import annotations
 
@@ -12,19 +12,16 @@ import numpy as np
 from ._fit import Fitted
 from ._result import EffectScore
 from ._run import Run
-from ._stack import Stack
+from ._stages import Stack
 from ._verdict import Verdict, exact_tolerance
 from .effects import AbstractCandidate
 
 
 def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, float]:
-    """BIC weights exp(score/2) of each plausible candidate alone large enough to be named
-    (score = −ΔBIC) and of "no effect", whose prior odds are the significance threshold: at
-    score = threshold the two tie. Where the stack holds a sensor artefact, a device effect it
-    did not stack explained alone what the artefact explains: its evidence is the artefact's.
-    The first of candidates stacked together (a stand-in or a pair, a plausible and
-    significant step) counts their joint score where it is higher than its own alone, or where
-    it was implausible alone."""
+    """BIC weights exp(score/2) of each plausible candidate alone of at least ``min_size`` and
+    of "no effect", whose score is the threshold. The first of candidates stacked together
+    counts their joint score where higher; beside a stacked sensor artefact, the device effects
+    not stacked drop out (each explained alone what the artefact explains)."""
     crit = run.crit
     plausible = {s.name: s.score for s in effects if s.plausible and s.size >= crit.min_size}
     for k, (sc, _) in stk.together.items():
@@ -41,22 +38,16 @@ def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, floa
 
 
 def uncounted(run: Run, stk: Stack) -> tuple[dict[str, float], list[str]]:
-    """The candidates whose gains count only above the estimated floor (their columns can fit
-    the position noise) and whose columns explain all the named stack's evidence: in one of its
-    forms (plausible or not) the candidate alone, counted from no floor, outscores the stack
-    (:meth:`~._run.Run.bar`), and the stack adds nothing significant to it. That evidence then
-    no more decides for the stack's name than for the candidate's.
-
-    Returns ({name: score from no floor} of the rivals, [names]). A form the candidate knows
-    for a look-alike of the stack's (``imitates``) is no rival; where the baseline lies below
-    the floor, so that nothing the candidate explains counted, it is a second reading of the
-    record (the confidence is shared)."""
+    """({name: score from no floor}, [names]) of the candidates whose columns can fit the
+    position noise and explain all the named stack's evidence: in one of its forms the
+    candidate alone, counted from no floor, outscores :meth:`~._run.Run.bar`, and the stack adds
+    nothing significant to it. A rival, or, where it ``imitates`` a stacked name and the
+    baseline lies below its floor, a second reading of the record."""
+    if not stk.cands:
+        return {}, []
     rivals: dict[str, float] = {}
     readings: list[str] = []
-    held = {c.name for c in stk.cands}
-    if not stk.cands:
-        return rivals, readings
-    bar = run.bar(stk)
+    held, bar = {c.name for c in stk.cands}, run.bar(stk)
     for c in run.candidates:
         if not c.fits_noise() or c.name in held:
             continue
@@ -84,17 +75,11 @@ def uncounted(run: Run, stk: Stack) -> tuple[dict[str, float], list[str]]:
 def _rivals(
     run: Run, effects: list[EffectScore], stk: Stack, blind: dict[str, float], bar: float
 ) -> dict[str, float]:
-    """Implausible candidates, each alone, that explain the validation error better than the
-    whole stack (score above ``bar``: the stack's summed step scores and the threshold; at
-    least ``min_size``): a structure the record prefers to the verdict, whose fitted parameters
-    no device effect of the library has — evidence against the verdict, not for another name.
-    Not a rival: one whose stand-in (``simpler``) the stack holds, nor any against a stack the
-    windowed simulation confirms where the baseline is qualitatively wrong (there the equation
-    error is no measure), nor in closed loop one whose columns can fit the position noise (they
-    fit its path through the controller), nor a fit its candidate knows for a look-alike of the
-    stack's (``imitates``), nor a fit whose search failed (it located nothing). The rivals of
-    :func:`uncounted` (``blind``) are rivals too."""
-    crit = run.crit
+    """Implausible candidates alone of at least ``min_size`` scoring above ``bar``, and the
+    rivals of :func:`uncounted` (``blind``): structures the record prefers to the verdict.
+    Not one whose stand-in the stack holds, one it knows for a look-alike of a stacked name
+    (``imitates``), a failed search, nor in closed loop one whose columns can fit the position
+    noise; none against a stack the simulation confirms on a qualitatively wrong baseline."""
     if run.confirmed(stk):
         return {}
     held = {c.name for c in stk.cands} | set(stk.stands_for.values())
@@ -103,7 +88,7 @@ def _rivals(
         s.name: s.score
         for s in effects
         if not s.plausible
-        and s.size >= crit.min_size
+        and s.size >= run.crit.min_size
         and s.score > bar
         and not by_name[s.name].search_failed()
         and not (run.closed_loop and by_name[s.name].fits_noise())
@@ -119,27 +104,25 @@ def _holds_stand_in(held: set[str], c: AbstractCandidate) -> bool:
 
 
 def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) -> list[str]:
-    """Candidates of which the stack is a reading too: fitted alone implausibly but perhaps
-    only by bias (:meth:`~.effects.AbstractCandidate.stand_in_doubtful`), their stand-in
-    (``simpler``) held whole by the stack, ``verdict`` among it."""
-    held = {c.name for c in stk.cands}
-    out = []
-    for s in effects:
-        c = run.by_name[s.name]
-        if s.plausible or s.name in held or verdict not in c.simpler:
-            continue
-        if _holds_stand_in(held, c) and c.stand_in_doubtful(s.params):
-            out.append(s.name)
-    return out
+    """Candidates fitted alone implausibly, perhaps only by bias (``stand_in_doubtful``), whose
+    whole stand-in, ``verdict`` among it, the stack holds: the stack is a reading of them too."""
+    held, by_name = {c.name for c in stk.cands}, run.by_name
+    return [
+        s.name
+        for s in effects
+        if not s.plausible
+        and s.name not in held
+        and verdict in by_name[s.name].simpler
+        and _holds_stand_in(held, by_name[s.name])
+        and by_name[s.name].stand_in_doubtful(s.params)
+    ]
 
 
 def _detection(run: Run) -> tuple[float, float]:
-    """(the record's detection limit, the largest of its candidates'): the smallest effect (size
-    as in ``min_size``, one parameter) that would have reached the threshold, ΔMS > (threshold
-    + ln N_eff)·MS₀/N_eff; and, for candidates whose gains count only above the estimated floor,
-    the least that lifts MS₀ there first, ΔMS > max(MS₀, floor²)·exp((threshold +
-    p·ln N_eff)/N_eff) − MS₀ (a baseline below the estimated floor hides such an effect
-    whole)."""
+    """(the record's detection limit, the largest of its candidates'): the least one-parameter
+    effect reaching the threshold, √((threshold + ln N_eff)·MS₀/N_eff) over the input's term;
+    for a candidate whose gains count only above the floor σ, the least that lifts MS₀ there
+    first, √(max(MS₀, σ²)·exp((threshold + p·ln N_eff)/N_eff) − MS₀) over the input's term."""
     crit, base = run.crit, run.base
     n, ms0 = base.n_eff, base.ms_valid
     generic = math.sqrt((crit.threshold + math.log(n)) * ms0 / n) / run.force_rms
@@ -154,12 +137,9 @@ def _detection(run: Run) -> tuple[float, float]:
 
 def _explains(run: Run, stk: Stack, v: Verdict) -> float:
     """The part of a named verdict's confidence its stack's fit earns: min(1, explained /
-    ``explained_full``); and where every stacked candidate's model is exact, times tol/rest
-    where the stack leaves a rest of the excess above what a true instance leaves, tol = 1 − the
-    least exact share, in either direction; the other way (the records' roles swapped) also
-    times the odds of its score s over the threshold t, 1/(1 + exp((t − s)/2)), as "no effect"
-    is weighed. It is 0 where a stack holding an exact candidate is not the same effect fitted
-    the other way (:meth:`~.effects.AbstractCandidate.other_way`)."""
+    ``explained_full``); for a stack of exact candidates also × tol/rest for each rest of the
+    excess above tol (here and the other way) and × the other way's odds over "no effect",
+    1/(1 + exp((threshold − s)/2)); 0 where a stacked candidate refuses the other way's fit."""
     out = min(1.0, max(v.explained, 0.0) / run.crit.explained_full)
     if v.reverse is not None and v.reverse[2]:
         return 0.0
@@ -231,7 +211,7 @@ def inconclusive(
             "drive the axis harder or measure its position finer (the detection limit scales "
             "with the position noise over the response it drives)"
         )
-    lo, hi = run.st.excited
+    lo, hi = run.problem.st.excited
     v = np.asarray(run.problem.v_valid, np.float64)
     moving = np.abs(v) > 0.1 * float(np.quantile(np.abs(v), 0.9))
     s = np.sign(v[moving])
@@ -243,16 +223,15 @@ def inconclusive(
         )
     advice.append(
         f"excite the band the model is to hold (this record: {lo:.3g}–{hi:.3g} Hz; up to the "
-        f"filter corner {run.st.filter_hz:.3g} Hz and beyond)"
+        f"filter corner {run.problem.st.filter_hz:.3g} Hz and beyond)"
     )
-    return {"reason": "; ".join(reasons), "advice": "; ".join(advice)}
+    return {"reason": reason, "advice": "; ".join(advice)}
 
 
 def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) -> float:
-    """The largest size (rms of ε₁ removed over the input's term) of a candidate fitted alone
-    that beats "no effect" (score above ``threshold``) but is refused only for lying within the
-    record's resolution (:meth:`~.effects.AbstractCandidate.unresolved`); 0 when none. An
-    effect that large may be there unnamed, so the record's detection limit is at least that."""
+    """The largest size of a candidate alone that beats "no effect" but is refused only as
+    within the record's resolution (``unresolved``), 0 if none: a bound on the detection
+    limit (an effect that large may be there unnamed)."""
     return max(
         (
             e.size
@@ -266,26 +245,33 @@ def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) 
     )
 
 
+def _unexplained(run: Run, effects: list[EffectScore], v: Verdict, hidden: float) -> float:
+    """The confidence of ``unexplained``: 1 − the largest share of a candidate plausible or
+    scoring above 0 (a fit that removes much of the gap leaves the question open), or a
+    deciding look-alike's share where larger; at most the share of validation inside train's
+    ranges; and, unless a look-alike decided, × (1 − ``hidden``) as ``none``."""
+    evidence = [s for s in effects if not run.by_name[s.name].search_failed()]
+    best_share = max([s.share for s in evidence if s.score > 0 or s.plausible], default=0.0)
+    coverage = 1.0 - max(run.outside.values())
+    against = max([1.0 - best_share, *(t.share for t in v.decided_by)])
+    confidence = float(np.clip(min(against, coverage), 0.0, 1.0))
+    return confidence if v.decided_by else confidence * (1.0 - min(hidden, 1.0))
+
+
 def weigh(
-    run: Run,
-    effects: list[EffectScore],
-    stk: Stack,
-    v: Verdict,
-    unseen: tuple[dict[str, float], list[str]],
-    below: float = 0.0,
+    run: Run, effects: list[EffectScore], stk: Stack, v: Verdict, fitted: dict[str, Fitted]
 ) -> Confidence:
-    """The verdict's confidence (:func:`lionjax.diagnose`: "Confidence"); ``unseen``: the
-    rivals and readings of :func:`uncounted`; ``below``: the size of an effect the record may
-    hold unnamed (:func:`unresolved`), a bound on the detection limit."""
+    """The verdict's confidence, from the candidates alone (``effects``, ``fitted``), the stack
+    and its verdict."""
     crit = run.crit
-    blind, also = unseen
+    blind, also = uncounted(run, stk)
     weights = _weights(run, effects, stk)
     detection, detection_worst = _detection(run)
-    detection_worst = max(detection_worst, below)
+    detection_worst = max(detection_worst, unresolved(run, fitted, effects))
     bar = run.bar(stk)
     rivals = _rivals(run, effects, stk, blind, bar)
-    # the rivals' odds against the verdict's evidence, as the BIC weights count them (the
-    # look-alikes' against the stack's joint score)
+    # the rivals' odds against the verdict's evidence (the look-alikes' against the stack's
+    # joint score)
     looks = {k: t.rival for k, t in v.lookalikes.items() if t.rival is not None}
     joint = run.joint(stk) if looks else math.inf
     odds = [s - bar for s in rivals.values()] + [s - joint for s in looks.values()]
@@ -293,9 +279,8 @@ def weigh(
     rivals |= looks
     verdict = v.verdict
     if verdict == "none" and min(weights["none"], doubt) < 1.0 / crit.tie_ratio:
-        # a candidate beats "no effect" by more than the tie ratio yet removes too little of
-        # the gap to be named, or is implausible: there is an effect the library does not
-        # describe — not "none" with a confidence near 0
+        # a candidate beats "no effect" by the tie ratio yet is too small to be named, or
+        # implausible: an effect the library does not describe is there
         verdict = "unexplained"
     if verdict in stk.stands_for and stk.stands_for[verdict] in weights:
         # the stand-in and the candidate it replaced are one explanation: pool their evidence
@@ -313,20 +298,7 @@ def weigh(
     if verdict == "none":
         confidence = weights["none"] * (1.0 - min(hidden, 1.0))
     elif verdict == "unexplained":
-        # a fit that removes much of the gap (implausible but beating "no effect", or plausible
-        # below the threshold) leaves the question open; "no candidate explains it" holds only
-        # where train covered what validation holds; a look-alike that explains what the stack
-        # leaves is evidence of its own
-        evidence = [s for s in effects if not run.by_name[s.name].search_failed()]
-        best_share = max([s.share for s in evidence if s.score > 0 or s.plausible], default=0.0)
-        coverage = 1.0 - max(run.outside.values())
-        decided = v.decided_by
-        against = max([1.0 - best_share, *(t.share for t in decided)])
-        confidence = float(np.clip(min(against, coverage), 0.0, 1.0))
-        if not decided:
-            # and, as "none", only as sure as a library effect below the detection limit could
-            # not be what is left
-            confidence *= 1.0 - min(hidden, 1.0)
+        confidence = _unexplained(run, effects, v, hidden)
     else:
         confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
     if verdict != "unexplained":

@@ -1,21 +1,9 @@
-"""``lionjax.diagnose``: where, which and how far is the sim-to-real gap.
-
-Works on recorded data alone (no twin: layer 3 of the package). The pipeline, each stage a
-function of immutable values (docs/method.md, "Diagnosis", states every rule and why it holds):
-
-1. :func:`~._run.prepare`: the settings adapted to the training record, the baseline
-   ẍ + aẋ = bF fitted on it, the noise floor of ε₁ and the record-level facts (closed loop,
-   limits, a qualitatively wrong baseline);
-2. :func:`~._stages.fit_alone`: every candidate alone, in each of its forms, profiled;
-3. :func:`~._stack.stack_effects`, :func:`~._stages.parsimony`, :func:`~._stages.prune`:
-   the greedy stack, its stand-ins and backward elimination;
-4. :func:`~._verdict.judge`: the verdict, against the look-alikes and the residual's structure;
-5. :func:`~._confidence.weigh`: its confidence; :func:`~._report.report`: the answer.
-
-**Precision.** The diagnosis computes in float64 whether or not ``jax_enable_x64`` is on (as the
-command line does), so the same records give the same verdict in either setting; a float32 record
-is read as it is (its rounding, ~6·10⁻⁸ of |x|, stays in the data).
-"""
+"""``lionjax.diagnose``: where, which and how far is the sim-to-real gap, on recorded data alone
+(layer 3). A pipeline of functions of immutable values (docs/method.md, "Diagnosis", states
+every rule and why it holds): :func:`~._run.prepare` (settings, the baseline ẍ + aẋ = bF, the
+noise floor of ε₁), :func:`~._stages.fit_alone`, :func:`~._stages.stack_effects`,
+:func:`~._stages.parsimony`, :func:`~._stages.prune`, :func:`~._verdict.judge`,
+:func:`~._confidence.weigh` and :func:`~._report.report`."""
 
 from __future__ import annotations
 
@@ -32,29 +20,24 @@ from .._errors import InputError
 from .._progress import status
 from .._record import Record
 from .._validity import check_record
-from ._confidence import uncounted, unresolved, weigh
+from ._confidence import weigh
 from ._criteria import Criteria
 from ._problem import ROLES
 from ._report import report
 from ._result import RESERVED, Diagnosis
 from ._run import prepare
-from ._stack import stack_effects
-from ._stages import check_candidates, fit_alone, parsimony, prune
+from ._stages import check_candidates, fit_alone, parsimony, prune, stack_effects
 from ._verdict import judge
 from .effects import DEFAULT_CANDIDATES, DEFAULT_LOOKALIKES, AbstractCandidate
 
-#: BLAS threads while a diagnosis runs (:func:`_diagnosis_context`); None leaves the host's setting.
+#: BLAS threads while a diagnosis runs; None leaves the host's setting. The host products are
+#: thin (T × at most P_MAX + 1) and run beside XLA's threads: more BLAS threads gain nothing and
+#: contend with XLA's (``benchmarks/diagnosis_speed.py --many --blas`` measures it).
 BLAS_THREADS: int | None = 1
 
 
 def _diagnosis_context(fn):
-    """``fn`` run with ``jax_enable_x64`` switched on and the host BLAS on one thread (both
-    restored after).
-
-    The diagnosis' host products are thin (T × at most P_MAX + 1 columns) and run beside XLA's
-    own threads, which compute the filters and simulations: more BLAS threads gain nothing
-    there and contend with XLA's (``benchmarks/diagnosis_speed.py --many --blas`` measures
-    it). :data:`BLAS_THREADS` sets the count."""
+    """``fn`` run with ``jax_enable_x64`` on and :data:`BLAS_THREADS` (both restored after)."""
 
     @functools.wraps(fn)
     def run(*args, **kwargs):
@@ -65,24 +48,20 @@ def _diagnosis_context(fn):
 
 
 def _check_excites(nm: str, rec: Record) -> None:
-    """Refuse a record the mass–damper can neither be fitted nor scored on: a position or a force
-    that never changes (x ≡ 3 mm, F ≡ 0: a dead sensor, the wrong column, the drive off). On a
-    training record nothing is identified; on a validation record every gap and effect size,
-    measured against the force's term b·F, is meaningless."""
-    for col, unit, what in (("x", "m", "position"), ("F", "N", "force")):
+    """Refuse a record whose position or force never changes (a dead sensor, the wrong column,
+    the drive off): nothing can be identified on it, nor an effect sized against b·F."""
+    for col, unit, what, fix in (
+        ("x", "m", "position", "of the device moving (check the column mapping and the units)"),
+        ("F", "N", "force", "with a varying force (check the column mapping and the logging)"),
+    ):
         v = np.asarray(getattr(rec, col), np.float64)
         scale = float(np.max(np.abs(v))) if v.size else 0.0
         if v.size and float(np.ptp(v)) <= 64 * np.finfo(np.float64).eps * scale:
-            fix = (
-                "a record of the device moving (check the column mapping and the units)"
-                if col == "x"
-                else "a record with a varying force (an excitation; check the column mapping "
-                "and that the force was logged)"
-            )
             raise InputError(
                 f"diagnose: the {ROLES[nm]} has a constant {what}: {col} ≡ {float(v[0]):g} "
                 f"{unit} over all {v.size} samples, so it does not excite the model and nothing "
-                f"can be {'identified' if nm == 'train' else 'validated'} on it. Pass {fix}."
+                f"can be {'identified' if nm == 'train' else 'validated'} on it. Pass a record "
+                f"{fix}."
             )
 
 
@@ -90,25 +69,31 @@ def _check_records(train: Record, valid: Record | None) -> Record:
     """The validation record (``train`` when None), or an :class:`~lionjax.InputError`."""
     check_diagnosis_data(train, valid, ROLES)  # glitches, a pair in different units
     for nm, rec in (("train", train), ("valid", valid)):
-        if rec is not None and not isinstance(rec, Record):
+        if rec is None:
+            continue
+        if not isinstance(rec, Record):
             raise InputError(
                 f"diagnose: argument {nm!r} must be a lionjax.Record (lionjax.load_record(path)), "
                 f"got {type(rec).__name__}."
             )
-        if rec is not None and rec.x.ndim != 1:
+        if rec.x.ndim != 1:
             raise InputError(
                 f"diagnose: argument {nm!r} must be one record, x of shape (T,), got "
                 f"{rec.x.shape}; loop over a batch."
             )
-        if rec is not None:
-            # the estimators' data checks (non-finite, out of range, unit and spike warnings)
-            check_record(rec, f"diagnose: the {ROLES[nm]}")
-            _check_excites(nm, rec)
+        # the estimators' data checks (non-finite, out of range, unit and spike warnings)
+        check_record(rec, f"diagnose: the {ROLES[nm]}")
+        _check_excites(nm, rec)
     valid = train if valid is None else valid
     if abs(float(valid.dt) - float(train.dt)) > 1e-6 * float(train.dt):
         raise InputError(
             f"diagnose: train and valid must share the sample interval, got dt = "
             f"{float(train.dt)!r} s and {float(valid.dt)!r} s; resample one of them."
+        )
+    if valid.units != train.units:
+        raise InputError(
+            f"diagnose: the training record is {train.units} and the validation record "
+            f"{valid.units} (Record.units); load both in the same units."
         )
     return valid
 
@@ -131,8 +116,11 @@ def diagnose(
     streamed: bool | int | None = None,
     progress: bool = False,
 ) -> Diagnosis:
-    """Diagnose the sim-to-real gap of ẍ + aẋ = bF on a record (module docstring: the method,
-    the confidence, the precision).
+    """Diagnose the sim-to-real gap of ẍ + aẋ = bF: where it lies, which unmodelled effect
+    explains it, with what confidence (docs/method.md, "Diagnosis" and "The confidence").
+
+    It computes in float64 whether or not ``jax_enable_x64`` is on, so the same records give
+    the same verdict in either setting; a float32 record keeps its rounding (~6·10⁻⁸ of |x|).
 
     Arguments:
         train: training record (x [m], F [N], uniform dt; or x [rad], F [N·m] with
@@ -141,48 +129,35 @@ def diagnose(
         candidates: the effect library (default :data:`DEFAULT_CANDIDATES`: ``offset``,
             ``coulomb_friction``, ``spring``, ``delay``, ``saturation``,
             ``position_dependent``, ``asymmetric_friction``, ``flexible_mode``, and the force
-            sensor's ``force_sensor_line`` and ``force_sensor_drift``); add effects of one's own
-            as ``DEFAULT_CANDIDATES + (MyEffect(),)``, ``MyEffect`` a
+            sensor's ``force_sensor_line`` and ``force_sensor_drift``); add one's own as
+            ``DEFAULT_CANDIDATES + (MyEffect(),)``, ``MyEffect`` a
             :class:`~lionjax.diagnosis.ForceEffect` (docs/effects.md).
         filter_hz: corner λ/2π [Hz] of the filter (s + λ)³ (default min(f_s/25, 40 Hz)).
         window_s: restart interval H [s] of the windowed simulation error (default 1/a clipped
             to [20·dt, 2 s] and to an eighth of the validation record).
-        threshold, min_share, min_size, floor_factor, max_effects: the most used thresholds
-            (:class:`~lionjax.diagnosis.Criteria`: significance score, least share of the excess
-            gap, least size against the input's term b·F/Λ, the noise floor's factor, the
-            largest stack; defaults 10, 0.3, 0.005, 1.5, 3); where given, they replace those
-            fields of ``criteria``.
+        threshold, min_share, min_size, floor_factor, max_effects: the most used fields of
+            ``criteria`` (significance score, least share of the excess gap, least size against
+            the input's term b·F/Λ, the noise floor's factor, the largest stack; defaults 10,
+            0.3, 0.005, 1.5, 3), replaced where given.
         max_memory_gb: host memory [GB] the diagnosis may take (default: this machine's
-            physical memory). In one chunk its peak grows with the records' padded lengths (about
-            6.5 kB per padded sample of each record: the filtered signals and designs are
-            kept); streamed, by their raw per-sample signals only (about 1.2 GB plus 160 B per
-            sample: :func:`~lionjax.diagnosis._lstsq.memory_estimate`). Records that would need
-            more get an :class:`~lionjax.InputError` before anything is computed, not an
-            out-of-memory kill, naming the least decimation that fits (:func:`decimation_for`,
-            :meth:`lionjax.Record.decimate`).
-        criteria: every other threshold (default :class:`~lionjax.diagnosis.Criteria`()).
+            physical memory): in one chunk about 6.5 kB per padded sample of each record,
+            streamed about 1.2 GB plus 160 B per sample. Records that would need more get an
+            :class:`~lionjax.InputError` before anything is computed, naming the least
+            decimation that fits (:func:`decimation_for`, :meth:`lionjax.Record.decimate`).
+        criteria: every threshold (default :class:`~lionjax.diagnosis.Criteria`()).
         streamed: read the records in chunks of 2¹⁶ samples (or of ``streamed`` samples, an
-            int ≥ 16), every fit's statistics (Grams, cross products with the profiles'
-            columns, the validation residuals) accumulated chunk by chunk with the filters'
-            states carried between chunks, so that no filtered signal, design or profile column
-            is held whole; the same verdicts as in one chunk, the numbers equal to the last
-            bits. False: each record in one chunk, its filtered signals and designs kept. None
-            (default): in chunks where a record's padded length exceeds 2¹⁷ samples (in one
-            chunk, records of up to 2¹⁷ samples peak below 2 GB).
-        progress: draw a status line on stderr once the diagnosis has run a few seconds (its
-            stage, and the points of a search done: :class:`lionjax._progress.Status`).
+            int ≥ 16), every fit's statistics accumulated chunk by chunk with the filters'
+            states carried across, so that no filtered signal, design or profile column is
+            held whole: the same verdicts as in one chunk, the numbers equal to the last bits.
+            False: one chunk. None (default): chunks where a record's padded length exceeds
+            2¹⁷ samples (in one chunk, records of up to 2¹⁷ samples peak below 2 GB).
+        progress: draw a status line on stderr (the stage, the points of a search done) once
+            the diagnosis has run a few seconds.
 
     Returns:
-        a :class:`Diagnosis`; ``.to_json()`` gives the JSON payload (``baseline``, ``where``,
-        ``effects``, ``stack``, ``verdict``, ``confidence``, ``ambiguous``, ``weights``,
-        ``final``, ``steps``, ``noise``, ``settings``).
+        a :class:`Diagnosis`; ``.to_json()`` gives its JSON payload.
     """
     valid = _check_records(train, valid)
-    if valid.units != train.units:
-        raise InputError(
-            f"diagnose: the training record is {train.units} and the validation record "
-            f"{valid.units} (Record.units); load both in the same units."
-        )
     if criteria is not None and not isinstance(criteria, Criteria):
         raise InputError(
             f"diagnose: argument 'criteria' must be a lionjax.diagnosis.Criteria, got "
@@ -201,16 +176,12 @@ def diagnose(
     library = check_candidates(candidates, RESERVED)
     with status("diagnose", enabled=progress) as st:  # the stages on stderr, if asked
         st.stage("baseline and noise floor")
-        run = prepare(
-            train, valid, library, DEFAULT_LOOKALIKES, crit, filter_hz, window_s, max_memory_gb,
-            streamed,
-        )  # fmt: skip
-        return _pipeline(run, st)
+        args = (DEFAULT_LOOKALIKES, crit, filter_hz, window_s, max_memory_gb, streamed)
+        return _pipeline(prepare(train, valid, library, *args), st)
 
 
 def _pipeline(run, st) -> Diagnosis:
-    """Every candidate alone, the stack, its verdict and confidence (module docstring); ``st``
-    the status line the stages are named on."""
+    """Every candidate alone, the stack, its verdict and confidence; ``st`` the status line."""
     st.stage("fitting the candidates alone")
     run, fitted = fit_alone(run)
     by_name = run.by_name
@@ -230,9 +201,7 @@ def _pipeline(run, st) -> Diagnosis:
     stk = prune(run, stk)
     st.stage("verdict")
     verdict = judge(run, stk)
-    confidence = weigh(
-        run, effects, stk, verdict, uncounted(run, stk), unresolved(run, fitted, effects)
-    )
+    confidence = weigh(run, effects, stk, verdict, fitted)
     return report(run, effects, stk, verdict, confidence).in_units(run.problem.train.units)
 
 

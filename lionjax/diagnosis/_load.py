@@ -16,6 +16,10 @@ from .effects import AbstractCandidate
 USER_MODULE = "lionjax_user_candidates_"
 
 
+def _is_candidate_class(v) -> bool:
+    return inspect.isclass(v) and issubclass(v, AbstractCandidate)
+
+
 def load_candidates(spec: str) -> tuple[AbstractCandidate, ...]:
     """The candidates ``Name…`` defined in the Python file ``FILE.py``.
 
@@ -39,8 +43,7 @@ def load_candidates(spec: str) -> tuple[AbstractCandidate, ...]:
         )
     if not os.path.isfile(path):
         raise InputError(f"--candidates: file {path!r} not found (from {spec!r}).")
-    digest = hashlib.sha1(os.path.abspath(path).encode()).hexdigest()[:12]
-    mod_name = f"{USER_MODULE}{digest}"
+    mod_name = USER_MODULE + hashlib.sha1(os.path.abspath(path).encode()).hexdigest()[:12]
     module = sys.modules.get(mod_name)
     if module is None:
         loader = importlib.util.spec_from_file_location(mod_name, path)
@@ -60,11 +63,7 @@ def load_candidates(spec: str) -> tuple[AbstractCandidate, ...]:
             have = sorted(
                 k
                 for k, v in vars(module).items()
-                if (
-                    inspect.isclass(v)
-                    and issubclass(v, AbstractCandidate)
-                    and not inspect.isabstract(v)
-                )
+                if (_is_candidate_class(v) and not inspect.isabstract(v))
                 or isinstance(v, AbstractCandidate)
             )
             raise InputError(
@@ -72,7 +71,7 @@ def load_candidates(spec: str) -> tuple[AbstractCandidate, ...]:
                 f"{', '.join(have) or 'none'}."
             )
         obj = getattr(module, name)
-        if inspect.isclass(obj) and issubclass(obj, AbstractCandidate):
+        if _is_candidate_class(obj):
             try:
                 obj = obj()
             except Exception as e:

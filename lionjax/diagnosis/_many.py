@@ -1,14 +1,11 @@
-"""Diagnose many (train, valid) pairs in one process: one row per pair.
+"""Diagnose many (train, valid) pairs in one process, one short row per pair
+(:class:`DiagnosisRow`): the full diagnoses (with their signals) are not kept, so memory does not
+grow with the number of pairs.
 
-:func:`diagnose_many` calls :func:`~lionjax.diagnosis.diagnose` on each pair in turn and keeps a
-short row of each answer (:class:`DiagnosisRow`); the full :class:`~lionjax.diagnosis.Diagnosis`
-(with its validation signals) is not kept, so memory does not grow with the number of pairs.
-
-Compilation is shared. The diagnosis pads every record to its length bucket (the next power of
-two ≥ T + 16 samples, :func:`~lionjax.diagnosis._filtering.padded_length`) and traces dt, the
-filter and every parameter, so its compiled programs depend on the padded lengths alone: the
-first pair of a bucket compiles them, every later pair of the same bucket reuses them
-(``benchmarks/diagnosis_speed.py --many`` measures both).
+Compilation is shared: the diagnosis pads every record to its length bucket (the next power of
+two ≥ T + 16, :func:`~lionjax.diagnosis._filtering.padded_length`) and traces dt, the filter and
+every parameter, so the first pair of a bucket compiles its programs and every later pair of the
+bucket reuses them (``benchmarks/diagnosis_speed.py --many`` measures both).
 """
 
 from __future__ import annotations
@@ -32,21 +29,21 @@ NOT_RUN = "not run: interrupted before this pair"
 
 @dataclasses.dataclass(frozen=True)
 class DiagnosisRow:
-    """One pair's answer (the fields of :meth:`lionjax.diagnosis.Diagnosis.to_json` it keeps).
+    """One pair's answer: fields of :meth:`lionjax.diagnosis.Diagnosis.to_json`, each ``None``
+    (``stack`` empty) when ``error``.
 
     Attributes:
         name: the pair's name.
-        verdict: an effect's name, ``"none"`` or ``"unexplained"``; ``None`` when ``error``.
-        confidence: the verdict's confidence in [0, 1]; ``None`` when ``error``.
-        stack: the significant effects in the order added (``()`` when none or ``error``).
-        shrink: the share of the baseline's windowed-simulation gap [m] the final stack removes
-            (``final.shrink``: 1 − gap_final/gap_baseline; ``None`` when not defined or
-            ``error``).
-        detection_limit: the least effect this pair would name, as a share of the input's
-            term b·F (``noise.detection_limit``); ``None`` when ``error``.
+        verdict: an effect's name, ``"none"``, ``"unexplained"`` or ``"inconclusive"``.
+        confidence: the verdict's confidence in [0, 1].
+        stack: the significant effects in the order added.
+        shrink: ``final.shrink``, 1 − gap_final/gap_baseline of the windowed simulation
+            (``None`` where not defined).
+        detection_limit: the least effect this pair would name, as a share of the input's term
+            b·F (``noise.detection_limit``).
         error: ``None`` on success, else why the pair was not diagnosed (a file that could not
-            be read, an :class:`~lionjax.InputError` or :class:`~lionjax.IdentificationError`
-            of the diagnosis, or :data:`NOT_RUN`).
+            be read, an :class:`~lionjax.InputError` or :class:`~lionjax.IdentificationError`,
+            or :data:`NOT_RUN`).
     """
 
     name: str
@@ -77,27 +74,19 @@ class DiagnosisRow:
 
 @dataclasses.dataclass(frozen=True)
 class ManyDiagnoses(Table):
-    """The answer of :func:`diagnose_many`: one :class:`DiagnosisRow` per pair, in order.
-
-    :meth:`payload` is the JSON document ``{"rows": [...]}``, :meth:`to_json` (path) writes it,
-    :meth:`to_csv` (path) writes :meth:`to_rows`, one line per pair (the stack joined with ';').
-
-    Attributes:
-        rows: one row per pair, in the order given.
-        complete: False when the run was interrupted (the rows not reached carry
-            :data:`NOT_RUN`).
-    """
+    """The answer of :func:`diagnose_many`: one :class:`DiagnosisRow` per pair, in the order
+    given (``rows``); ``complete`` is False when the run was interrupted (the rows not reached
+    carry :data:`NOT_RUN`). :meth:`to_json` (path) writes ``{"rows": [...]}``, :meth:`to_csv`
+    (path) one line per pair (the stack joined with ';')."""
 
     rows: tuple[DiagnosisRow, ...]
     complete: bool = True
 
     def to_rows(self) -> list[dict[str, Any]]:
-        """One dict per pair: ``name``, ``verdict``, ``confidence``, ``stack``, ``shrink``,
-        ``detection_limit``, ``error``."""
+        """One dict per pair (:meth:`DiagnosisRow.to_json`)."""
         return [r.to_json() for r in self.rows]
 
     def payload(self) -> dict[str, Any]:
-        """``{"rows": to_rows()}``."""
         return {"rows": self.to_rows()}
 
     @property
@@ -120,9 +109,7 @@ def _check_pairs(pairs) -> list[tuple[str, Any, Any]]:
                 f"each record a lionjax.Record or a file path, got {p!r:.80}."
             )
         for role, r in zip(("train", "valid"), p[1:], strict=True):
-            if not isinstance(r, Record | str | os.PathLike) and not (
-                role == "valid" and r is None
-            ):
+            if not (isinstance(r, Record | str | os.PathLike) or (role == "valid" and r is None)):
                 raise InputError(
                     f"diagnose_many: pairs[{i}] ({p[0]!r}): {role} must be a lionjax.Record or "
                     f"a file path (.csv, .npz, .mat), got {type(r).__name__}."
@@ -168,18 +155,16 @@ def diagnose_many(
     load: Mapping[str, Any] | None = None,
     **diagnose_kwargs: Any,
 ) -> ManyDiagnoses:
-    """Diagnose every (train, valid) pair of a list; one row per pair, in order.
-
-    Each pair is :func:`~lionjax.diagnosis.diagnose` ``(train, valid, candidates=candidates,
-    **diagnose_kwargs)`` exactly (same verdict, confidence and stack as one call); the pairs run
-    one after the other in this process, so pairs of the same padded lengths share every
-    compiled program (the first pair of a length bucket pays the compilation).
+    """Diagnose every (train, valid) pair of a list, one after the other in this process: each
+    is :func:`~lionjax.diagnosis.diagnose` ``(train, valid, candidates=candidates,
+    **diagnose_kwargs)`` exactly, and pairs of the same padded lengths share its compiled
+    programs.
 
     Arguments:
-        pairs: ``(name, train, valid)`` triples; ``train``/``valid`` a :class:`lionjax.Record`
-            (x [m], F [N], uniform dt [s], shape ``(T,)``) or a file path (``.csv``, ``.npz``,
-            ``.mat``, read by :func:`lionjax.load_record` with ``load``); ``valid`` may be None
-            (then train is validated on itself, as in ``diagnose``). Names must be distinct.
+        pairs: ``(name, train, valid)`` triples of distinct names; ``train``/``valid`` a
+            :class:`lionjax.Record` or a file path (``.csv``, ``.npz``, ``.mat``, read by
+            :func:`lionjax.load_record` with ``load``); ``valid`` may be None (train validated
+            on itself).
         candidates: the effect library of every pair (default :data:`DEFAULT_CANDIDATES`).
         progress: draw a progress bar on stderr, one step per pair.
         load: keyword arguments of :func:`lionjax.load_record` for the pairs given as files
@@ -188,16 +173,15 @@ def diagnose_many(
             ``max_memory_gb``, ``criteria``, thresholds), the same for every pair.
 
     Returns:
-        a :class:`ManyDiagnoses`: row i is ``pairs[i]``. A pair whose file cannot be read, or
+        a :class:`ManyDiagnoses`, row i of ``pairs[i]``. A pair whose file cannot be read or
         whose diagnosis raises :class:`~lionjax.InputError` or
-        :class:`~lionjax.IdentificationError`, is a row with ``verdict=None`` and the reason in
-        ``error`` (naming the file), and the other pairs still run. Ctrl-C stops the run and
-        returns the rows done (``complete=False``; the rest carry :data:`NOT_RUN`).
+        :class:`~lionjax.IdentificationError` is a row with the reason in ``error`` (naming the
+        file), and the other pairs still run. Ctrl-C returns the rows done
+        (``complete=False``).
 
     Raises:
         InputError: for a malformed ``pairs`` (not ``(name, train, valid)`` triples, a repeated
-            name, none at all), naming the element and the fix. Any other exception of a
-            diagnosis (a bug) propagates.
+            name, none at all). Any other exception of a diagnosis (a bug) propagates.
     """
     pairs = _check_pairs(pairs)
     load = dict(load or {})

@@ -37,10 +37,7 @@ def plot_diagnosis(diagnosis, path: str | Path):
     fig = figure(12, 9, layout=None)
     grid = fig.add_gridspec(2, 2)
     top = grid[0, 0].subgridspec(2, 1, height_ratios=(2, 1), hspace=0.05)
-    ax = np.empty((2, 2), dtype=object)
-    ax[0, 1], ax[1, 0], ax[1, 1] = (
-        fig.add_subplot(grid[i, j]) for i, j in ((0, 1), (1, 0), (1, 1))
-    )
+    eps, where, which = (fig.add_subplot(grid[i, j]) for i, j in ((0, 1), (1, 0), (1, 1)))
     a = fig.add_subplot(top[0])
     e = fig.add_subplot(top[1], sharex=a)
     dt = float(t[1] - t[0]) if t.size > 1 else 1.0
@@ -61,36 +58,35 @@ def plot_diagnosis(diagnosis, path: str | Path):
     e.plot(t[:n], s["sim_final"] * ke, "C0", lw=0.6, label="augmented − measured")
     e.set(xlabel="t [s]", ylabel=f"sim. error [{ue}]")
     e.legend(fontsize=7, loc=loc)
-    a = ax[0, 1]
-    a.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")
-    a.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
+    eps.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")
+    eps.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
     floor = diagnosis.noise["equation_floor"]
-    a.axhspan(-floor, floor, color="0.85", label="noise floor (±1σ)")
-    a.set(
+    eps.axhspan(-floor, floor, color="0.85", label="noise floor (±1σ)")
+    eps.set(
         xlabel="t [s]",
         ylabel=f"ε₁ [{unit('m/s²', diagnosis.units)}]",
         title="filtered equation error",
     )
-    a.legend(fontsize=8, loc=loc)
-    a = ax[1, 0]
+    eps.legend(fontsize=8, loc=loc)
     bands = [w for w in diagnosis.where if w.get("share") is not None and "fraction" in w]
     labels = [f"{w['kind']}: {w['band']}" for w in bands]
     y = np.arange(len(bands))
-    a.barh(y, [w["share"] for w in bands], color="C3", label="share of residual")
-    a.barh(y, [w["fraction"] for w in bands], fill=False, edgecolor="k", label="share of samples")
-    a.set_yticks(y, labels, fontsize=6)
-    a.invert_yaxis()
-    a.set(xlabel="share", title="where: residual by band")
-    a.legend(fontsize=7)
-    a = ax[1, 1]
+    where.barh(y, [w["share"] for w in bands], color="C3", label="share of residual")
+    where.barh(
+        y, [w["fraction"] for w in bands], fill=False, edgecolor="k", label="share of samples"
+    )
+    where.set_yticks(y, labels, fontsize=6)
+    where.invert_yaxis()
+    where.set(xlabel="share", title="where: residual by band")
+    where.legend(fontsize=7)
     eff = diagnosis.effects
     y = np.arange(len(eff))
     colors = ["C2" if e.significant else "0.6" for e in eff]
-    a.barh(y, [e.shrink for e in eff], color=colors)
-    a.set_yticks(y, [f"{e.name} (score {e.score:.3g})" for e in eff], fontsize=8)
-    a.invert_yaxis()
-    a.axvline(0, color="k", lw=0.5)
-    a.set(
+    which.barh(y, [e.shrink for e in eff], color=colors)
+    which.set_yticks(y, [f"{e.name} (score {e.score:.3g})" for e in eff], fontsize=8)
+    which.invert_yaxis()
+    which.axvline(0, color="k", lw=0.5)
+    which.set(
         xlabel="shrink of the simulation gap (green: significant)",
         title=f"which: verdict {diagnosis.verdict}\nstack: {', '.join(diagnosis.stack) or '—'}",
     )

@@ -10,7 +10,7 @@ import numpy as np
 from ._confidence import Confidence
 from ._result import _UNITS, Diagnosis, EffectScore
 from ._run import Run, shrink
-from ._stack import Stack
+from ._stages import Stack
 from ._verdict import Verdict
 from ._where import where_findings
 from .effects import design_of
@@ -63,13 +63,13 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
         "reverse": None
         if v.reverse is None
         else dict(zip(("remaining_excess_share", "score", "refused"), v.reverse, strict=True)),
+        **params,
+        # a final model with b ≤ 0 describes no device: it is reported, never as a result
+        "qualitatively_wrong": qualitatively_wrong(cur.physical, cur.simulation),
+        "result": cur.physical.get("b", 1.0) > 0,
+        "structure": v.s_final,
+        "structure_explained": not v.peak_grew,
     }
-    final.update(params)
-    # a final model with b ≤ 0 describes no device: it is reported, never as a result
-    final["qualitatively_wrong"] = qualitatively_wrong(cur.physical, cur.simulation)
-    final["result"] = cur.physical.get("b", 1.0) > 0
-    final["structure"] = v.s_final
-    final["structure_explained"] = not v.peak_grew
     for t in v.lookalikes.values():  # each look-alike's validated fit beside the stack
         final.update(t.final)
     return final
@@ -77,7 +77,7 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
 
 def _series_and_where(run: Run, stk: Stack, v: Verdict):
     """The validation signals for plotting and the ``where`` findings on them."""
-    valid, problem, base, cur = run.valid, run.problem, run.base, stk.fit
+    problem, base, cur, valid = run.problem, run.base, stk.fit, run.problem.valid
     series = {
         "t": float(valid.t0) + float(valid.dt) * np.arange(valid.n_samples),
         "x": np.asarray(valid.x),
@@ -89,13 +89,13 @@ def _series_and_where(run: Run, stk: Stack, v: Verdict):
         "sim_final": cur.sim_error,
         "H": np.asarray(problem.H),
     }
-    where = where_findings(series, run.st, run.floor)
+    where = where_findings(series, problem.st, run.floor)
     where += [t.finding for t in v.lookalikes.values() if t.finding is not None]
     return series, where
 
 
 def _baseline(run: Run, v: Verdict) -> dict[str, Any]:
-    base, valid = run.base, run.valid
+    base, valid = run.base, run.problem.valid
     return {
         "model": "MassDamper",
         "params": {"a": base.physical["a"], "b": base.physical["b"]},
@@ -119,7 +119,7 @@ def _baseline(run: Run, v: Verdict) -> dict[str, Any]:
 
 
 def _settings_json(run: Run) -> dict[str, Any]:
-    st, problem, crit = run.st, run.problem, run.crit
+    problem, crit, st = run.problem, run.crit, run.problem.st
     return {
         "dt": st.dt,
         "filter_hz": st.filter_hz,

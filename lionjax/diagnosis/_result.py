@@ -45,28 +45,25 @@ class Diagnosis:
         where: findings (dicts with ``kind``, ``band``, ``share`` …, see :mod:`._where`).
         effects: every candidate alone on the baseline, best first.
         stack: names of the significant effects in the order added.
-        verdict: ``stack[0]``, ``"none"`` or ``"unexplained"``.
-        confidence: evidence for the verdict in [0, 1] (see :func:`diagnose`).
-        ambiguous: the names within a weight ratio of 1/20 of the verdict (near-ties,
-            best first, the verdict included), then the candidates of which the stack is
-            a reading too (asymmetric friction for Coulomb friction plus a larger offset,
-            where its fit may be biased), or ``[]``.
-        weights: BIC weights of ``"none"`` and of each plausible candidate alone.
-        rivals: {name: score} of the implausible candidates that, alone, explain the
-            validation error better than the whole stack, and of the out-of-library
-            look-alikes (``"dead_zone_lookalike"``, ``"drag_lookalike"``) that score above the
-            stack with fewer parameters (evidence against the verdict: its confidence is
-            discounted by their odds), or ``{}``.
+        verdict: ``stack[0]``, ``"none"``, ``"unexplained"`` or ``"inconclusive"``.
         final: the stacked model's physical parameters and its ``gap``.
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
+        steps: each stacked effect's score as it was added.
+        confidence: evidence for the verdict in [0, 1] (docs/method.md, "The confidence").
+        ambiguous: the names within a weight ratio of 1/20 of the verdict (near-ties, best
+            first, the verdict included), then the candidates of which the stack is a reading
+            too (asymmetric friction for Coulomb friction plus a larger offset), or ``[]``.
+        weights: BIC weights of ``"none"`` and of each plausible candidate alone.
+        rivals: {name: score} of the implausible candidates that, alone, explain the
+            validation error better than the whole stack, and of the look-alikes
+            (``"dead_zone_lookalike"``, ``"drag_lookalike"``) that score above the stack with
+            fewer parameters: evidence against the verdict, whose confidence they discount.
         series: validation signals for plotting (not in the JSON).
-        inconclusive: where the verdict is ``inconclusive`` (the records cannot decide whether
-            an effect is there: too few effective samples, or, with nothing significant left, a
-            detection limit of half the input's term), ``{"reason", "advice"}``: why, and what
-            to record instead; else None.
+        inconclusive: where the records cannot decide whether an effect is there (too few
+            effective samples, or nothing significant left under a detection limit of half the
+            input's term), ``{"reason", "advice"}``: why, and what to record instead; else None.
         units: the records' unit system, ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad],
-            F [N·m]): the units every figure and text of the diagnosis states
-            (:meth:`in_units`).
+            F [N·m]), which every figure and text states (:meth:`in_units`).
     """
 
     baseline: dict[str, Any]
@@ -87,11 +84,9 @@ class Diagnosis:
     units: str = "linear"
 
     def in_units(self, units: str) -> Diagnosis:
-        """The same diagnosis stated in the unit system ``units`` (``"linear"`` or
-        ``"rotary"``): the unit of every parameter, gap and "where" band a linear diagnosis
-        states, rewritten by :func:`lionjax._units.unit` (m → rad, N → N·m, 1/kg → 1/(kg·m²),
-        N/m → N·m/rad …). The numbers are unchanged: they are in the record's own units.
-        """
+        """The same diagnosis stated in ``units`` (``"linear"`` or ``"rotary"``): every unit a
+        linear diagnosis states rewritten by :func:`lionjax._units.unit` (m → rad, N → N·m …);
+        the numbers, in the record's own units, unchanged."""
         if check_units(units) == self.units:
             return self
         if self.units != "linear":
@@ -109,48 +104,27 @@ class Diagnosis:
         )
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON payload (plain Python types; non-finite numbers become ``None``; converted by
-        :func:`lionjax._tables.jsonable`, the one conversion the writers use)."""
-        return jsonable(
-            {
-                "baseline": self.baseline,
-                "where": self.where,
-                "effects": [e.to_json() for e in self.effects],
-                "stack": self.stack,
-                "verdict": self.verdict,
-                "confidence": self.confidence,
-                "ambiguous": self.ambiguous,
-                "weights": self.weights,
-                "rivals": self.rivals,
-                "inconclusive": self.inconclusive,
-                "final": self.final,
-                "steps": [e.to_json() for e in self.steps],
-                "noise": self.noise,
-                "settings": self.settings,
-                "units": self.units,
-            }
+        """The JSON payload (plain Python types, non-finite numbers ``None``:
+        :func:`lionjax._tables.jsonable`)."""
+        out = {k: getattr(self, k) for k in _JSON_KEYS}
+        out.update(
+            effects=[e.to_json() for e in self.effects], steps=[e.to_json() for e in self.steps]
         )
+        return jsonable(out)
 
 
+#: The keys of :meth:`Diagnosis.to_json`, in order.
+_JSON_KEYS = (
+    "baseline where effects stack verdict confidence ambiguous weights rivals inconclusive final "
+    "steps noise settings units"
+).split()
 #: Units of the baseline's and the derived parameters (each candidate owns its own: ``units``).
 _UNITS = {"a": "1/s", "b": "1/kg", "F0": "N", "tau": "s", "Fmax": "N"}
-
 #: Parameter names the diagnosis reports itself or for its built-in candidates (a ForceEffect
 #: may not reuse them).
 RESERVED = (
     *WINDOW_PARAMETERS,
     *_UNITS,
-    "x0",
-    "x_lo",
-    "x_hi",
-    "Fc_pos",
-    "Fc_neg",
-    "presliding",
-    "soft",
-    "mass_ratio",
-    "beta",
-    "f_mode",
-    "zeta_mode",
-    "input_share",
-    "deflection",
+    *"x0 x_lo x_hi Fc_pos Fc_neg presliding soft mass_ratio beta".split(),
+    *"f_mode zeta_mode input_share deflection".split(),
 )

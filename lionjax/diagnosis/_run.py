@@ -1,5 +1,5 @@
-"""One diagnosis' shared state (:class:`Run`, immutable): the problem, the baseline fit and its
-noise floor, and how a fit is scored against another (:meth:`Run.assess`)."""
+"""One diagnosis' shared state (:class:`Run`): the problem, the baseline fit, its noise floor, and
+how a fit is scored against another (:meth:`Run.assess`)."""
 
 from __future__ import annotations
 
@@ -23,9 +23,8 @@ from .effects import AbstractCandidate, Design, Limits
 
 @dataclasses.dataclass(frozen=True)
 class Run:
-    """What the stages of one diagnosis share: the problem, the library and look-alikes, the
-    baseline fit and its noise floor. ``fit_floor`` (the floor mean squares count from) is
-    lowered as fits come in (:meth:`lowered`, a new Run)."""
+    """What the stages of one diagnosis share. ``fit_floor``, the floor mean squares count
+    from, is lowered as fits come in (:meth:`lowered`, a new Run)."""
 
     problem: Problem
     candidates: tuple[AbstractCandidate, ...]
@@ -55,20 +54,9 @@ class Run:
         return self.problem.limits
 
     @property
-    def valid(self) -> Record:
-        return self.problem.valid
-
-    @property
-    def st(self):
-        return self.problem.st
-
-    @property
     def by_name(self) -> dict[str, AbstractCandidate]:
         """The library's candidates (resolved alone, where they are) by name."""
         return {c.name: self.resolved.get(c.name, c) for c in self.candidates}
-
-    def fit(self, structure) -> Fitted:
-        return fit(self.problem, structure)
 
     def try_fit(self, structure) -> Fitted | None:
         """The fit of ``structure``, or None when its design would be wider than P_MAX."""
@@ -77,40 +65,24 @@ class Run:
         except TooWide:
             return None
 
-    def measured_F_rms(self) -> float:
-        """The RMS [N] of the validation record's measured F (mean included), against which a
-        measurement artefact is sized."""
-        return float(np.sqrt(np.mean(np.square(np.asarray(self.valid.F, np.float64)))))
-
-    def x_std(self) -> float:
-        """The validation record's position spread [m] (at least 1e-300), against which a
-        candidate is sized by the simulated gap it removes."""
-        return max(float(np.std(np.asarray(self.valid.x, np.float64))), 1e-300)
-
     def by_simulation(self, cands) -> bool:
         """Whether ``cands`` are judged by the windowed simulation as well as the equation
-        error: the baseline is qualitatively wrong (:attr:`dominant`) and the simulation models
-        every one of them."""
+        error: the baseline is qualitatively wrong and the simulation models every one."""
         return self.dominant and bool(cands) and all(k.simulated() for k in cands)
 
     def score_ms(self, cur: Fitted, ms_new: float, p: int, lo_rms: float) -> float:
         """−ΔBIC of a validated mean square ``ms_new`` against ``cur``'s with ``p`` more
-        parameters, N_eff·ln(MS_cur/MS_new) − p·ln N_eff; mean squares below lo_rms² (a floor)
-        count as lo_rms² (a gain there is on noise). N_eff is the residual's the comparison
-        starts from: after a first effect the residual is whiter than the baseline's."""
+        parameters, N_eff·ln(MS_cur/MS_new) − p·ln N_eff, N_eff that of ``cur``'s residual;
+        mean squares below lo_rms² (a floor) count as lo_rms² (a gain there is on noise)."""
         lo = max(lo_rms**2, 1e-300)
         gain = math.log(max(cur.ms_valid, lo) / max(ms_new, lo))
         ne = cur.n_eff
         return ne * gain - p * math.log(ne)
 
-    def score_of(self, cur: Fitted, new: Fitted, p: int, lo_rms: float) -> float:
-        return self.score_ms(cur, new.ms_valid, p, lo_rms)
-
     def sim_score(self, cur: Fitted, new: Fitted, p: int) -> float:
-        """−ΔBIC of the windowed simulation's gap, each scored window one sample (a window
-        restarts from the record's states: the windows' errors are nearly independent, the
-        samples within one are not): n_w·ln(gap_cur²/gap_new²) − p·ln n_w; −inf where either
-        simulation diverged."""
+        """−ΔBIC of the windowed simulation's gap, each window one sample (a window restarts
+        from the record's states, so windows' errors are nearly independent, samples within one
+        are not): n_w·ln(gap_cur²/gap_new²) − p·ln n_w; −inf where either diverged."""
         n_w = (new.n_sim - new.gap_from) // self.problem.H
         if not (math.isfinite(cur.gap) and math.isfinite(new.gap) and new.gap > 0 and n_w > 1):
             return -math.inf
@@ -118,7 +90,7 @@ class Run:
 
     def lowered(self, fits) -> Run:
         """The run with its fitted floor bounded by the validation error of each (structure,
-        fit) whose gains count from it (not a structure that can fit the position noise)."""
+        fit) not able to fit the position noise."""
         rms = math.sqrt(
             min([self.fit_floor**2, *(f.ms_valid for cands, f in fits if not _fits_noise(cands))])
         )
@@ -136,18 +108,17 @@ class Run:
         return sum(k.params() for k in cands)
 
     def evidence(self, cur: Fitted, new: Fitted, ks: tuple, lo_rms: float) -> float:
-        """The score of ``new`` (``cur`` plus the candidates ``ks``) against ``cur``: the
-        validated −ΔBIC (:meth:`score_of`), or the windowed simulation's where that is higher
-        and the baseline is qualitatively wrong (:meth:`by_simulation`: there the equation error
-        can grow with the true effect, a dominant spring's carrying the encoder's steps)."""
-        sc = self.score_of(cur, new, self.params(ks), lo_rms)
+        """The score of ``new`` (``cur`` plus ``ks``) against ``cur``: the validated −ΔBIC, or
+        the windowed simulation's where higher and :meth:`by_simulation` (there the equation
+        error can grow with the true effect: a dominant spring's carries the encoder's steps)."""
+        sc = self.score_ms(cur, new.ms_valid, self.params(ks), lo_rms)
         if self.by_simulation(ks):
             sc = max(sc, self.sim_score(cur, new, self.params(ks)))
         return sc
 
     def bar(self, stk) -> float:
-        """The verdict's evidence a rival is weighed against: the stack's summed step scores, at
-        least the threshold ("no effect"'s score for an empty stack)."""
+        """The stack's summed step scores, at least the threshold: the evidence a rival is
+        weighed against."""
         return max(self.crit.threshold, sum(s.score for s in stk.steps))
 
     def joint(self, stk) -> float:
@@ -155,8 +126,8 @@ class Run:
         return self.score_ms(self.base, stk.fit.ms_valid, self.params(stk.cands), self.fit_floor)
 
     def confirmed(self, stk) -> bool:
-        """Whether the baseline is qualitatively wrong and the windowed simulation confirms the
-        stack: every candidate simulated, removing at least ``dominant_sim_share`` of the gap."""
+        """Whether the windowed simulation confirms the stack where the baseline is
+        qualitatively wrong: every candidate simulated, ``dominant_sim_share`` of the gap gone."""
         return (
             self.by_simulation(stk.cands)
             and sim_share(stk.fit.gap, self.base.gap) >= self.crit.dominant_sim_share
@@ -173,11 +144,9 @@ class Run:
         share = 1 - self.excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
         why = self._refused(cur, new, ks, sc)
         plausible = not why
-        # an effect the windowed simulation models must not make the simulated gap worse (an
-        # equation-error fit that does describes the residual, not the device; a diverging
-        # simulation is worse), where the current model's simulation is a reference at all: one
-        # that predicts the motion worse than holding each window's start position is not, nor
-        # for an effect whose simulation the record cannot judge (simulated_gap_judges)
+        # a simulated effect must not worsen the simulated gap (a fit that does describes the
+        # residual, not the device), where the current simulation is a reference at all (it
+        # beats holding each window's start position) and the record can judge the effect
         simulated = all(k.simulated() for k in ks)
         exempt = not any(k.simulated_gap_judges(self.problem.stuck_share, crit) for k in ks)
         worse = (
@@ -188,25 +157,22 @@ class Run:
             and not (exempt and math.isfinite(new.gap))
         )
         size = math.sqrt(max(cur.ms_valid - new.ms_valid, 0.0)) / self.force_rms
-        # a measurement artefact lives in F, where the filter's passband does not bound it: it
-        # is sized against F too
-        own = [k.measured_rms(new.physical, self.valid, self.problem.v_valid) for k in ks]
+        # an artefact lives in F, which the filter's passband does not bound: sized against F
+        own = [k.measured_rms(new.physical, self.problem.valid, self.problem.v_valid) for k in ks]
         if all(r is not None for r in own):
-            size = max(size, sum(own) / max(self.measured_F_rms(), 1e-300))
+            F_rms = float(np.sqrt(np.mean(np.square(np.asarray(self.problem.valid.F, np.float64)))))
+            size = max(size, sum(own) / max(F_rms, 1e-300))
         if by_sim and math.isfinite(new.gap):  # likewise: the simulated gap it removes
-            size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / self.x_std())
-        # where the baseline is qualitatively wrong, the share of the equation error is no
-        # measure of an effect: the simulated gap's share stands in for it; after a first
-        # effect, whose misfit the equation error keeps, it may too (Criteria.later_sim_share)
+            x_std = max(float(np.std(np.asarray(self.problem.valid.x, np.float64))), 1e-300)
+            size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / x_std)
+        # where the baseline is qualitatively wrong, or after a first effect whose misfit the
+        # equation error keeps, the simulated gap's share may stand in for the equation error's
         least = crit.min_share_deep if len(cur.names) >= 2 else crit.min_share
+        sim = sim_share(new.gap, cur.gap)
         shares = (
             share >= least
-            or (by_sim and sim_share(new.gap, cur.gap) >= crit.dominant_sim_share)
-            or (
-                bool(cur.names)
-                and simulated
-                and sim_share(new.gap, cur.gap) >= crit.later_sim_share
-            )
+            or (by_sim and sim >= crit.dominant_sim_share)
+            or (bool(cur.names) and simulated and sim >= crit.later_sim_share)
         )
         sig = sc > crit.threshold and shares and size >= crit.min_size and plausible and not worse
         if plausible:
@@ -268,27 +234,17 @@ def shrink(gap: float, base_gap: float) -> float:
     return 1 - gap / base_gap if base_gap > 0 else 0.0
 
 
-def prepare(
-    train: Record,
-    valid: Record,
-    candidates: tuple[AbstractCandidate, ...],
-    lookalikes: tuple,
-    crit: Criteria,
-    filter_hz: float | None,
-    window_s: float | None,
-    max_memory_gb: float | None,
-    streamed: bool | int | None = None,
-) -> Run:
-    """Settings, the baseline fit, the noise floor of ε₁ and the record-level facts (closed
-    loop, limits, a qualitatively wrong baseline) that every later stage reads."""
+def _problem(train, valid, crit, filter_hz, window_s, max_memory_gb, streamed) -> Problem:
+    """The records' problem: the settings adapted to ``train`` and the windowed simulation's
+    restart interval spanning their slowest dynamics (:func:`dynamics`)."""
     st = settings(train, filter_hz=filter_hz, window_s=window_s)
     # 20 time constants 1/λ of the filter (s + λ)³, λ = 2π·filter_hz
-    min_len = int(math.ceil(20 / (2 * math.pi * st.filter_hz * st.dt)))
+    least = max(int(math.ceil(20 / (2 * math.pi * st.filter_hz * st.dt))), 200)
     for nm, rec in (("train", train), ("valid", valid)):
-        if rec.n_samples < max(min_len, 200):
+        if rec.n_samples < least:
             raise InputError(
                 f"diagnose: the {ROLES[nm]} has {rec.n_samples} samples; at least "
-                f"{max(min_len, 200)} are needed (20 filter time constants)."
+                f"{least} are needed (20 filter time constants)."
             )
     chunk = None if isinstance(streamed, bool) or streamed is None else streamed
     streamed = _check_memory(train.n_samples, valid.n_samples, max_memory_gb, streamed)
@@ -302,7 +258,24 @@ def prepare(
         st = settings(train, filter_hz=fh, window_s=window_s)
         problem = Problem.of(train, valid, st, crit, streamed, chunk)
         scale, _ = dynamics(problem)
-    problem = problem.with_window(scale)
+    return problem.with_window(scale)
+
+
+def prepare(
+    train: Record,
+    valid: Record,
+    candidates: tuple[AbstractCandidate, ...],
+    lookalikes: tuple,
+    crit: Criteria,
+    filter_hz: float | None,
+    window_s: float | None,
+    max_memory_gb: float | None,
+    streamed: bool | int | None = None,
+) -> Run:
+    """Settings, the baseline fit, the noise floor of ε₁ and the record-level facts (closed
+    loop, limits, a qualitatively wrong baseline) that every later stage reads."""
+    problem = _problem(train, valid, crit, filter_hz, window_s, max_memory_gb, streamed)
+    st = problem.st
     base = fit(problem, ())
     a, b = base.physical["a"], base.physical["b"]
     # noise floor of ε₁ on the validation record (with the encoder's count: else a clean
@@ -314,13 +287,13 @@ def prepare(
     # the scale of ε₁'s input term b·F/Λ on validation, against which an effect's size counts
     Fv = np.asarray(valid.F, np.float64)
     hF = problem.regressors_of(())[1].mean_square(Fv - np.mean(Fv), "zoh", 0)
-    force_rms = max(abs(b) * float(np.sqrt(hF)), 1e-300)
     # in closed loop the controller feeds the position noise into F, so a regressor built from
     # F can cancel the noise's path through x in ε₁: at or below the estimated floor a candidate
     # may have to show more than its equation error (Limits.loop_noise)
     feedback, F_ref = _feedback(np.asarray(valid.x), np.asarray(valid.F))
     closed_loop = feedback >= crit.feedback_share
     outside = _outside(train, valid, problem.v_train, problem.v_valid)
+    xt = np.asarray(train.x)
     limits = Limits(
         float(min(np.max(np.abs(np.asarray(train.F))), np.max(np.abs(Fv)))),
         st.dt,
@@ -328,8 +301,8 @@ def prepare(
         closed_loop=closed_loop,
         loop_noise=closed_loop and base.ms_valid <= floor**2,
         mode_band=(st.mode_grid[0], st.mode_grid[-1]),
-        x_range=_common_range(np.asarray(train.x), np.asarray(valid.x)),
-        train_range=(float(np.min(np.asarray(train.x))), float(np.max(np.asarray(train.x)))),
+        x_range=_common_range(xt, np.asarray(valid.x)),
+        train_range=(float(np.min(xt)), float(np.max(xt))),
         stuck_share=problem.stuck_share,
         sticks=problem.sticks,
         outside=outside["position"] > 0,
@@ -342,7 +315,7 @@ def prepare(
         sx=sx,
         sF=sF,
         floor=floor,
-        force_rms=force_rms,
+        force_rms=max(abs(b) * float(np.sqrt(hF)), 1e-300),
         feedback=feedback,
         F_ref=F_ref,
         closed_loop=closed_loop,
@@ -361,13 +334,13 @@ OSCILLATION_CORNER = 1 / 8
 
 def dynamics(problem: Problem) -> tuple[float, float]:
     """(the slowest dynamics the records show [s], which the windowed simulation's restart
-    interval spans; the frequency [Hz] of a dominant oscillation, or 0). The mass–damper's time
-    constant 1/a where its least squares is qualitatively right (a > 0, b > 0); else, where a
-    spring ẍ + aẋ + kx = bF (+ a constant) is (b > 0, bk > 0: the axis oscillates about an
-    equilibrium), :data:`WINDOW_PERIODS` of its damped period or its envelope's time constant
-    1/(ζωₙ), whichever is shorter (over many periods a simulation from a restart drifts in
-    phase with any error of the frequency, and its gap measures that drift, not the model), or
-    its slowest real pole's time constant when it is overdamped; else 0.1 s."""
+    interval spans; the frequency [Hz] of a dominant oscillation, or 0).
+
+    The mass–damper's time constant 1/a where it is qualitatively right (a, b > 0); else, where
+    a spring ẍ + aẋ + kx = bF (+ a constant) is (b > 0, bk > 0), :data:`WINDOW_PERIODS` of its
+    damped period or its envelope's time constant 1/(ζωₙ), whichever is shorter (over many
+    periods a restarted simulation drifts in phase with any error of the frequency), or its
+    slowest real pole's time constant when overdamped; else 0.1 s."""
     from .._model_effects import Offset, Spring
     from .._models import Augmented, MassDamper
     from ._lstsq import fit_batch
@@ -405,12 +378,9 @@ def _common_range(x_train: np.ndarray, x_valid: np.ndarray) -> tuple[float, floa
 
 
 def _outside(train: Record, valid: Record, v_train, v_valid) -> dict[str, float]:
-    """Shares of the validation samples outside the training record's range: position x [m]
-    and velocity v̂ [m/s] outside [min, max] of train, force with |F| above train's largest.
-
-    A model fitted on train extrapolates there: an effect that acts only where train never went
-    cannot be fitted on train, and its validation error is reported as ``unexplained``, with a
-    confidence of at most 1 − the largest of these shares."""
+    """Shares of the validation samples outside the training record's range: of x and v̂
+    outside train's [min, max], of F with |F| above train's largest. An effect acting only
+    there cannot be fitted on train: "unexplained" is then at most 1 − the largest share."""
 
     def share(tr, va, absolute=False):
         tr, va = np.asarray(tr, np.float64), np.asarray(va, np.float64)

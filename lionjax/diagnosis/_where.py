@@ -3,35 +3,33 @@
 Each finding is a dict ``{"kind", "band", "share", "fraction", "ratio", …}``: ``share`` is the
 band's part of the residual's sum of squares (ε₁ of the baseline), ``fraction`` the part of the
 samples (or of the input's power, for frequency bands) it holds, ``ratio = share/fraction`` (≫ 1:
-the gap concentrates there). Plus two tests with 99 % bounds: whiteness of the residual
-(autocorrelation at lags 1…20 after decimation to the filter's time constant) and its
-cross-correlation with the input F.
+the gap concentrates there). Plus MATLAB ``resid``'s two tests with 99 % bounds, on the residual
+decimated to the filter's time constant: whiteness (autocorrelation at lags 1…20) and
+cross-correlation with the input F (lags 0…20).
 """
 
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
 
 
-def _bands(kind, labels, masks, r2, note=""):
+def _bands(kind, labels, masks, r2, note="", weight=None):
+    """The findings of the bands ``masks`` of the squared residual ``r2``; ``fraction`` the
+    band's share of ``weight`` (default: of the samples)."""
     total = float(np.sum(r2)) or 1.0
     out = []
     for lab, m in zip(labels, masks, strict=True):
-        frac = float(np.mean(m)) if m.size else 0.0
         share = float(np.sum(r2[m])) / total
-        out.append(
-            {
-                "kind": kind,
-                "band": lab,
-                "share": share,
-                "fraction": frac,
-                "ratio": share / frac if frac > 0 else None,
-                "note": note,
-            }
-        )
+        if weight is None:
+            frac = float(np.mean(m)) if m.size else 0.0
+        else:
+            frac = float(np.sum(weight[m])) / (float(np.sum(weight)) or 1.0)
+        ratio = share / frac if frac > 0 else None
+        out.append(dict(kind=kind, band=lab, share=share, fraction=frac, ratio=ratio, note=note))
     return out
 
 
@@ -45,92 +43,79 @@ def _xcorr_test(a: np.ndarray, b: np.ndarray, lags: int) -> dict[str, Any]:
     return {"max_abs": worst, "bound_99": bound, "passed": bool(worst <= bound)}
 
 
+def _resid_tests(r: np.ndarray, F: np.ndarray, st) -> tuple[dict, dict]:
+    """(whiteness, input correlation) of ``r`` decimated to the filter's time constant."""
+    step = max(1, int(round(1.0 / (2 * math.pi * st.filter_hz * st.dt))))
+    rd, Fd = r[::step], F[::step]
+    return _xcorr_test(rd, rd, 20), _xcorr_test(rd, Fd, 20)
+
+
+def _spectrum(r: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(power of ``r``'s spectrum, its frequencies [Hz])."""
+    return np.abs(np.fft.rfft(r - r.mean())) ** 2, np.fft.rfftfreq(r.size, dt)
+
+
 def where_findings(series: dict[str, np.ndarray], st, floor: float) -> list[dict[str, Any]]:
     """The "where" findings from the validation series of a diagnosis."""
     r = np.asarray(series["residual_base"])
     x, F, v = (np.asarray(series[k]) for k in ("x", "F", "v"))
     r2 = r * r
-    out: list[dict[str, Any]] = []
-    # position regions: terciles of the validation positions
-    q = np.quantile(x, [1 / 3, 2 / 3])
-    out += _bands(
-        "position",
-        [f"x < {q[0]:.4g} m", f"{q[0]:.4g} ≤ x ≤ {q[1]:.4g} m", f"x > {q[1]:.4g} m"],
-        [x < q[0], (x >= q[0]) & (x <= q[1]), x > q[1]],
-        r2,
-    )
-    # velocity: near zero (reversals, stick) vs moving
-    va = np.abs(v)
-    v0 = 0.1 * float(np.median(va))
-    out += _bands(
-        "velocity",
-        [f"|v| < {v0:.3g} m/s (near zero, reversals)", f"|v| ≥ {v0:.3g} m/s"],
-        [va < v0, va >= v0],
-        r2,
-    )
-    # force magnitude: below the median, median…95 %, top 5 %
+    q = np.quantile(x, [1 / 3, 2 / 3])  # terciles of the validation positions
+    v0 = 0.1 * float(np.median(np.abs(v)))  # near zero: reversals, stick
     Fa = np.abs(F)
     fq = np.quantile(Fa, [0.5, 0.95])
-    out += _bands(
-        "force",
-        [f"|F| < {fq[0]:.3g} N", f"{fq[0]:.3g} ≤ |F| < {fq[1]:.3g} N", f"|F| ≥ {fq[1]:.3g} N"],
-        [Fa < fq[0], (Fa >= fq[0]) & (Fa < fq[1]), Fa >= fq[1]],
-        r2,
-    )
-    # time: quarters of the record
     n = r.size
-    idx = np.arange(n)
-    out += _bands(
-        "time", [f"quarter {i + 1}" for i in range(4)], [idx * 4 // n == i for i in range(4)], r2
-    )
-    # frequency bands of the residual's spectrum, octaves relative to the filter corner
-    spec = np.abs(np.fft.rfft(r - r.mean())) ** 2
-    fF = np.abs(np.fft.rfft(F - F.mean())) ** 2
-    f = np.fft.rfftfreq(n, st.dt)
+    quarter = np.arange(n) * 4 // n
+    out = [
+        *_bands(
+            "position",
+            [f"x < {q[0]:.4g} m", f"{q[0]:.4g} ≤ x ≤ {q[1]:.4g} m", f"x > {q[1]:.4g} m"],
+            [x < q[0], (x >= q[0]) & (x <= q[1]), x > q[1]],
+            r2,
+        ),
+        *_bands(
+            "velocity",
+            [f"|v| < {v0:.3g} m/s (near zero, reversals)", f"|v| ≥ {v0:.3g} m/s"],
+            [np.abs(v) < v0, np.abs(v) >= v0],
+            r2,
+        ),
+        *_bands(
+            "force",
+            [f"|F| < {fq[0]:.3g} N", f"{fq[0]:.3g} ≤ |F| < {fq[1]:.3g} N", f"|F| ≥ {fq[1]:.3g} N"],
+            [Fa < fq[0], (Fa >= fq[0]) & (Fa < fq[1]), Fa >= fq[1]],
+            r2,
+        ),
+        *_bands(
+            "time", [f"quarter {i + 1}" for i in range(4)], [quarter == i for i in range(4)], r2
+        ),
+    ]
+    # octaves of the residual's spectrum relative to the filter corner
+    spec, f = _spectrum(r, st.dt)
     fc = st.filter_hz
-    edges = [0, fc / 16, fc / 4, fc, 4 * fc, np.inf]
-    tot, totF = float(np.sum(spec)) or 1.0, float(np.sum(fF)) or 1.0
-    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-        m = (f >= lo) & (f < hi)
-        share = float(np.sum(spec[m])) / tot
-        fin = float(np.sum(fF[m])) / totF
-        out.append(
-            {
-                "kind": "frequency",
-                "band": f"{lo:.3g}–{hi:.3g} Hz",
-                "share": share,
-                "fraction": fin,
-                "ratio": share / fin if fin > 0 else None,
-                "note": "fraction = share of the input F's power in the band",
-            }
-        )
+    edges = list(pairwise([0, fc / 16, fc / 4, fc, 4 * fc, np.inf]))
+    out += _bands(
+        "frequency",
+        [f"{lo:.3g}–{hi:.3g} Hz" for lo, hi in edges],
+        [(f >= lo) & (f < hi) for lo, hi in edges],
+        spec,
+        "fraction = share of the input F's power in the band",
+        weight=np.abs(np.fft.rfft(F - F.mean())) ** 2,
+    )
     peak = float(f[1:][np.argmax(spec[1:])]) if n > 2 else 0.0
     out.append({"kind": "frequency_peak", "band": f"{peak:.4g} Hz", "share": None})
-    # tests, on the residual decimated to roughly independent samples
-    step = max(1, int(round(1.0 / (2 * math.pi * fc * st.dt))))
-    rd, Fd = r[::step], F[::step]
-    w = _xcorr_test(rd, rd, 20)
-    w.update(kind="whiteness", band="lags 1…20", share=None)
-    c = _xcorr_test(rd, Fd, 20)
-    c.update(kind="input_correlation", band="lags 0…20", share=None)
-    out += [w, c]
+    w, c = _resid_tests(r, F, st)
+    out += [
+        {**w, "kind": "whiteness", "band": "lags 1…20", "share": None},
+        {**c, "kind": "input_correlation", "band": "lags 0…20", "share": None},
+    ]
     rms = float(np.sqrt(np.mean(r2)))
-    out.append(
-        {
-            "kind": "noise_floor",
-            "band": "all",
-            "share": None,
-            "rms": rms,
-            "floor": floor,
-            "ratio": rms / floor if floor > 0 else None,
-        }
-    )
+    ratio = rms / floor if floor > 0 else None
+    out.append(dict(kind="noise_floor", band="all", share=None, rms=rms, floor=floor, ratio=ratio))
     return out
 
 
 def structure(r: np.ndarray, F: np.ndarray, st) -> dict[str, float]:
-    """How structured a validation residual is, relative to the 99 % bound of white noise
-    (MATLAB ``resid``'s two tests, on the residual decimated to the filter's time constant):
+    """How structured a validation residual is, relative to the 99 % bound of white noise:
 
     - ``input_correlation``: max |ρ(r, F)| over lags 0…20 / bound — a residual that still
       follows the input holds an unmodelled input-driven effect;
@@ -140,13 +125,8 @@ def structure(r: np.ndarray, F: np.ndarray, st) -> dict[str, float]:
       0…4·f_filter over its median there — a narrow-band residual (a mode) has a high peak.
     """
     r = np.asarray(r, np.float64)
-    F = np.asarray(F, np.float64)[: r.size]
-    step = max(1, int(round(1.0 / (2 * math.pi * st.filter_hz * st.dt))))
-    rd, Fd = r[::step], F[::step]
-    w = _xcorr_test(rd, rd, 20)
-    c = _xcorr_test(rd, Fd, 20)
-    spec = np.abs(np.fft.rfft(r - r.mean())) ** 2
-    f = np.fft.rfftfreq(r.size, st.dt)
+    w, c = _resid_tests(r, np.asarray(F, np.float64)[: r.size], st)
+    spec, f = _spectrum(r, st.dt)
     band = spec[(f > 0) & (f < 4 * st.filter_hz)]
     if band.size >= 5:
         sm = np.convolve(band, np.ones(5) / 5, mode="same")
