@@ -6,7 +6,6 @@ candidate what it adds and how it is judged, never what kind it is."""
 
 from __future__ import annotations
 
-import abc
 import math
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -70,7 +69,8 @@ class AbstractCandidate(eqx.Module):
     significant (spring → offset), ``excludes`` those never stacked with it (the data cannot
     tell them apart). ``acts_on``: ``"device"``, or ``"measurement"`` for an error of a sensor.
     ``exact_share``: where its model is exact (a linear resonance), the least share of the
-    excess validation error above the fitted floor a true instance removes, else None."""
+    excess validation error above the fitted floor a true instance removes. The methods'
+    defaults say nothing: no change, no refusal, itself its only form."""
 
     name: ClassVar[str]
     n_params: ClassVar[int]
@@ -81,10 +81,10 @@ class AbstractCandidate(eqx.Module):
     acts_on: ClassVar[str] = "device"
     exact_share: ClassVar[float | None] = None
 
-    @abc.abstractmethod
     def effects(self, st: Settings) -> tuple[AbstractEffect, ...]:
-        """The linear effect columns it adds to the model under the settings ``st`` (may be
-        empty)."""
+        """The linear effects (columns) it adds to the model under the settings ``st``; none
+        for an input map."""
+        return ()
 
     def design(self, d: Design) -> Design:
         """The design ``d`` with what it changes besides its columns (default: nothing)."""
@@ -95,37 +95,35 @@ class AbstractCandidate(eqx.Module):
         return self.n_params
 
     def variants(self, limits: Limits, chosen: tuple[AbstractCandidate, ...]) -> list[Any]:
-        """The candidates (its forms) it is tried in alone; ``chosen``: those resolved before it,
-        whose shared forms it takes. Default: itself."""
+        """Its forms tried alone (``chosen``: the candidates resolved before it, whose shared
+        forms it takes)."""
         return [self]
 
     def pick(self, tries: list[tuple[float, Any, Any]], limits: Limits) -> int:
-        """The index of the form kept among ``tries`` [(score, fit, candidate)] (default: the
-        best validated one)."""
+        """The index of the form kept among ``tries`` [(score, fit, candidate)]: the best
+        validated."""
         return max(range(len(tries)), key=lambda i: tries[i][0])
 
     def stack_variants(self) -> list[Any]:
-        """The forms tried again on each stack, where the effects beside it can change which
-        fits (default: itself)."""
+        """Its forms tried again on each stack."""
         return [self]
 
     def profile(self, objective, limits: Limits) -> Any:
-        """A new candidate with its nonlinear parameters found once, alone on the baseline, by
-        the training record's :class:`~.._objective.Objective` (default: itself)."""
+        """It with its nonlinear parameters found, once, alone on the baseline, from the
+        training record's :class:`~.._objective.Objective` (a new Module)."""
         return self
 
     def profiled(self) -> bool:
-        """Whether its nonlinear parameters are found, or it has none (default True)."""
+        """Whether its nonlinear parameters are found (or it has none)."""
         return True
 
     def search(self):
-        """The search of its parameter repeated in every structure it joins (an
-        :class:`~._input_maps.InputMapSearch`), or None (default)."""
+        """The search of its parameter repeated in every structure it joins, or None."""
         return None
 
     def physical(self, phys: dict[str, float], problem) -> dict[str, float]:
-        """Physical values it adds to ``phys``: its profiled parameters and values derived from
-        the fitted ones (default: none)."""
+        """Values it adds to ``phys``: its profiled parameters, values derived from the fitted
+        ones."""
         return {}
 
     def simulation(self, phys: dict[str, float], problem) -> dict[str, Any]:
@@ -135,13 +133,12 @@ class AbstractCandidate(eqx.Module):
         return {}
 
     def simulated(self) -> bool:
-        """Whether the windowed simulation models it in full, so that its gap judges it
-        (default True)."""
+        """Whether the windowed simulation models it in full (its gap then judges it)."""
         return True
 
     def simulated_gap_judges(self, stuck_share: float, crit) -> bool:
-        """Whether the simulated gap may refuse it for making the gap worse, not only for
-        diverging, on a record whose axis sticks ``stuck_share`` of the time (default True)."""
+        """Whether the simulated gap may refuse it for growing, not only for diverging, on a
+        record whose axis sticks ``stuck_share`` of the time."""
         return True
 
     def artefact(self) -> bool:
@@ -149,12 +146,12 @@ class AbstractCandidate(eqx.Module):
         return self.acts_on == "measurement"
 
     def exactness(self) -> float | None:
-        """``exact_share``."""
+        """Its ``exact_share``."""
         return self.exact_share
 
     def fits_noise(self) -> bool:
-        """Whether its columns can cancel position noise, so that its gains count only above
-        the estimated noise floor (default False)."""
+        """Whether its columns can cancel position noise (its gains then count above the
+        estimated noise floor)."""
         return False
 
     def report(self, phys: dict[str, float]) -> dict[str, float]:
@@ -162,49 +159,43 @@ class AbstractCandidate(eqx.Module):
         return {k: phys[k] for k in self.units if k in phys}
 
     def measured_rms(self, phys: dict[str, float], record, v) -> float | None:
-        """A measurement artefact's RMS [N] in ``record``'s F under ``phys`` (``v``: the
-        record's v̂ [m/s], (T,)); None (default) for an effect on the device."""
+        """A measurement artefact's RMS [N] in ``record``'s F under ``phys`` (``v``: its v̂
+        [m/s], (T,)); None for an effect on the device."""
         return None
 
     def implausible(self, phys: dict[str, float], lim: Limits) -> str:
-        """Why the fitted parameters are not physical (``""`` when they are)."""
-        return ""
+        """Why the fitted parameters are not physical (``""`` when they are): by default b ≤ 0
+        (every effect leaves the rigid body's mass positive)."""
+        return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
     def refusal(self, lim: Limits, gap_before: float, gap_after: float) -> str:
-        """Why a fit that takes the simulated gap from ``gap_before`` to ``gap_after`` [m] does
-        not describe the device on these records, whatever its parameters (default "")."""
+        """Why a fit taking the simulated gap from ``gap_before`` to ``gap_after`` [m] does not
+        describe the device, whatever its parameters ("" where it may)."""
         return ""
 
     def search_failed(self) -> bool:
-        """Whether its search ended on the edge of what it searched: its fit located nothing
-        and is no evidence for it or against another (default False)."""
+        """Whether its search ended on its edge: its fit is then no evidence, for or against."""
         return False
 
     def unresolved(self, phys: dict[str, float], lim: Limits) -> bool:
         """Whether an implausible fit is refused only as too small for the record to resolve
-        (within the noise or the sampling's error): the effect may be there (default False)."""
+        (the effect may be there)."""
         return False
 
     def other_way(self, phys: dict[str, float], other: dict[str, float], lim: Limits) -> str:
         """Why ``other``, its parameters fitted with the records' roles swapped, is not the
-        effect fitted as ``phys`` (an exact model holds both ways; default "")."""
+        effect fitted as ``phys`` ("" where it may be)."""
         return ""
 
     def stand_in_doubtful(self, params: dict[str, float]) -> bool:
         """Whether an implausible fit with these reported ``params`` may still be it, biased by
-        what the model leaves out: a stack holding its stand-in is then a reading of it too
-        (default False)."""
+        what the model leaves out (a stack holding its stand-in then reads it too)."""
         return False
 
     def imitates(self, params: dict[str, float]) -> tuple[str, ...]:
-        """Names of candidates that an implausible fit with these reported ``params`` is a known
-        look-alike of: it is no evidence against them (default: none)."""
+        """Names of candidates an implausible fit with these ``params`` is a known look-alike
+        of (no evidence against them)."""
         return ()
-
-
-def b_positive(phys) -> str:
-    """ "b ≤ 0" where the fitted b is not positive, else ""."""
-    return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
 
 def design_of(structure) -> Design:

@@ -31,7 +31,7 @@ from jaxtyping import Array
 from ..._models import AbstractEffect, Column
 from ..._record import Record
 from .._search import GoldenSection, GridSearch
-from ._base import AbstractCandidate, Limits, b_positive
+from ._base import AbstractCandidate, Limits
 from ._user_checks import check_definitions, checked_basis, checked_grid, traced
 
 #: Golden-section steps of a profile's refinement (each shrinks the bracket by 0.618: 16 leave
@@ -124,9 +124,6 @@ class ForceEffect(AbstractCandidate):
     def report(self, phys: dict[str, float]) -> dict[str, float]:
         keys = (*self.parameters, *self.nonlinear, *self.units)
         return {k: phys[k] for k in dict.fromkeys(keys) if k in phys}
-
-    def implausible(self, phys: dict[str, float], lim: Limits) -> str:
-        return b_positive(phys)
 
     def measured_rms(self, phys: dict[str, float], record: Record, v) -> float | None:
         if self.acts_on != "measurement":

@@ -21,7 +21,7 @@ import numpy as np
 from ..._models import AbstractEffect, Column
 from .._search import GridSearch, ParabolaStep
 from .._streaming import _pad_rows, spans
-from ._base import AbstractCandidate, Design, Limits, b_positive
+from ._base import AbstractCandidate, Design, Limits
 
 #: Dahl's pre-sliding distances z [m]: PRESLIDING_PER_DECADE per decade from a tenth of the
 #: position noise (at least PRESLIDING_RANGE[0]) to PRESLIDING_RANGE[1]. Metal contacts
@@ -224,7 +224,7 @@ class CoulombCandidate(AbstractFriction):
     def implausible(self, phys, lim):
         if not phys.get("Fc", 0) > 0:
             return "friction would push along the motion (F_c ≤ 0)"
-        return b_positive(phys)
+        return super().implausible(phys, lim)
 
 
 class AsymmetricFrictionCandidate(AbstractFriction):
@@ -253,7 +253,7 @@ class AsymmetricFrictionCandidate(AbstractFriction):
         lo, hi = sorted((r["Fc_pos"], r["Fc_neg"]))
         if not (hi > 0 and lo >= -FRICTION_TOL * hi):
             return "friction would push along the motion (F⁺ or F⁻ < 0)"
-        return b_positive(phys)
+        return super().implausible(phys, lim)
 
     def stand_in_doubtful(self, params):
         lo, hi = sorted((params.get("Fc_pos", math.nan), params.get("Fc_neg", math.nan)))

@@ -12,7 +12,7 @@ import equinox as eqx
 import numpy as np
 
 from .._search import GridSearch, ParabolaStep
-from ._base import AbstractCandidate, Design, b_positive
+from ._base import AbstractCandidate, Design
 
 #: Hard clips tried between the best one's neighbours on the quantile grid.
 CLIP_REFINE = 8
@@ -84,16 +84,13 @@ class DelayCandidate(AbstractCandidate):
     units: ClassVar[dict[str, str]] = {"tau": "s"}
     LOOP_NOISE_SHRINK: ClassVar[float] = 0.1
 
-    def effects(self, st):
-        return ()
-
     def search(self):
         return InputMapSearch("tau")
 
     def implausible(self, phys, lim):
         if not phys.get("tau", 0) > 0:
             return "no positive delay"
-        return b_positive(phys)
+        return super().implausible(phys, lim)
 
     def refusal(self, lim, gap_before: float, gap_after: float) -> str:
         s = self.LOOP_NOISE_SHRINK
@@ -118,9 +115,6 @@ class SaturationCandidate(AbstractCandidate):
     n_params: ClassVar[int] = 1  # F_max; the shape is one binary choice
     units: ClassVar[dict[str, str]] = {"Fmax": "N", "soft": ""}
 
-    def effects(self, st):
-        return ()
-
     def search(self):
         return InputMapSearch("fmax", self.shape)
 
@@ -138,4 +132,4 @@ class SaturationCandidate(AbstractCandidate):
         f = phys.get("Fmax", math.inf)
         if not (0 < f < 0.99 * lim.F_abs_max or -4.0 * lim.F_abs_max < f < 0):
             return "F_max is not below the largest force"
-        return b_positive(phys)
+        return super().implausible(phys, lim)

@@ -128,9 +128,6 @@ class DeadZoneLookalike(AbstractLookalike):
     name: ClassVar[str] = "dead_zone_lookalike"
     n_params: ClassVar[int] = 2
 
-    def effects(self, st):
-        return ()
-
     def ms(self, problem, structure, design, inp=(0.0, math.inf)) -> float:
         """Its validated mean square with ``structure`` (input map ``inp``)."""
         key = ("dead zone", structure_key(structure), tuple(inp))
@@ -231,9 +228,6 @@ class PeriodicLookalike(AbstractLookalike):
 
     name: ClassVar[str] = "periodic_lookalike"
     n_params: ClassVar[int] = 3
-
-    def effects(self, st):
-        return ()
 
     def test(self, run, stk) -> LookalikeTest:
         cur, crit = stk.fit, run.crit

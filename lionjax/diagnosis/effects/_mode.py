@@ -23,7 +23,7 @@ from .._filtering import mode_free_responses, mode_signals, padded_length
 from .._regressors import ModeProfileColumns
 from .._search import PatternSearch, best_so_far
 from .._streaming import mode_seed
-from ._base import AbstractCandidate, b_positive
+from ._base import AbstractCandidate
 
 #: Largest mass ratio of a mode the input passes through: friction's pre-sliding stiffness fits a
 #: collocated mode with μ ≈ 0.77 as well as a heavy load does. Up to MAX_HEAVY_MODE_MASS only
@@ -355,5 +355,5 @@ class FlexibleModeCandidate(AbstractCandidate):
                 f"is within {over:g}× the position noise ({lim.position_noise:.3g} m)"
             )
             yield True, why
-        if why := b_positive(phys):
+        if why := super().implausible(phys, lim):
             yield False, why

@@ -19,7 +19,7 @@ from ..._model_effects import (
 )
 from .._search import GridSearch, PatternSearch
 from .._streaming import FilteredColumns
-from ._base import AbstractCandidate, Design, b_positive
+from ._base import AbstractCandidate, Design
 
 #: The localized position's parameters (four amplitudes, x₀, w), and its (x₀, w) grid: widths
 #: w = R·LOCAL_WIDTHS (R the span of the training positions' LOCAL_RANGE quantiles), centres
@@ -202,6 +202,3 @@ class PositionCandidate(AbstractCandidate):
 
     def simulation(self, phys, problem) -> dict:
         return {"x_lo": problem.st.x_range[0], "x_hi": problem.st.x_range[1]} if self.held else {}
-
-    def implausible(self, phys, lim):
-        return b_positive(phys)
