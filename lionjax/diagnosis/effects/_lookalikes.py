@@ -245,15 +245,10 @@ class PeriodicLookalike(AbstractLookalike):
             and share >= crit.min_share
             and score >= crit.periodic_over_stack * run.bar(stk)
         )
-        final = {
-            "periodic_lookalike": {
-                "ratio": ms / cur.ms_valid if math.isfinite(ms) else None,
-                "score": score if math.isfinite(score) else None,
-                "share": share,
-                "period": period if math.isfinite(period) else None,
-                "significant": better,
-            }
-        }
+        fin = lambda a: a if math.isfinite(a) else None
+        ratio = ms / cur.ms_valid if math.isfinite(ms) else None
+        info = dict(ratio=ratio, score=fin(score), share=share, period=fin(period))
+        final = {"periodic_lookalike": info | {"significant": better}}
         # found: its likelihood ratio n·ln(MS/MS_p) (score + 3·ln n) beyond what the best of the
         # searched periods reaches on noise at the family-wise level FINDING_ALPHA: a χ²₂ per
         # independent period, about one per cycle searched (P(max > c) ≈ K·e^{−c/2})
