@@ -73,40 +73,24 @@ def dahl_name(z: float) -> str:
     return f"dahl@{float(z):.9g}"
 
 
-class SmoothedSign(AbstractEffect):
-    """Coulomb friction F_c·tanh(v̂/v_ε) [N]: column +(1/Λ)[tanh(v̂/v_ε)], parameter b·F_c."""
+class FrictionSign(AbstractEffect):
+    """Coulomb friction F_c·s [N]: column +(1/Λ)[s], parameter b·F_c; s the smoothed sign
+    tanh(v̂/v_ε) (``z`` = 0) or Dahl's state ζ at the pre-sliding distance ``z`` [m]."""
 
     v_eps: float
+    z: float = 0.0
 
     @property
     def names(self) -> tuple[str, ...]:
         return ("bFc",)
 
     def columns(self) -> tuple[Column, ...]:
-        return (Column("sgn_v", 0, 1.0),)
+        return (Column(dahl_name(self.z) if self.z > 0 else "sgn_v", 0, 1.0),)
 
     def signals(self, rs) -> dict:
-        v, e = rs.v, self.v_eps
-        return {"sgn_v": (lambda k0, k1: np.tanh(v[k0:k1] / e), "foh")}
-
-    def physical(self, theta, b) -> dict:
-        return {"Fc": theta[..., 0] / b}
-
-
-class DahlSign(AbstractEffect):
-    """Coulomb friction with Dahl's pre-sliding at ``z`` [m], F_c·ζ [N]: column +(1/Λ)[ζ],
-    parameter b·F_c."""
-
-    z: float
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return ("bFc",)
-
-    def columns(self) -> tuple[Column, ...]:
-        return (Column(dahl_name(self.z), 0, 1.0),)
-
-    def signals(self, rs) -> dict:
+        if not self.z > 0:
+            v, e = rs.v, self.v_eps
+            return {"sgn_v": (lambda k0, k1: np.tanh(v[k0:k1] / e), "foh")}
         key = ("dahl", float(self.z))
         if key not in rs.memo:
             rs.memo[key] = dahl_chunked(rs.v, rs.dt, [self.z], rs.chunk)[0]
@@ -145,9 +129,6 @@ class AbstractFriction(AbstractCandidate):
     stick: bool = False
     dahl: bool = False
     z: float = 0.0
-
-    def _sign(self, st) -> AbstractEffect:
-        return DahlSign(self.z) if self.z > 0 else SmoothedSign(st.v_eps)
 
     def design(self, d: Design) -> Design:
         return Design(self.stick or d.stick, d.held, d.tau, d.fmax)
@@ -219,7 +200,7 @@ class CoulombCandidate(AbstractFriction):
     units: ClassVar[dict[str, str]] = {"Fc": "N", "presliding": "m"}
 
     def effects(self, st):
-        return (self._sign(st),)
+        return (FrictionSign(st.v_eps, self.z),)
 
     def implausible(self, phys, lim):
         if not phys.get("Fc", 0) > 0:
@@ -241,7 +222,7 @@ class AsymmetricFrictionCandidate(AbstractFriction):
     excludes: ClassVar[tuple[str, ...]] = ("offset", "spring")
 
     def effects(self, st):
-        return (self._sign(st), DirectionalFriction(st.v_eps))
+        return (FrictionSign(st.v_eps, self.z), DirectionalFriction(st.v_eps))
 
     def report(self, phys):
         Fc, dF = phys.get("Fc", math.nan), phys.get("dF", math.nan)

@@ -89,12 +89,6 @@ def _seeds(objective, st, lam: float, ws: np.ndarray) -> list[tuple[float, float
     return memo["mode", "seeds"]
 
 
-def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
-    """Names of h_x and h_F for one (ω, ζ) (distinct per mode: the regressors cache by name)."""
-    key = f"{float(omega):.9g},{float(zeta):.6g}"
-    return f"mode_x@{key}", f"mode_F@{key}"
-
-
 class ModeColumns(AbstractEffect):
     """A flexible mode at (ω [rad/s], ζ): columns −(s²/Λ)[h_x], +(1/Λ)[h_F] (``input=False``:
     the first alone, κ = 0), parameters μ and β = κ·b; signals the mode's exact stages on the
@@ -107,17 +101,22 @@ class ModeColumns(AbstractEffect):
     input: bool = True
 
     @property
+    def raw(self) -> tuple[str, str]:
+        """The names of h_x and h_F, distinct per mode (the regressors cache by name)."""
+        key = f"{float(self.omega):.9g},{float(self.zeta):.6g}"
+        return f"mode_x@{key}", f"mode_F@{key}"
+
+    @property
     def names(self) -> tuple[str, ...]:
         return ("mu", "beta") if self.input else ("mu",)
 
     def columns(self) -> tuple[Column, ...]:
-        nx, nF = mode_signal_names(self.omega, self.zeta)
+        nx, nF = self.raw
         return (Column(nx, 2, -1.0), Column(nF, 0, 1.0))[: 2 if self.input else 1]
 
     def signals(self, rs) -> dict:
-        nx, nF = mode_signal_names(self.omega, self.zeta)
         w, z = float(self.omega), float(self.zeta)
-        return {nx: ((w, z, "x"), "mode"), nF: ((w, z, "F"), "mode")}
+        return {n: ((w, z, h), "mode") for n, h in zip(self.raw, "xF", strict=True)}
 
     def free_response(self, dt: float, T: int, k0: int = 0):
         """Rows k0 … T − 1 of the mode's initial-state columns (T − k0, 2)."""
