@@ -19,7 +19,7 @@ from ..._models import AbstractEffect, Augmented, Column, MassDamper
 from .._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns, solve_grams
 from .._regressors import Regressors, TooWide
 from .._statistics import _position_noise
-from .._streaming import FilteredColumns, Filters
+from .._streaming import FilteredColumns, Filters, scaled
 from ._base import AbstractCandidate, Design
 from ._friction import AbstractFriction
 
@@ -316,13 +316,9 @@ class PeriodicLookalike(AbstractLookalike):
 
 def _sinusoid(regs: Regressors, x_lo: float, R: float, k: float, f):
     """The raw signal m·f(2πκξ), ξ = (x − x_lo)/R (m the force mask), per rows."""
-    x, m = regs.x, regs.force_mask
-
-    def raw(k0, k1):
-        v = f(2 * math.pi * k * ((x[k0:k1] - x_lo) / R))
-        return v if m is None else m[k0:k1] * v
-
-    return raw
+    x = regs.x
+    raw = lambda k0, k1: f(2 * math.pi * k * ((x[k0:k1] - x_lo) / R))
+    return raw if regs.force_mask is None else scaled(regs.force_mask, raw)
 
 
 def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) -> np.ndarray:

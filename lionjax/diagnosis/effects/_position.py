@@ -18,7 +18,7 @@ from ..._model_effects import (
     position_values,
 )
 from .._search import GridSearch, PatternSearch
-from .._streaming import FilteredColumns
+from .._streaming import FilteredColumns, rows, scaled
 from ._base import AbstractCandidate, Design
 
 #: The localized position's parameters (four amplitudes, x₀, w), and its (x₀, w) grid: widths
@@ -69,17 +69,15 @@ class HeldPosition(PolynomialPosition):
             g, f, _ = position_terms(k)
             m = _position_raw(x, c, sc, self.lo, self.hi, self.held, k, 1)
             out[g] = (_position_raw(x, c, sc, self.lo, self.hi, self.held, k, 0), "foh")
-            out[f] = (lambda k0, k1, m=m: m(k0, k1) * F[k0:k1], "zoh")
+            out[f] = (scaled(m, rows(F)), "zoh")
         return out
 
 
 def _local_raw(x, F, c: float, w: float, j: int):
     """Per rows, raw signal ``j`` of the localized step and bump at (x₀ = ``c``, ``w``):
     w·log cosh ξ, tanh ξ·F, w·tanh ξ, sech²ξ·F."""
-    i = (0, 2, 1, 3)[j]
-    if j % 2:
-        return lambda k0, k1: local_values(x[k0:k1], c, w)[i] * F[k0:k1]
-    return lambda k0, k1: local_values(x[k0:k1], c, w)[i]
+    raw = lambda k0, k1: local_values(x[k0:k1], c, w)[(0, 2, 1, 3)[j]]
+    return scaled(raw, rows(F)) if j % 2 else raw
 
 
 class PositionCandidate(AbstractCandidate):
