@@ -225,7 +225,7 @@ def inconclusive(
         f"excite the band the model is to hold (this record: {lo:.3g}–{hi:.3g} Hz; up to the "
         f"filter corner {run.problem.st.filter_hz:.3g} Hz and beyond)"
     )
-    return {"reason": reason, "advice": "; ".join(advice)}
+    return {"reason": "; ".join(reasons), "advice": "; ".join(advice)}
 
 
 def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) -> float:

@@ -15,7 +15,6 @@ from ._force_effect import (
     ForceEffect as ForceEffect,
     SimulatedForce as SimulatedForce,
     check_library as check_library,
-    signal_names as signal_names,
 )
 from ._friction import (
     AbstractFriction as AbstractFriction,

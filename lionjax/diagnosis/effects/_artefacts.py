@@ -1,25 +1,11 @@
-"""Measurement candidates: errors of the force sensor that the records (x, F) reveal.
-
-A sensor error is not dynamics: the measured force F_meas = F + s(t) carries a term s the device
-never felt. The model sees ẍ + aẋ = b·F_meas − b·s, so s appears in the equation error like a
-force, and without a candidate of its own it is given a mechanical name (a mains line at 50 Hz
-can be named ``flexible_mode``: the mode's columns (s²/D)[F] pass a narrow band around the
-line). Each candidate here is a :class:`~._force_effect.ForceEffect` with
-``acts_on = "measurement"``: its columns are estimated from each record's own F, and the windowed
-simulation subtracts the fitted s from the input.
-
-What the records can and cannot reveal (docs/effects.md):
-
-- **a line at a fixed frequency** in F with no response in x (:class:`ForceSensorLine`): the
-  line's share the device does not feel is fitted; a sensor line has 1 (all of it), a real force
-  ripple 0 (x answers it, and the baseline already explains it);
-- **a drift** of the sensor's zero over a record (:class:`ForceSensorDrift`): a force growing
-  linearly in time that x does not follow (with the zero's mean over the record, F₀);
-- **not** a pure scale error F_meas = (1 + ε)·F (it rescales the fitted b to b/(1 + ε), and every
-  prediction of x from F_meas stays right), **not** a constant zero error (it is a constant force,
-  reported as ``offset``: F₀ is the sum of both), **not** a constant time skew between the x and F
-  channels (it is an input delay, reported as ``delay``) — each is a change of units or origin
-  that no record of (x, F) alone can tell from the device's own.
+"""Errors of the force sensor that the records (x, F) reveal, each a
+:class:`~._force_effect.ForceEffect` with ``acts_on = "measurement"``: the measured force
+F_meas = F + s(t) carries a term s the device never felt, which enters ε₁ like a force and,
+without a candidate of its own, takes a mechanical name (a 50 Hz line passes the flexible mode's
+narrow band). A line at a fixed frequency that x does not answer (:class:`ForceSensorLine`) and
+a drift of the sensor's zero (:class:`ForceSensorDrift`) are revealed; a pure scale error, a
+constant zero error or a constant skew between the channels are not (docs/effects.md): each is a
+change of units or origin that no record of (x, F) tells from the device's own.
 """
 
 from __future__ import annotations
@@ -33,16 +19,14 @@ from ..._record import Record
 from ._base import Limits
 from ._force_effect import ForceEffect
 
-#: Mains frequencies [Hz] a force-sensor line is searched at, each within ±MAINS_TOLERANCE.
+#: Mains frequencies [Hz] a line is searched at, ±MAINS_TOLERANCE on MAINS_POINTS grid points
+#: each; its harmonics up to MAX_HARMONIC (below 0.45·f_s); LINE_ROWS rows of its design built
+#: at once; a sensor line: the device feels at most LINE_SHARE_TOL of it (|1 − share|).
 MAINS_HZ = (50.0, 60.0)
 MAINS_TOLERANCE = 0.01
-#: Grid points per mains frequency (then a golden-section refinement between neighbours).
 MAINS_POINTS = 21
-#: Highest harmonic of the line estimated from F (below 0.45·f_s).
 MAX_HARMONIC = 5
-#: Rows of :func:`line_in`'s design built at once.
 LINE_ROWS = 1 << 18
-#: A sensor line: the device feels at most this share of the line in F (|1 − share|).
 LINE_SHARE_TOL = 0.3
 
 
@@ -54,21 +38,17 @@ def line_in(F: np.ndarray, t: np.ndarray, f0: float, dt: float) -> np.ndarray:
         return np.zeros_like(F)
 
     def design(a: int, b: int) -> np.ndarray:
-        # cos and sin of kw (k = 1 … K, as ks) from the powers of e^{iw}: one complex
-        # exponential, not 2K trig calls (a profile over the mains frequencies builds ~60 of
-        # these per record)
+        # cos and sin of kw from the powers of e^{iw}: one complex exponential, not 2K trig calls
         z = np.exp(2j * np.pi * f0 * (t[a:b] - t[0]))
         A = np.empty((b - a, 2 * len(ks)))
-        zk = z
+        zk = np.ones_like(z)
         for i in range(len(ks)):
-            if i:
-                zk = zk * z
+            zk = zk * z  # 1·z is z exactly
             A[:, 2 * i], A[:, 2 * i + 1] = zk.real, zk.imag
         return A
 
-    # by its normal equations: the columns are near-orthogonal over the record's many periods
-    # (AᵀA ≈ T/2·I), and a profile over the mains frequencies solves ~60 of these per record;
-    # rows in blocks of LINE_ROWS (a long record's design is never held whole)
+    # by its normal equations, in row blocks (a long record's design is never held whole): the
+    # columns are near-orthogonal over the record's many periods (AᵀA ≈ T/2·I)
     Fc = F - np.mean(F)
     blocks = [(a, min(a + LINE_ROWS, F.size)) for a in range(0, F.size, LINE_ROWS)]
     G, r = 0.0, 0.0
@@ -83,11 +63,10 @@ def line_in(F: np.ndarray, t: np.ndarray, f0: float, dt: float) -> np.ndarray:
 
 
 class ForceSensorLine(ForceEffect):
-    """A line at a mains frequency f₀ [Hz] (and its harmonics) in the measured force that the
-    device does not feel. Column: the line s(t) estimated from each record's F
-    (:func:`line_in`); parameter ``line_unfelt``, the share of it the device did not feel
-    (force −share·s). Plausible as a sensor artefact when |1 − share| ≤
-    :data:`LINE_SHARE_TOL`; f₀ profiled within ±1 % of 50 and 60 Hz on the training record."""
+    """A line at a mains frequency f₀ [Hz] and its harmonics in the measured force: column the
+    line s(t) estimated from each record's F (:func:`line_in`), parameter ``line_unfelt`` the
+    share of it the device did not feel (force −share·s; a sensor line when |1 − share| ≤
+    :data:`LINE_SHARE_TOL`), f₀ profiled near 50 and 60 Hz."""
 
     name: ClassVar[str] = "force_sensor_line"
     acts_on: ClassVar[str] = "measurement"
@@ -124,14 +103,12 @@ class ForceSensorLine(ForceEffect):
 
 
 class ForceSensorDrift(ForceEffect):
-    """A drift of the force sensor's zero at r [N/s] over each record, that the device does not
-    feel. Columns: the time from the record's midpoint, t − t_mid (the ramp alone), and the
-    offset's constant: the zero's value at t_mid is a constant force F₀, which the data cannot
-    tell from one on the device, and is reported as F₀. Contains the offset (two parameters):
-    a constant force alone is never taken for a drift, while a sensor zeroed at each record's
-    start (F₀ = r·(t_mid − t₁)) is explained whole. The offset stands in for it unless the ramp
-    is significant on validation with the rest of the stack (a slow trend that an unmodelled
-    friction or saturation leaves in ε₁ is not a drift)."""
+    """A drift of the force sensor's zero at r [N/s] over each record: columns t − t_mid (the
+    ramp) and the offset's (the zero at t_mid, a constant force F₀ the data cannot tell from one
+    on the device). Containing the offset, a constant force alone is never a drift, while a
+    sensor zeroed at each record's start (F₀ = r·(t_mid − t₁)) is explained whole; the offset
+    stands in for it unless the ramp is significant with the rest of the stack (a slow trend an
+    unmodelled friction leaves in ε₁ is not a drift)."""
 
     name: ClassVar[str] = "force_sensor_drift"
     acts_on: ClassVar[str] = "measurement"

@@ -1,16 +1,11 @@
 """What every candidate effect is (:class:`AbstractCandidate`), what it changes in a structure's
-design (:class:`Design`), and what its fitted parameters are judged against (:class:`Limits`).
-
-A candidate is an immutable Module. Its fields are its *resolved* nonlinear parameters and
-variant (a flexible mode's ω and ζ, friction's form, a saturation's shape): :meth:`variants`
-and :meth:`profile` return new candidates, and a structure — a tuple of candidates — is fitted
-by the pure :func:`lionjax.diagnosis._fit.fit`. The pipeline asks a candidate what it adds
-and how it is judged; it never asks what kind of candidate it is.
-"""
+design (:class:`Design`) and what its fit is judged against (:class:`Limits`). A candidate is an
+immutable Module whose fields are its resolved nonlinear parameters and form; a structure, a
+tuple of candidates, is fitted by the pure :func:`lionjax.diagnosis._fit.fit`, which asks a
+candidate what it adds and how it is judged, never what kind it is."""
 
 from __future__ import annotations
 
-import abc
 import math
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -23,15 +18,15 @@ if TYPE_CHECKING:
 
 
 class Limits(eqx.Module):
-    """What plausibility is judged against: the largest |F| [N] that both records reach (the
-    smaller of their largest |F|: an input map must act on the record it is validated on, too),
-    the sample interval [s], the validation record's position noise [m] (the robust spread of its
-    third differences, encoder quantisation included), ``closed_loop``: F answers the position
-    (and so its noise), ``loop_noise``: closed loop with the baseline's error at or below the
-    estimated noise floor, ``mode_band``: the first and last frequency [Hz] the flexible
-    mode's profile searches, ``x_range``: the positions [m] both records cover, and
-    ``train_range``: the training record's positions [m], over which a candidate is fitted (a
-    grid in cycles of position must step finely over this range, not only over ``x_range``)."""
+    """What plausibility is judged against: ``F_abs_max`` the smaller of the two records'
+    largest |F| [N] (an input map must act on the validation record too); ``dt`` [s];
+    ``position_noise`` the validation record's [m] (the robust spread of its third differences,
+    quantisation included); ``closed_loop``: F answers the position; ``loop_noise``: closed loop
+    with the baseline's error at the noise floor; ``mode_band`` the flexible mode's searched band
+    [Hz]; ``x_range`` the positions both records cover [m]; ``train_range`` the training
+    positions [m], over which candidates are fitted (a grid in cycles of position steps finely
+    over it); ``stuck_share`` the share of validation samples where the axis sticks; ``sticks``:
+    it sticks on either record; ``outside``: validation leaves the training positions."""
 
     F_abs_max: float
     dt: float
@@ -41,20 +36,16 @@ class Limits(eqx.Module):
     mode_band: tuple[float, float] = (0.0, math.inf)
     x_range: tuple[float, float] = (-math.inf, math.inf)
     train_range: tuple[float, float] = (-math.inf, math.inf)
-    #: the share of the validation samples where the axis sticks
     stuck_share: float = 0.0
-    #: whether the axis sticks anywhere on either record
     sticks: bool = False
-    #: whether the validation record leaves the training positions
     outside: bool = False
 
 
 class Design(eqx.Module):
-    """What a structure's candidates change in its design besides their columns: whether the
-    force columns are masked where the axis sticks (``stick``), whether the position-dependent
-    signals are held at their values at the ends of the training positions beyond them on the
-    validation record (``held``), and the input map u = sat_Fmax(F(t − τ)) (``tau`` [s],
-    ``fmax`` [N]; F_max < 0 the soft saturation |F_max|·tanh(F/|F_max|))."""
+    """What a structure's candidates change besides their columns: force columns masked where
+    the axis sticks (``stick``), position signals held at the training range's ends beyond it on
+    validation (``held``), and the input map u = sat_Fmax(F(t − τ)) (``tau`` [s], ``fmax`` [N];
+    F_max < 0 the soft saturation |F_max|·tanh(F/|F_max|))."""
 
     stick: bool = False
     held: bool = False
@@ -68,174 +59,143 @@ class Design(eqx.Module):
 
 
 class AbstractCandidate(eqx.Module):
-    """One candidate effect: ``name``, its parameter count for the parsimony penalty
-    (:meth:`params`), what it adds to a structure (:meth:`effects`, :meth:`design`), how its
-    nonlinear parameters are found (:meth:`variants`, :meth:`profile`, :meth:`search`), the
-    physical parameters it reports with their ``units``, and how a fit of it is judged.
+    """One candidate effect: its ``name``, what it adds to a structure, how its nonlinear
+    parameters are found, the physical parameters it reports (``units``: name → unit) and how a
+    fit of it is judged. ``phys`` below is a fitted structure's parameters in physical units, by
+    name (``a`` [1/s], ``b`` [1/kg], every candidate's own).
 
-    Relations to other candidates are by name: the candidates whose columns it contains
-    (``subsumes``: spring ⊃ offset), a simpler structure that stands in for it unless its extra
-    parameters are significant (``simpler``: spring → offset), and candidates never stacked
-    with it (``excludes``: the data cannot tell them apart)."""
+    Relations are by name: ``subsumes`` the candidates whose columns it contains (spring ⊃
+    offset), ``simpler`` a structure that stands in for it unless its extra parameters are
+    significant (spring → offset), ``excludes`` those never stacked with it (the data cannot
+    tell them apart). ``acts_on``: ``"device"``, or ``"measurement"`` for an error of a sensor.
+    ``exact_share``: where its model is exact (a linear resonance), the least share of the
+    excess validation error above the fitted floor a true instance removes. The methods'
+    defaults say nothing: no change, no refusal, itself its only form."""
 
     name: ClassVar[str]
     n_params: ClassVar[int]
-    #: reported physical parameter → unit
     units: ClassVar[dict[str, str]] = {}
     subsumes: ClassVar[tuple[str, ...]] = ()
     simpler: ClassVar[tuple[str, ...]] = ()
     excludes: ClassVar[tuple[str, ...]] = ()
-    #: ``"device"``: an effect of the device's dynamics; ``"measurement"``: an error of a sensor
-    #: (where the stack holds one, a device effect left out of the stack explained alone what
-    #: the artefact explains: it holds no weight in the confidence)
     acts_on: ClassVar[str] = "device"
-    #: the least share of the excess validation error (above the fitted floor) the candidate
-    #: removes where it is the whole cause, or None: its model is then exact (a linear
-    #: resonance is a second-order system, whatever it is driven by), so a stack of such
-    #: candidates that leaves more describes something else with their columns, and its
-    #: confidence falls with the remainder. None for an effect whose form the library only
-    #: approximates.
     exact_share: ClassVar[float | None] = None
 
-    # ------------------------------------------------------------------ the structure
-
-    @abc.abstractmethod
     def effects(self, st: Settings) -> tuple[AbstractEffect, ...]:
-        """Linear effect columns added to the model (may be empty), under the settings ``st``."""
+        """The linear effects (columns) it adds to the model under the settings ``st``; none
+        for an input map."""
+        return ()
 
     def design(self, d: Design) -> Design:
-        """The design with what the candidate changes besides its columns (default: nothing)."""
+        """The design ``d`` with what it changes besides its columns (default: nothing)."""
         return d
 
     def params(self) -> int:
-        """Parameter count for the parsimony penalty (its linear and nonlinear parameters)."""
+        """Its parameter count for the parsimony penalty, linear and nonlinear."""
         return self.n_params
 
-    # ------------------------------------------------------------------ its search
-
     def variants(self, limits: Limits, chosen: tuple[AbstractCandidate, ...]) -> list[Any]:
-        """The forms the candidate alone is tried in (the best validated one is kept,
-        :meth:`pick`); ``chosen``: the candidates resolved before it (forms shared with one of
-        them are taken from it). Default: itself."""
+        """Its forms tried alone (``chosen``: the candidates resolved before it, whose shared
+        forms it takes)."""
         return [self]
 
     def pick(self, tries: list[tuple[float, Any, Any]], limits: Limits) -> int:
-        """The index of the variant kept among ``tries`` [(score, fit, candidate)]: the best
-        validated one (default)."""
+        """The index of the form kept among ``tries`` [(score, fit, candidate)]: the best
+        validated."""
         return max(range(len(tries)), key=lambda i: tries[i][0])
 
     def stack_variants(self) -> list[Any]:
-        """The forms the candidate is tried in again on each stack (the best validated one kept
-        where it joins): forms of its own law that the effects beside it can change. Default:
-        itself."""
+        """Its forms tried again on each stack."""
         return [self]
 
     def profile(self, objective, limits: Limits) -> Any:
-        """The candidate with its nonlinear parameters found once, on the training record, as
-        the only effect on the baseline (``objective``: :class:`~.._objective.Objective`).
-        Default: itself (no nonlinear parameter)."""
+        """It with its nonlinear parameters found, once, alone on the baseline, from the
+        training record's :class:`~.._objective.Objective` (a new Module)."""
         return self
 
     def profiled(self) -> bool:
-        """Whether its nonlinear parameters are found (or it has none): default True."""
+        """Whether its nonlinear parameters are found (or it has none)."""
         return True
 
     def search(self):
-        """Its parameter searched again in every structure it joins (an input map's τ or F_max:
-        :class:`~._input_maps.InputMapSearch`), or None (default)."""
+        """The search of its parameter repeated in every structure it joins, or None."""
         return None
 
-    # ------------------------------------------------------------------ a fit of it
-
     def physical(self, phys: dict[str, float], problem) -> dict[str, float]:
-        """Physical values the candidate adds to a fit's parameters ``phys`` (its profiled
-        parameters, values derived from the fitted ones). Default: none."""
+        """Values it adds to ``phys``: its profiled parameters, values derived from the fitted
+        ones."""
         return {}
 
     def simulation(self, phys: dict[str, float], problem) -> dict[str, Any]:
-        """Its term in the windowed simulation (:func:`~.._fit.simulate`): parameters
-        ``{name: value}`` of the simulator, or ``"extra"`` (a force term) and ``"du"`` (a
-        correction to the input). Default: none (its fitted parameters reach the simulator by
-        their names)."""
+        """Its term in the windowed simulation (:func:`~.._fit.simulate`): simulator parameters
+        {name: value}, ``"extra"`` (a force term) or ``"du"`` (a correction to the input [N],
+        (T,)). Default: none, its fitted parameters reaching the simulator by name."""
         return {}
 
     def simulated(self) -> bool:
-        """Whether the windowed simulation models the effect in full, so that its simulated
-        gap can judge it (default True)."""
+        """Whether the windowed simulation models it in full (its gap then judges it)."""
         return True
 
     def simulated_gap_judges(self, stuck_share: float, crit) -> bool:
-        """Whether the simulated gap may refuse this effect for making it worse (not only for
-        diverging) on a record whose axis sticks ``stuck_share`` of the time (default True)."""
+        """Whether the simulated gap may refuse it for growing, not only for diverging, on a
+        record whose axis sticks ``stuck_share`` of the time."""
         return True
 
     def artefact(self) -> bool:
-        """Whether it is an error of a sensor, not an effect on the device (``acts_on``)."""
+        """Whether it is an error of a sensor, not an effect on the device."""
         return self.acts_on == "measurement"
 
     def exactness(self) -> float | None:
-        """The least share of the excess a true instance removes where its model is exact
-        (``exact_share``), else None."""
+        """Its ``exact_share``."""
         return self.exact_share
 
     def fits_noise(self) -> bool:
-        """Whether its columns can cancel position noise, so that its gains count only above
-        the estimated noise floor (default False)."""
+        """Whether its columns can cancel position noise (its gains then count above the
+        estimated noise floor)."""
         return False
 
     def report(self, phys: dict[str, float]) -> dict[str, float]:
-        """Its physical parameters from a fitted structure's (``phys``: every parameter)."""
+        """Its reported parameters (those of ``units``) from ``phys``."""
         return {k: phys[k] for k in self.units if k in phys}
 
     def measured_rms(self, phys: dict[str, float], record, v) -> float | None:
-        """A measurement artefact's RMS [N] in ``record``'s measured F under the fitted
-        ``phys`` (``v``: the record's v̂ [m/s]), by which it is sized against F; None (the
-        default) for an effect on the device, sized by the equation error it removes."""
+        """A measurement artefact's RMS [N] in ``record``'s F under ``phys`` (``v``: its v̂
+        [m/s], (T,)); None for an effect on the device."""
         return None
 
-    # ------------------------------------------------------------------ judging it
-
     def implausible(self, phys: dict[str, float], lim: Limits) -> str:
-        """Why the fitted parameters are not physical (``""`` when they are)."""
-        return ""
+        """Why the fitted parameters are not physical (``""`` when they are): by default b ≤ 0
+        (every effect leaves the rigid body's mass positive)."""
+        return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
     def refusal(self, lim: Limits, gap_before: float, gap_after: float) -> str:
-        """Why a fit that removes the simulated gap ``gap_before`` → ``gap_after`` [m] does not
-        describe the device on these records, whatever its parameters ("" by default)."""
+        """Why a fit taking the simulated gap from ``gap_before`` to ``gap_after`` [m] does not
+        describe the device, whatever its parameters ("" where it may)."""
         return ""
 
     def search_failed(self) -> bool:
-        """Whether its search ended on the edge of what it searched (after widening): its fit
-        located nothing and is no evidence, for it or against another (default False)."""
+        """Whether its search ended on its edge: its fit is then no evidence, for or against."""
         return False
 
     def unresolved(self, phys: dict[str, float], lim: Limits) -> bool:
-        """Whether an implausible fit is refused only for lying within the record's resolution
-        (its shape is this effect's, its size within the noise or the sampling's error): the
-        effect may be there, too small for this record to name. False by default."""
+        """Whether an implausible fit is refused only as too small for the record to resolve
+        (the effect may be there)."""
         return False
 
     def other_way(self, phys: dict[str, float], other: dict[str, float], lim: Limits) -> str:
-        """Why ``other``, this effect's parameters fitted with the records' roles swapped,
-        does not describe the effect fitted as ``phys`` ("" where it may): an exact model of
-        the device holds both ways. Nothing by default."""
+        """Why ``other``, its parameters fitted with the records' roles swapped, is not the
+        effect fitted as ``phys`` ("" where it may be)."""
         return ""
 
     def stand_in_doubtful(self, params: dict[str, float]) -> bool:
-        """Whether an implausible fit with these reported ``params`` may still be this effect,
-        its parameters biased by what the model leaves out: a stack that holds its stand-in
-        (``simpler``) is then a reading of it too. False by default."""
+        """Whether an implausible fit with these reported ``params`` may still be it, biased by
+        what the model leaves out (a stack holding its stand-in then reads it too)."""
         return False
 
     def imitates(self, params: dict[str, float]) -> tuple[str, ...]:
-        """Names of library candidates that an implausible fit with these reported ``params``
-        is a known look-alike of: it is then no evidence against them. None by default."""
+        """Names of candidates an implausible fit with these ``params`` is a known look-alike
+        of (no evidence against them)."""
         return ()
-
-
-def b_positive(phys) -> str:
-    """ "b ≤ 0" where the fitted b is not positive, else ""."""
-    return "" if phys.get("b", 1.0) > 0 else "b ≤ 0"
 
 
 def design_of(structure) -> Design:

@@ -1,16 +1,11 @@
-"""Friction: Coulomb friction and direction-dependent (asymmetric) friction, each in one of two
-forms shared by every friction structure of a diagnosis (:class:`AbstractFriction`):
-
-- the **sign** of the motion, smoothed, F_c·tanh(v̂/v_ε) (v̂ the zero-phase velocity, v_ε 2 %
-  of its median while moving), or **Dahl's** pre-sliding state F_c·ζ (dζ/dx = (1 − ζ·sgn ẋ)/z:
-  the contact deflects elastically, stiffness F_c/z, before it slides), its distance z
-  profiled on the training record;
-- with the force columns as recorded, or **masked where the axis sticks** (``stick``): static
-  friction balances every force there, which neither form describes.
-
-The first friction candidate tried alone chooses the form by the validated score; every later
-friction candidate takes it (:meth:`AbstractFriction.variants`), so that every friction
-structure pays the same parameters.
+"""Friction: Coulomb and direction-dependent (asymmetric) friction, in one form shared by every
+friction structure of a diagnosis (:class:`AbstractFriction`): the **sign** of the motion,
+smoothed, F_c·tanh(v̂/v_ε) (v̂ the zero-phase velocity), or **Dahl's** pre-sliding state F_c·ζ
+(dζ/dx = (1 − ζ·sgn ẋ)/z: the contact deflects elastically, stiffness F_c/z, before it slides),
+z profiled on the training record; the force columns as recorded, or **masked where the axis
+sticks** (``stick``: static friction balances every force there, which neither form describes).
+The first friction candidate tried alone chooses the form by its validated score, and every
+later one takes it, so that every friction structure pays the same parameters.
 """
 
 from __future__ import annotations
@@ -26,21 +21,19 @@ import numpy as np
 from ..._models import AbstractEffect, Column
 from .._search import GridSearch, ParabolaStep
 from .._streaming import _pad_rows, spans
-from ._base import AbstractCandidate, Design, Limits, b_positive
+from ._base import AbstractCandidate, Design, Limits
 
-#: The pre-sliding distances z [m] Dahl's form is profiled over: PRESLIDING_PER_DECADE per
-#: decade from a tenth of the position noise (at least PRESLIDING_RANGE[0]) to
-#: PRESLIDING_RANGE[1]. Pre-sliding in metal contacts spans 1–10 µm, LuGre bristles F_s/σ₀ a
-#: few to a few tens of µm; a longer "pre-sliding" is a force that depends on position.
+#: Dahl's pre-sliding distances z [m]: PRESLIDING_PER_DECADE per decade from a tenth of the
+#: position noise (at least PRESLIDING_RANGE[0]) to PRESLIDING_RANGE[1]. Metal contacts
+#: pre-slide 1–10 µm, LuGre bristles F_s/σ₀ up to a few tens of µm; a longer "pre-sliding" is a
+#: force that depends on position.
 PRESLIDING_RANGE = (1e-7, 3e-5)
 PRESLIDING_PER_DECADE = 6
-#: How far below zero one direction's friction level may be fitted, as a share of the other's
-#: (:class:`AsymmetricFrictionCandidate`): zero within the fit's accuracy.
+#: How far below zero one direction's friction level may be fitted, as a share of the other's:
+#: zero within the fit's accuracy (FRICTION_TOL); in a model that leaves an effect out, still
+#: possibly asymmetric friction (FRICTION_DOUBT: Coulomb friction with an offset, the same force
+#: while the axis moves, is then not told apart from it; an offset F₀ ≥ 3·F_c stands alone).
 FRICTION_TOL = 0.05
-#: How far below zero (as a share of the other direction's level) a friction level fitted by
-#: a model that leaves an effect out may still come from asymmetric friction: Coulomb friction
-#: with an offset, the same force while the axis moves, is then not told apart from it with
-#: confidence. An offset of F₀ ≥ 3·F_c (beyond this share) stands on its own.
 FRICTION_DOUBT = 0.5
 
 
@@ -56,26 +49,22 @@ def _dahl_chunk(d, zs, zeta0):
 
 
 def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
-    """(m, T) Dahl states ζ of v̂ at the distances ``zs`` [m]
-    (:func:`lionjax._model_effects.dahl_states`: ζ → s + (ζ − s)·e^{−|d|/z} over each sample's
-    displacement d = (v[k−1] + v[k])·dt/2, s = sgn d, from ζ = 0), chunk by chunk (the states
-    carried; distances in batches of 1, 2, 4 or 8)."""
+    """(m, T) Dahl states ζ of v̂ [m/s] at the distances ``zs`` [m] (as
+    :func:`lionjax._model_effects.dahl_states`: ζ → s + (ζ − s)·e^{−|d|/z} over each sample's
+    displacement d = (v[k−1] + v[k])·dt/2, s = sgn d, from ζ = 0), chunk by chunk with the
+    states carried, distances in batches of 1, 2, 4 or 8."""
     v = np.asarray(v, np.float64)
-    T, zs = v.size, np.asarray(zs, np.float64)
-    out = np.empty((zs.size, T))
+    d = np.concatenate([[0.0], 0.5 * (v[1:] + v[:-1]) * dt])
+    zs = np.asarray(zs, np.float64)
+    out = np.empty((zs.size, v.size))
     for i in range(0, zs.size, 8):
         part = zs[i : i + 8]
         b = next(b for b in (1, 2, 4, 8) if b >= part.size)
         zp = np.concatenate([part, np.repeat(part[-1:], b - part.size)])
         zeta = np.zeros(b)
-        for k0, k1 in spans(T, chunk):
-            prev = v[k0 - 1 : k1 - 1] if k0 else np.concatenate([v[:1], v[: k1 - 1]])
-            d = 0.5 * (v[k0:k1] + prev) * dt
-            if k0 == 0:
-                d[0] = 0.0
-            Z, zeta = _dahl_chunk(_pad_rows(d, chunk), zp, zeta)
+        for k0, k1 in spans(v.size, chunk):
+            Z, zeta = _dahl_chunk(_pad_rows(d[k0:k1], chunk), zp, zeta)
             out[i : i + part.size, k0:k1] = np.asarray(Z)[: part.size, : k1 - k0]
-            zeta = np.asarray(zeta)
     return out
 
 
@@ -84,40 +73,24 @@ def dahl_name(z: float) -> str:
     return f"dahl@{float(z):.9g}"
 
 
-class SmoothedSign(AbstractEffect):
-    """Coulomb friction F_c·tanh(v̂/v_ε) [N]: column +(1/Λ)[tanh(v̂/v_ε)], parameter b·F_c."""
+class FrictionSign(AbstractEffect):
+    """Coulomb friction F_c·s [N]: column +(1/Λ)[s], parameter b·F_c; s the smoothed sign
+    tanh(v̂/v_ε) (``z`` = 0) or Dahl's state ζ at the pre-sliding distance ``z`` [m]."""
 
     v_eps: float
+    z: float = 0.0
 
     @property
     def names(self) -> tuple[str, ...]:
         return ("bFc",)
 
     def columns(self) -> tuple[Column, ...]:
-        return (Column("sgn_v", 0, 1.0),)
+        return (Column(dahl_name(self.z) if self.z > 0 else "sgn_v", 0, 1.0),)
 
     def signals(self, rs) -> dict:
-        v, e = rs.v, self.v_eps
-        return {"sgn_v": (lambda k0, k1: np.tanh(v[k0:k1] / e), "foh")}
-
-    def physical(self, theta, b) -> dict:
-        return {"Fc": theta[..., 0] / b}
-
-
-class DahlSign(AbstractEffect):
-    """Coulomb friction with Dahl's pre-sliding, F_c·ζ [N] (:func:`dahl_chunked`, at the
-    distance ``z`` [m]): column +(1/Λ)[ζ], parameter b·F_c."""
-
-    z: float
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return ("bFc",)
-
-    def columns(self) -> tuple[Column, ...]:
-        return (Column(dahl_name(self.z), 0, 1.0),)
-
-    def signals(self, rs) -> dict:
+        if not self.z > 0:
+            v, e = rs.v, self.v_eps
+            return {"sgn_v": (lambda k0, k1: np.tanh(v[k0:k1] / e), "foh")}
         key = ("dahl", float(self.z))
         if key not in rs.memo:
             rs.memo[key] = dahl_chunked(rs.v, rs.dt, [self.z], rs.chunk)[0]
@@ -128,11 +101,9 @@ class DahlSign(AbstractEffect):
 
 
 class DirectionalFriction(AbstractEffect):
-    """The direction-dependent part of Coulomb friction, −ΔF·|sgn ẋ| [N]: with F⁺ for ẋ > 0 and
-    F⁻ for ẋ < 0, the friction force is −F_c·sgn ẋ − ΔF·|sgn ẋ|, F_c = (F⁺ + F⁻)/2,
-    ΔF = (F⁺ − F⁻)/2: column +(1/Λ)[|tanh(v̂/v_ε)|], parameter b·ΔF. (A direction-dependent
-    viscous term Δc·|ẋ| is left out: it takes the part of a constant offset while the axis
-    moves.)"""
+    """The direction-dependent part of friction, −ΔF·|sgn ẋ| [N] (levels F⁺ for ẋ > 0, F⁻ for
+    ẋ < 0: −F_c·sgn ẋ − ΔF·|sgn ẋ|, F_c = (F⁺ + F⁻)/2, ΔF = (F⁺ − F⁻)/2): column
+    +(1/Λ)[|tanh(v̂/v_ε)|], parameter b·ΔF. (No viscous Δc·|ẋ|: it takes an offset's part.)"""
 
     v_eps: float
 
@@ -152,16 +123,12 @@ class DirectionalFriction(AbstractEffect):
 
 
 class AbstractFriction(AbstractCandidate):
-    """A friction candidate and its form (module docstring): ``stick`` (force columns masked
-    where the axis sticks), ``dahl`` (Dahl's form tried) and ``z`` (its profiled distance [m];
-    0: the smoothed sign)."""
+    """A friction candidate and its form: ``stick`` (force columns masked where the axis
+    sticks), ``dahl`` (Dahl's form tried) and ``z`` (its distance [m]; 0: the smoothed sign)."""
 
     stick: bool = False
     dahl: bool = False
     z: float = 0.0
-
-    def _sign(self, st) -> AbstractEffect:
-        return DahlSign(self.z) if self.z > 0 else SmoothedSign(st.v_eps)
 
     def design(self, d: Design) -> Design:
         return Design(self.stick or d.stick, d.held, d.tau, d.fmax)
@@ -173,9 +140,8 @@ class AbstractFriction(AbstractCandidate):
         return not self.dahl or self.z > 0
 
     def variants(self, limits: Limits, chosen) -> list:
-        """The forms (module docstring) the first friction candidate chooses among: stick
-        masked or not (where the axis sticks on either record) × the smoothed sign or Dahl's;
-        later ones take the first's."""
+        """Stick masked or not (where the axis sticks) × the smoothed sign or Dahl's; a later
+        friction candidate takes the first's form."""
         first = next((c for c in chosen if isinstance(c, AbstractFriction)), None)
         if first is not None:
             return [self._with(first.stick, first.dahl, first.z)]
@@ -186,10 +152,8 @@ class AbstractFriction(AbstractCandidate):
         return dataclasses.replace(self, stick=stick, dahl=dahl, z=float(z))
 
     def profile(self, objective, limits: Limits):
-        """Dahl's distance z: the least training RSS of the candidate alone over
-        :data:`PRESLIDING_RANGE` (the baseline's Gram shared), refined by a parabola in ln z
-        where that lowers it; 0 (the smoothed sign) where the least RSS lies at the range's end
-        (a longer "pre-sliding" describes a force that depends on position)."""
+        """Dahl's z: least training RSS over :data:`PRESLIDING_RANGE`, refined by a parabola in
+        ln z where that lowers it; the smoothed sign where the least lies at the range's end."""
         if not self.dahl or self.z > 0:
             return self
         lo = max(0.1 * limits.position_noise, PRESLIDING_RANGE[0])
@@ -223,9 +187,8 @@ class AbstractFriction(AbstractCandidate):
         return {"presliding": self.z} if self.z > 0 else {}
 
     def simulated_gap_judges(self, stuck_share: float, crit) -> bool:
-        # the windowed simulation of the smoothed sign has no static friction: where the axis
-        # sticks for Criteria.stuck_share of the record it slides where the axis stuck, and only
-        # a diverging simulation is then worse than the one before
+        # the simulated smoothed sign has no static friction: where the axis sticks for much of
+        # the record it slides where the axis stuck, and only a diverging simulation is worse
         return stuck_share < crit.stuck_share
 
 
@@ -237,19 +200,19 @@ class CoulombCandidate(AbstractFriction):
     units: ClassVar[dict[str, str]] = {"Fc": "N", "presliding": "m"}
 
     def effects(self, st):
-        return (self._sign(st),)
+        return (FrictionSign(st.v_eps, self.z),)
 
     def implausible(self, phys, lim):
         if not phys.get("Fc", 0) > 0:
             return "friction would push along the motion (F_c ≤ 0)"
-        return b_positive(phys)
+        return super().implausible(phys, lim)
 
 
 class AsymmetricFrictionCandidate(AbstractFriction):
-    """Direction-dependent Coulomb friction: F⁺ for ẋ > 0 and F⁻ for ẋ < 0 [N]: the Coulomb
-    column plus :class:`DirectionalFriction`'s. Contains Coulomb friction; plausible when
-    F⁺ + F⁻ > 0 and neither is below −:data:`FRICTION_TOL` times the other (a direction with
-    almost no friction is fitted slightly negative as often as slightly positive)."""
+    """Direction-dependent Coulomb friction, F⁺ for ẋ > 0 and F⁻ for ẋ < 0 [N]: the Coulomb
+    column and :class:`DirectionalFriction`'s. Plausible when F⁺ + F⁻ > 0 and neither is below
+    −:data:`FRICTION_TOL` times the other (a direction with almost no friction is fitted
+    slightly negative as often as slightly positive)."""
 
     name: ClassVar[str] = "asymmetric_friction"
     n_params: ClassVar[int] = 2
@@ -259,7 +222,7 @@ class AsymmetricFrictionCandidate(AbstractFriction):
     excludes: ClassVar[tuple[str, ...]] = ("offset", "spring")
 
     def effects(self, st):
-        return (self._sign(st), DirectionalFriction(st.v_eps))
+        return (FrictionSign(st.v_eps, self.z), DirectionalFriction(st.v_eps))
 
     def report(self, phys):
         Fc, dF = phys.get("Fc", math.nan), phys.get("dF", math.nan)
@@ -271,7 +234,7 @@ class AsymmetricFrictionCandidate(AbstractFriction):
         lo, hi = sorted((r["Fc_pos"], r["Fc_neg"]))
         if not (hi > 0 and lo >= -FRICTION_TOL * hi):
             return "friction would push along the motion (F⁺ or F⁻ < 0)"
-        return b_positive(phys)
+        return super().implausible(phys, lim)
 
     def stand_in_doubtful(self, params):
         lo, hi = sorted((params.get("Fc_pos", math.nan), params.get("Fc_neg", math.nan)))

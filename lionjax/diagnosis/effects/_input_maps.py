@@ -1,7 +1,6 @@
 """The input map u = sat_Fmax(F(t − τ)): an input delay τ (:class:`DelayCandidate`) and an
-actuator saturation F_max (:class:`SaturationCandidate`), each a parameter searched again on
-a grid in every structure it joins (:class:`InputMapSearch`): the map changes every column
-built from F, so the other columns' fit moves with it."""
+actuator saturation F_max (:class:`SaturationCandidate`), each searched again in every structure
+it joins (:class:`InputMapSearch`): the map changes every column built from F."""
 
 from __future__ import annotations
 
@@ -13,26 +12,25 @@ import equinox as eqx
 import numpy as np
 
 from .._search import GridSearch, ParabolaStep
-from ._base import AbstractCandidate, Design, b_positive
+from ._base import AbstractCandidate, Design
 
-#: Hard clips evaluated between the best one's neighbours on the quantile grid
-#: (:meth:`InputMapSearch._refine_clip`).
+#: Hard clips tried between the best one's neighbours on the quantile grid.
 CLIP_REFINE = 8
 
 
 class InputMapSearch(eqx.Module):
     """τ (``which = "tau"``) or F_max (``"fmax"``) of a structure's input map: the least
     training RSS over the settings' grid (τ log-spaced; F_max the force's quantiles as hard
-    clips, then soft saturations as negative values, ``shape`` +1 or −1 keeping one shape, 0
-    both), a hard clip refined between its grid neighbours (:data:`CLIP_REFINE` more), then the
-    vertex of the parabola through the best and its neighbours (in ln τ; within one shape)."""
+    clips, soft saturations as negative values; ``shape`` +1 or −1 keeps one, 0 both), a hard
+    clip refined between its grid neighbours, then the vertex of the parabola through the best
+    and its neighbours (in ln τ; within one shape)."""
 
     which: str
     shape: int = 0
 
     def run(self, rss_of, d: Design, st) -> Design:
-        """The design ``d`` with its τ or F_max searched; ``rss_of(inputs)`` the training RSS of
-        the structure for each input map (τ, F_max) of ``inputs``."""
+        """``d`` with its τ or F_max searched; ``rss_of(inputs)``: the structure's training RSS
+        for each (τ, F_max) of ``inputs``."""
         tau = self.which == "tau"
         grid = np.asarray(st.tau_grid if tau else st.fmax_grid)
         if not tau and self.shape:
@@ -54,10 +52,10 @@ class InputMapSearch(eqx.Module):
 
     @staticmethod
     def _refine_clip(rss_of, inputs, grid, rss, i):
-        """(grid, rss) on :data:`CLIP_REFINE` more hard clips, evenly spaced between the best
-        one's neighbours on the grid of force quantiles: a hard clip's RSS has a kink at the
-        truth, and the quantiles thin out at the force's tail (a parabola through points far
-        apart there can land above the validation record's largest force)."""
+        """(grid, rss) with :data:`CLIP_REFINE` more hard clips between the best one's
+        neighbours: a hard clip's RSS has a kink at the truth, and the quantiles thin out at the
+        force's tail (a parabola through points far apart there can land beyond the largest
+        force)."""
         hard = np.flatnonzero(grid > 0)
         k = int(np.searchsorted(hard, i))
         lo = grid[hard[max(k - 1, 0)]]
@@ -75,21 +73,16 @@ class InputMapSearch(eqx.Module):
 
 
 class DelayCandidate(AbstractCandidate):
-    """Input delay τ [s]: u = F(t − τ), τ searched in every structure (:class:`InputMapSearch`).
-
-    In closed loop at the noise floor (``Limits.loop_noise``) a delay must also remove
-    :data:`LOOP_NOISE_SHRINK` of the simulated gap: F(t − τ) − F(t) ≈ −τḞ, and Ḟ carries the
-    controller's answer to the position noise, which cancels the noise's path through x in ε₁
-    — a gain on noise that only the windowed simulation, driven by the measured F, tells from a
-    delay of the device."""
+    """Input delay τ [s]: u = F(t − τ). In closed loop at the noise floor (``Limits.loop_noise``)
+    it must also remove :data:`LOOP_NOISE_SHRINK` of the simulated gap: F(t − τ) − F(t) ≈ −τḞ,
+    and Ḟ carries the controller's answer to the position noise, which cancels the noise's path
+    through x in ε₁ — a gain on noise only the simulation, driven by the measured F, tells from a
+    delay."""
 
     name: ClassVar[str] = "delay"
     n_params: ClassVar[int] = 1
     units: ClassVar[dict[str, str]] = {"tau": "s"}
     LOOP_NOISE_SHRINK: ClassVar[float] = 0.1
-
-    def effects(self, st):
-        return ()
 
     def search(self):
         return InputMapSearch("tau")
@@ -97,7 +90,7 @@ class DelayCandidate(AbstractCandidate):
     def implausible(self, phys, lim):
         if not phys.get("tau", 0) > 0:
             return "no positive delay"
-        return b_positive(phys)
+        return super().implausible(phys, lim)
 
     def refusal(self, lim, gap_before: float, gap_after: float) -> str:
         s = self.LOOP_NOISE_SHRINK
@@ -111,21 +104,16 @@ class DelayCandidate(AbstractCandidate):
 
 
 class SaturationCandidate(AbstractCandidate):
-    """Actuator saturation F_max [N], hard u = clip(F, ±F_max) or soft
-    u = F_max·tanh(F/F_max): the shape (``shape`` +1 hard, −1 soft) chosen by the validated
-    score, alone and again on each stack (the effects beside it change which fits), F_max
-    searched in every structure. Plausible when it acts on both records: a hard F_max below
-    the largest force each reaches, a soft one below four times it (tanh then still compresses
-    that force by ≥ 2 %); a clip the validation record never reaches leaves its inputs
-    unchanged, and what it gains there comes from a and b refitted on train's clipped peaks."""
+    """Actuator saturation F_max [N], hard u = clip(F, ±F_max) (``shape`` +1) or soft
+    u = F_max·tanh(F/F_max) (−1), the shape chosen alone and again on each stack. Plausible when
+    it acts on both records: a hard F_max below the largest force each reaches, a soft one below
+    four times it (tanh still compresses it by ≥ 2 %); a clip validation never reaches gains
+    only from a and b refitted on train's clipped peaks."""
 
     shape: int = 0
     name: ClassVar[str] = "saturation"
     n_params: ClassVar[int] = 1  # F_max; the shape is one binary choice
     units: ClassVar[dict[str, str]] = {"Fmax": "N", "soft": ""}
-
-    def effects(self, st):
-        return ()
 
     def search(self):
         return InputMapSearch("fmax", self.shape)
@@ -144,4 +132,4 @@ class SaturationCandidate(AbstractCandidate):
         f = phys.get("Fmax", math.inf)
         if not (0 < f < 0.99 * lim.F_abs_max or -4.0 * lim.F_abs_max < f < 0):
             return "F_max is not below the largest force"
-        return b_positive(phys)
+        return super().implausible(phys, lim)

@@ -1,14 +1,10 @@
-"""Look-alikes: effects outside the library that a named stack must beat
-(:class:`AbstractLookalike`). They are fitted like candidates, but never named nor stacked:
-each may refuse a candidate's step (:meth:`~AbstractLookalike.veto`) or overrule a named stack
-(:meth:`~AbstractLookalike.test`), turning the verdict ``unexplained``.
-
-- :class:`DeadZoneLookalike`: a dead zone's input u = F − clip(F, ±d), which acts with the sign
-  of the force where friction acts with the sign of the velocity;
-- :class:`DragLookalike`: a force quadratic in the velocity (fluid drag), which lowers the
-  response to the largest forces as a saturation does but follows the velocity;
-- :class:`PeriodicLookalike`: a force periodic in position (cogging: a force that repeats with
-  the magnet pitch), found by a screen over every period at once.
+"""Look-alikes: effects outside the library that a named stack must beat. Fitted like
+candidates but never named nor stacked, each may refuse a candidate's step
+(:meth:`~AbstractLookalike.veto`) or overrule a named stack (:meth:`~AbstractLookalike.test`),
+turning the verdict ``unexplained``: a dead zone (:class:`DeadZoneLookalike`: the sign of the
+force where friction has the velocity's), fluid drag (:class:`DragLookalike`: it lowers the
+response to the largest forces as a saturation does, but follows the velocity) and a force
+periodic in position (:class:`PeriodicLookalike`: cogging, found by a screen over every period).
 """
 
 from __future__ import annotations
@@ -23,16 +19,16 @@ from ..._models import AbstractEffect, Augmented, Column, MassDamper
 from .._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns, solve_grams
 from .._regressors import Regressors, TooWide
 from .._statistics import _position_noise
-from .._streaming import FilteredColumns, Filters
-from ._base import AbstractCandidate, Design, design_of
+from .._streaming import FilteredColumns, Filters, scaled
+from ._base import AbstractCandidate, Design
 from ._friction import AbstractFriction
 
 #: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
 DEAD_ZONE_QUANTILES = tuple(float(q) for q in np.geomspace(0.01, 0.8, 16))
-#: The position-periodic look-alike: the cycles κ across the positions both records cover that
-#: its screen searches (the period stays above PERIOD_OVER_NOISE times the position noise), the
-#: screen's position bins and κ steps per cycle (1/8: a sinusoid whose cycle count is off by δ
-#: loses its coherence over the range at δ ≈ 1/2), and the screen's peaks that are fitted.
+#: The periodic look-alike's screen: the cycles κ across both records' positions it searches
+#: (the period above PERIOD_OVER_NOISE times the position noise), its position bins, its κ steps
+#: per cycle (a sinusoid whose cycle count is off by δ loses its coherence at δ ≈ 1/2), and the
+#: peaks that are fitted.
 PERIOD_CYCLES = (1.5, 128.0)
 PERIOD_OVER_NOISE = 10.0
 PERIOD_BINS = 4096
@@ -45,10 +41,9 @@ FINDING_ALPHA = 0.01
 @dataclasses.dataclass(frozen=True)
 class LookalikeTest:
     """A look-alike fitted beside a stack: its validated mean square ``ms`` of ε₁, whether it
-    overrules the named stack (``overrules``; ``overrules_none``: also where nothing is
-    named), its score where it is evidence against the stack (``rival``, or None), its share of what
-    the stack leaves (``share``), its entries in the report's ``final`` and its ``where``
-    finding (or None)."""
+    overrules the named stack (``overrules_none``: also where nothing is named), its score as
+    evidence against the stack (``rival``) or None, its share of what the stack leaves, its
+    entries in the report's ``final`` and its ``where`` finding (or None)."""
 
     ms: float
     overrules: bool = False
@@ -68,11 +63,11 @@ def structure_key(structure) -> tuple:
 
 
 class AbstractLookalike(AbstractCandidate):
-    """An out-of-library effect fitted only to guard the names (module docstring)."""
+    """An effect outside the library, fitted only to guard the names (module docstring)."""
 
     def veto(self, run, cur, new, ks, score: float) -> str:
-        """Why the step of candidates ``ks`` from fit ``cur`` to fit ``new`` (scoring
-        ``score``) describes this look-alike rather than them ("" by default)."""
+        """Why the step of candidates ``ks`` from fit ``cur`` to ``new`` (scoring ``score``)
+        describes this look-alike rather than them ("" by default)."""
         return ""
 
     def test(self, run, stk) -> LookalikeTest:
@@ -81,8 +76,8 @@ class AbstractLookalike(AbstractCandidate):
 
 
 class ForceClip(AbstractEffect):
-    """The dead zone's input u = F − clip(F, ±d) (d [N]): column −(1/Λ)[clip(F, ±d)], whose
-    coefficient is b for the dead zone exactly (F's own column carries the rest)."""
+    """A dead zone's input u = F − clip(F, ±d) (d [N]): column −(1/Λ)[clip(F, ±d)] beside F's,
+    its coefficient b for the dead zone exactly."""
 
     d: float
 
@@ -105,8 +100,7 @@ class ForceClip(AbstractEffect):
 
 
 class VelocityDrag(AbstractEffect):
-    """A force quadratic in the velocity, −c₂·v̂|v̂| [N] (fluid drag): column +(1/Λ)[v̂|v̂|],
-    parameter b·c₂."""
+    """Fluid drag −c₂·v̂|v̂| [N]: column +(1/Λ)[v̂|v̂|], parameter b·c₂."""
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -123,33 +117,16 @@ class VelocityDrag(AbstractEffect):
         return {"c2": theta[..., 0] / b}
 
 
-def _validated_ms(problem, structure, extra, inp, design: Design | None = None) -> float:
-    """Validated mean square of ε₁ of ``structure`` with the effects ``extra`` added (input map
-    ``inp`` = (τ, F_max)), fitted on the training record."""
-    rtr, rva = problem.regressors(design or design_of(structure))
-    model = problem.model(structure)
-    model = Augmented(MassDamper(), (*model.effects, *extra))
-    th = fit_batch(rtr, model, [inp])[0]
-    r = residual(rva, model, th[0], inp)
-    return float(np.mean(r**2))
-
-
 class DeadZoneLookalike(AbstractLookalike):
     """A dead zone's input F − clip(F, ±d) in place of F (:class:`ForceClip`, its coefficient
-    free; d the training |F|'s quantile of least training RSS, :data:`DEAD_ZONE_QUANTILES`).
-
-    It refuses a friction step that it explains clearly better on the same structure
-    (``Criteria.dead_zone_lookalike_gain``: friction acts with the sign of the velocity, a dead
-    zone with the sign of the force), and overrules a named stack where, on the baseline
-    structure, it validates below ``Criteria.dead_zone_lookalike_share`` of the stack's mean
-    square (not a stack holding a saturation: the look-alike's free columns F and clip(F, ±d)
-    span a hard saturation). Two parameters."""
+    free; d the quantile of the training |F| of least training RSS). It refuses a friction step
+    it explains clearly better on the same structure (``Criteria.dead_zone_lookalike_gain``),
+    and overrules a named stack where, on the baseline, it validates below
+    ``Criteria.dead_zone_lookalike_share`` of the stack's mean square (not a stack holding a
+    saturation: its free columns F and clip(F, ±d) span a hard saturation)."""
 
     name: ClassVar[str] = "dead_zone_lookalike"
     n_params: ClassVar[int] = 2
-
-    def effects(self, st):
-        return ()
 
     def ms(self, problem, structure, design, inp=(0.0, math.inf)) -> float:
         """Its validated mean square with ``structure`` (input map ``inp``)."""
@@ -200,9 +177,8 @@ class DeadZoneLookalike(AbstractLookalike):
 
 
 class DragLookalike(AbstractLookalike):
-    """A force quadratic in the velocity (:class:`VelocityDrag`, its coefficient free) on the
-    baseline: it overrules a named stack where it validates below
-    ``Criteria.drag_lookalike_share`` of the stack's mean square. One parameter."""
+    """Fluid drag (:class:`VelocityDrag`) on the baseline: it overrules a named stack where it
+    validates below ``Criteria.drag_lookalike_share`` of the stack's mean square."""
 
     name: ClassVar[str] = "drag_lookalike"
     n_params: ClassVar[int] = 1
@@ -214,8 +190,11 @@ class DragLookalike(AbstractLookalike):
         cur, problem = stk.fit, run.problem
         ms = math.inf
         if stk.cands:
-            if ("drag",) not in problem.memo:
-                problem.memo["drag",] = _validated_ms(problem, (), (VelocityDrag(),), (0, math.inf))
+            if ("drag",) not in problem.memo:  # fitted on train, scored on validation
+                rtr, rva = problem.regressors(Design())
+                model, inp = Augmented(MassDamper(), (VelocityDrag(),)), (0, math.inf)
+                r = residual(rva, model, fit_batch(rtr, model, [inp])[0][0], inp)
+                problem.memo["drag",] = float(np.mean(r**2))
             ms = problem.memo["drag",]
         return LookalikeTest(
             ms,
@@ -226,38 +205,29 @@ class DragLookalike(AbstractLookalike):
 
 
 def _rival(run, stk, ms: float, k: int) -> float | None:
-    """A look-alike's score from the baseline (its ``k`` parameters; the same N_eff and fitted
-    floor as the stack's joint score, :meth:`~.._run.Run.joint`), where it has fewer parameters than
-    the stack and scores above the stack's joint score; None otherwise, or against a stack the
-    windowed simulation confirms where the baseline is qualitatively wrong (there the equation
-    error is no measure)."""
+    """A look-alike's score from the baseline (``k`` parameters; N_eff and floor as the stack's
+    :meth:`~.._run.Run.joint`) where it has fewer parameters and scores above the stack's joint
+    score; None otherwise, or against a stack the windowed simulation confirms where the
+    baseline is qualitatively wrong (there the equation error is no measure)."""
     if not stk.cands or run.confirmed(stk) or not math.isfinite(ms):
         return None
-    p, joint = run.params(stk.cands), run.joint(stk)
-    if k < p:
-        s = run.score_ms(run.base, ms, k, run.fit_floor)
-        if s > joint:
-            return s
-    return None
+    if k >= run.params(stk.cands):
+        return None
+    s = run.score_ms(run.base, ms, k, run.fit_floor)
+    return s if s > run.joint(stk) else None
 
 
 class PeriodicLookalike(AbstractLookalike):
-    """A force periodic in position, A·sin(2πx/p + φ), fitted with the stack: columns
-    (1/Λ)[sin 2πκξ], (1/Λ)[cos 2πκξ], ξ = (x − x_lo)/R over the range R of both records'
-    positions, κ = R/p cycles, scored on validation as a candidate would be (2 coefficients and
-    the period). It overrules the stack (and "no effect") where it scores above
-    ``Criteria.periodic_score_factor`` times the threshold, removes ``min_share`` of what the
-    stack leaves and holds at least ``periodic_over_stack`` of the stack's own evidence (a
-    remainder small beside a dominant named effect is no rival). Not tried on a stack with an
-    input map. It is reported in ``where`` (``position_period``) where it overrules, or where its
-    likelihood ratio is beyond what the best of the searched periods reaches on noise at the
-    family-wise level :data:`FINDING_ALPHA`."""
+    """A force periodic in position, A·sin(2πx/p + φ), fitted with the stack (not one with an
+    input map): columns (1/Λ)[sin 2πκξ], (1/Λ)[cos 2πκξ], ξ = (x − x_lo)/R over both records'
+    range R, κ = R/p cycles, scored on validation with 3 parameters. It overrules the stack (and
+    "no effect") where it scores above ``Criteria.periodic_score_factor`` times the threshold,
+    removes ``min_share`` of what the stack leaves and holds ``periodic_over_stack`` of the
+    stack's evidence (a remainder small beside a dominant effect is no rival); it is reported in
+    ``where`` where it overrules or is found at the family-wise level :data:`FINDING_ALPHA`."""
 
     name: ClassVar[str] = "periodic_lookalike"
     n_params: ClassVar[int] = 3
-
-    def effects(self, st):
-        return ()
 
     def test(self, run, stk) -> LookalikeTest:
         cur, crit = stk.fit, run.crit
@@ -275,15 +245,10 @@ class PeriodicLookalike(AbstractLookalike):
             and share >= crit.min_share
             and score >= crit.periodic_over_stack * run.bar(stk)
         )
-        final = {
-            "periodic_lookalike": {
-                "ratio": ms / cur.ms_valid if math.isfinite(ms) else None,
-                "score": score if math.isfinite(score) else None,
-                "share": share,
-                "period": period if math.isfinite(period) else None,
-                "significant": better,
-            }
-        }
+        fin = lambda a: a if math.isfinite(a) else None
+        ratio = ms / cur.ms_valid if math.isfinite(ms) else None
+        info = dict(ratio=ratio, score=fin(score), share=share, period=fin(period))
+        final = {"periodic_lookalike": info | {"significant": better}}
         # found: its likelihood ratio n·ln(MS/MS_p) (score + 3·ln n) beyond what the best of the
         # searched periods reaches on noise at the family-wise level FINDING_ALPHA: a χ²₂ per
         # independent period, about one per cycle searched (P(max > c) ≈ K·e^{−c/2})
@@ -306,15 +271,11 @@ class PeriodicLookalike(AbstractLookalike):
         )
 
     def fitted(self, problem, structure) -> tuple[float, float, float]:
-        """(validated mean square of ε₁, period p [m], the cycles its screen searched) of the
-        structure with the look-alike.
-
-        κ is found on the *training* record in two stages. A screen (:func:`_period_screen`)
-        ranks every κ at once; its :data:`PERIOD_PEAKS` highest peaks (and their neighbours 1/16
-        cycle off) are fitted with the structure (training RSS), then 9 points 1/64 cycle apart
-        around the best. Only the chosen κ is fitted on train and scored on validation, so a
-        sinusoid fitted to the training record's noise is not counted. ``(inf, nan)`` when there
-        is no period to search."""
+        """(validated mean square of ε₁, period p [m], the cycles searched) of the structure with
+        the look-alike, ``(inf, nan, 0)`` with no period to search. κ is found on the training
+        record: :func:`_period_screen`'s peaks (and 1/16 cycle either side) fitted with the
+        structure, then 9 points 1/64 cycle apart around the best; only the chosen κ is scored
+        on validation, so a sinusoid fitted to train's noise is not counted."""
         key = ("periodic", structure_key(structure))
         if key in problem.memo:
             return problem.memo[key]
@@ -327,18 +288,11 @@ class PeriodicLookalike(AbstractLookalike):
         out = (math.inf, math.nan, 0.0)
         if k_hi > PERIOD_CYCLES[0]:
 
-            def columns(regs: Regressors, ks) -> FilteredColumns:
-                # (m, 2, T) filtered sine and cosine of each κ; forces held at 0 where the
-                # structure's force columns are masked
-                return FilteredColumns(
-                    [
-                        [
-                            (_sinusoid(regs, x_lo, R, float(k), f), 1.0, 0, 1.0)
-                            for f in (np.sin, np.cos)
-                        ]
-                        for k in ks
-                    ]
-                )
+            def columns(regs: Regressors, ks) -> FilteredColumns:  # (m, 2, T): sin, cos of κ
+                sc = lambda k: [
+                    (_sinusoid(regs, x_lo, R, k, f), 1.0, 0, 1.0) for f in (np.sin, np.cos)
+                ]
+                return FilteredColumns([sc(float(k)) for k in ks])
 
             lam = 2 * math.pi * problem.st.filter_hz
             peaks = _period_screen(rtr, model, x_lo, R, k_hi, problem.v_train, lam)
@@ -362,21 +316,16 @@ class PeriodicLookalike(AbstractLookalike):
 
 def _sinusoid(regs: Regressors, x_lo: float, R: float, k: float, f):
     """The raw signal m·f(2πκξ), ξ = (x − x_lo)/R (m the force mask), per rows."""
-    x, m = regs.x, regs.force_mask
-
-    def raw(k0, k1):
-        v = f(2 * math.pi * k * ((x[k0:k1] - x_lo) / R))
-        return v if m is None else m[k0:k1] * v
-
-    return raw
+    x = regs.x
+    raw = lambda k0, k1: f(2 * math.pi * k * ((x[k0:k1] - x_lo) / R))
+    return raw if regs.force_mask is None else scaled(regs.force_mask, raw)
 
 
 def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) -> np.ndarray:
-    """(n + 2, nb) position histograms (``bins`` of each sample) of Λ*[g]·m for g the
-    structure's training residual r = Wc + y and each of its n columns, then of m itself:
-    Λ* the filter's adjoint (the causal filter run on the time-reversed signal, reversed back).
-    The chunks are visited backwards, each chunk's design recomputed from the filter states a
-    forward pass left at its start."""
+    """(n + 2, nb) position histograms (``bins``) of Λ*[g]·m for g the structure's training
+    residual r = Wc + y and each of its n columns, then of m: Λ* the filter's adjoint (the
+    causal filter on the time-reversed signal, reversed back). The chunks are visited backwards,
+    each one's design recomputed from the states a forward pass left at its start."""
     T = regs.T
     d = regs.design_pass(model)
     states = []
@@ -400,16 +349,14 @@ def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) ->
 def _period_screen(
     regs: Regressors, model, x_lo: float, R: float, k_hi: float, v_train, lam: float
 ) -> np.ndarray:
-    """The :data:`PERIOD_PEAKS` cycle counts κ (of :meth:`PeriodicLookalike.fitted`) whose
-    columns C = Λ[m·(cos, sin)(2πκξ)] (m the force mask) would reduce the training RSS of the
-    structure W the most, estimated for every κ at once: the reduction is bᵀ(C⊥ᵀC⊥)⁻¹b,
-    b = Cᵀr (r the structure's residual, ⊥ W) and C⊥ᵀC⊥ = CᵀC − CᵀW(WᵀW)⁻¹WᵀC. Every inner
-    product with a filtered column is one with the raw sinusoid of the filter's adjoint (Λ run
-    backwards in time) of r and of W's columns, which the position histogram of those gives for
-    every κ by one FFT each; CᵀC is taken as the unfiltered sinusoids' Gram (from the mask's
-    histogram at 2κ) times the filter's mean loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm² (the sinusoid's
-    frequency at speed v̂ is κ|v̂|/R). The estimate only ranks κ: the chosen ones are fitted
-    exactly. Empty where every force is masked."""
+    """The :data:`PERIOD_PEAKS` cycle counts κ whose columns C = Λ[m·(cos, sin)(2πκξ)] (m the
+    force mask) would reduce the training RSS of the structure W most, estimated for every κ at
+    once: the reduction is bᵀ(C⊥ᵀC⊥)⁻¹b, b = Cᵀr (r the residual, ⊥ W), C⊥ᵀC⊥ = CᵀC −
+    CᵀW(WᵀW)⁻¹WᵀC. A product with a filtered column is one of the raw sinusoid with the filter's
+    adjoint of r and of W's columns, which their position histograms give for every κ by one
+    FFT each; CᵀC is the unfiltered sinusoids' Gram (the mask's histogram at 2κ) times the
+    filter's mean loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm². It only ranks κ (empty where every force is
+    masked)."""
     T = regs.T
     n = regs.width(model)
     m = np.ones(T) if regs.force_mask is None else regs.force_mask[:T]

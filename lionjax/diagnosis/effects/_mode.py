@@ -1,11 +1,10 @@
-"""A flexible mode: its regressor columns (:class:`ModeColumns`) and its candidate
-(:class:`FlexibleModeCandidate`), which profiles (ω, ζ) on the validation record and judges
-whether a fitted mode is one (its mass, damping, deflection, and the sampling's hold error it
-could stand for).
+"""A flexible mode: its columns (:class:`ModeColumns`) and its candidate
+(:class:`FlexibleModeCandidate`), profiled on the validation record and judged by its mass,
+damping, deflection and the sampling's hold error it could stand for.
 
 The rigid mass M = 1/b split into M₁ (driven) and m₂ = μM on a spring–damper (ω, ζ): with
-D(s) = s² + 2ζωs + ω² and h = (s²/D)[·], collocated (x = x₁): ẍ + aẋ − μ·s²h[x] = b·u;
-non-collocated (x = x₂): ẍ + aẋ − μ·s²h[x] = b·(u − h[u]). Columns −(s²/Λ)[h_x] and +(1/Λ)[h_F],
+D(s) = s² + 2ζωs + ω² and h = (s²/D)[·], collocated (x = x₁) ẍ + aẋ − μ·s²h[x] = b·u,
+non-collocated (x = x₂) ẍ + aẋ − μ·s²h[x] = b·(u − h[u]): columns −(s²/Λ)[h_x] and +(1/Λ)[h_F],
 parameters μ and β = κb (κ = 0 collocated, 1 non-collocated).
 """
 
@@ -24,44 +23,37 @@ from .._filtering import mode_free_responses
 from .._regressors import ModeProfileColumns
 from .._search import PatternSearch, best_so_far
 from .._streaming import mode_filtered, mode_seed
-from ._base import AbstractCandidate, b_positive
+from ._base import AbstractCandidate
 
-#: Largest plausible mass ratio of a flexible mode: friction's pre-sliding stiffness (Dahl) fits
-#: a collocated mode with μ ≈ 0.77 as well as a heavy load does, so above 0.6 a mode that the
-#: input passes through is left ``unexplained`` rather than named.
+#: Largest mass ratio of a mode the input passes through: friction's pre-sliding stiffness fits a
+#: collocated mode with μ ≈ 0.77 as well as a heavy load does. Up to MAX_HEAVY_MODE_MASS only
+#: collocated (|κ| ≤ HEAVY_MODE_KAPPA): a delay fits a heavy mode with κ ≈ 1.
 MAX_MODE_MASS = 0.6
-#: Largest mass ratio of a heavy flexible mode (above :data:`MAX_MODE_MASS`), plausible only as
-#: a collocated resonance: a delay fits a heavy mode with the input share κ ≈ 1, friction's
-#: pre-sliding stiffness, a dead zone or backlash one at ζ above :data:`MAX_MODE_ZETA`.
 MAX_HEAVY_MODE_MASS = 0.95
-#: Largest damping ratio of a flexible mode: a resonance whose peak 1/(2ζ√(1 − ζ²)) stands at
-#: least 2× (6 dB) above its static gain; a fit more damped than that is a broadband lag.
-MAX_MODE_ZETA = 0.25
-#: Largest |κ| of a heavy flexible mode: collocated within the fit's accuracy.
 HEAVY_MODE_KAPPA = 0.1
-#: Smallest ratio of a mode's μ to the hold error it could stand for.
+#: Largest damping ratio: a resonance peak 1/(2ζ√(1 − ζ²)) at least 2× (6 dB) above its static
+#: gain; a fit more damped is a broadband lag (pre-sliding stiffness, a dead zone, backlash).
+MAX_MODE_ZETA = 0.25
+#: Smallest ratio of μ to the hold error it could stand for, unless |κ| ≥ HOLD_KAPPA (the hold
+#: error's look-alike has κ = 0).
 MODE_OVER_HOLD = 3.0
-#: Least |κ| of a mode that is not held to MODE_OVER_HOLD: the hold error's look-alike has κ = 0.
 HOLD_KAPPA = 0.5
-#: Smallest ratio of a mode's deflection rms(μ·(s²/D)[x]) to the position noise, in closed
-#: loop (where a position loop feeds the quantisation into F) or for a heavy mode, and for a
-#: light mode (μ ≤ MAX_MODE_MASS) in open loop.
+#: Smallest ratio of the deflection rms(μ·(s²/D)[x]) to the position noise: in closed loop (a
+#: position loop feeds the quantisation into F) or for a heavy mode, else _OPEN.
 MODE_OVER_NOISE = 2.0
 MODE_OVER_NOISE_OPEN = 1.0
-#: How close to the frequency search's ends (relative) a flexible mode counts as on its edge.
+#: How close to the searched band's ends (relative) a mode is on its edge.
 MODE_EDGE = 1e-3
-#: Damping ratios a flexible mode's profile searches: beyond :data:`MAX_MODE_ZETA`, so that a
-#: damped look-alike lands where it is (and is refused) rather than on the plausible edge.
+#: The damping ratios searched, beyond MAX_MODE_ZETA so that a damped look-alike lands where it
+#: is (and is refused), not on the plausible edge.
 MODE_ZETA_RANGE = (0.005, 0.4)
-#: Largest ratio of a mode's frequencies fitted from either record (``other_way``): the same
-#: resonance whatever the excitation.
+#: Largest ratio of the frequencies fitted from either record: the same resonance either way.
 MODE_SAME_F = 1.25
-#: The coarse grid's damping ratios (its frequencies: the settings' ``mode_grid``), then the
-#: pattern search's step halvings and its most rings of 8 evaluations.
+#: The coarse grid's damping ratios, the pattern search's step halvings and most rings, and the
+#: factor a search ending on its band's edge is widened by, once.
 MODE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 MODE_ROUNDS = 4
 MODE_STEPS = 16
-#: The factor a search that ends on its band's edge is widened by, once.
 MODE_WIDEN = 4.0
 
 
@@ -76,10 +68,9 @@ def _edge(w: float, z: float, band: tuple[float, float]) -> int:
 
 
 def _seeds(objective, st, lam: float, ws: np.ndarray) -> list[tuple[float, float]]:
-    """Starts of the mode's search besides the coarse grid's best: the equation-error guess of
-    the mode (:func:`~.._streaming.mode_seed`; a lightly damped mode's valley is narrower than
-    the coarse grid's step) and the frequency of the training residual's spectral peak within
-    the band (the resonance the baseline leaves), at ζ 0.03."""
+    """Starts (ω [rad/s], ζ) besides the coarse grid's best (a lightly damped mode's valley is
+    narrower than its step): the equation-error guess (:func:`~.._streaming.mode_seed`) and the
+    training residual's spectral peak within ``ws`` at ζ 0.03."""
     memo = objective.problem.memo
     if ("mode", "seeds") not in memo:
         rs = objective.train_signals
@@ -98,19 +89,10 @@ def _seeds(objective, st, lam: float, ws: np.ndarray) -> list[tuple[float, float
     return memo["mode", "seeds"]
 
 
-def mode_signal_names(omega: float, zeta: float) -> tuple[str, str]:
-    """Names of h_x and h_F for one (ω, ζ) (distinct per mode: the regressors cache by name)."""
-    key = f"{float(omega):.9g},{float(zeta):.6g}"
-    return f"mode_x@{key}", f"mode_F@{key}"
-
-
 class ModeColumns(AbstractEffect):
-    """A flexible mode at (ω [rad/s], ζ): columns −(s²/Λ)[h_x], +(1/Λ)[h_F], h = (s²/D)[·]
-    (module docstring); parameters μ (mass ratio) and β = κ·b. With ``input=False`` the
-    collocated mode alone (κ = 0: the h_x column and μ only). Its signals are the mode's
-    exact stages on the diagnosis filter's outputs (hold ``"mode"``:
-    :attr:`~.._regressors.Regressors.derived`), and it adds the mode's free response to the
-    refitted initial-state columns."""
+    """A flexible mode at (ω [rad/s], ζ): columns −(s²/Λ)[h_x], +(1/Λ)[h_F] (``input=False``:
+    the first alone, κ = 0), parameters μ and β = κ·b; signals the mode's exact stages on the
+    filter's outputs (hold ``"mode"``), its free response refitted with the filter's."""
 
     acts_on_force: ClassVar[bool] = False  # μ multiplies an acceleration: not divided by b
 
@@ -119,17 +101,22 @@ class ModeColumns(AbstractEffect):
     input: bool = True
 
     @property
+    def raw(self) -> tuple[str, str]:
+        """The names of h_x and h_F, distinct per mode (the regressors cache by name)."""
+        key = f"{float(self.omega):.9g},{float(self.zeta):.6g}"
+        return f"mode_x@{key}", f"mode_F@{key}"
+
+    @property
     def names(self) -> tuple[str, ...]:
         return ("mu", "beta") if self.input else ("mu",)
 
     def columns(self) -> tuple[Column, ...]:
-        nx, nF = mode_signal_names(self.omega, self.zeta)
+        nx, nF = self.raw
         return (Column(nx, 2, -1.0), Column(nF, 0, 1.0))[: 2 if self.input else 1]
 
     def signals(self, rs) -> dict:
-        nx, nF = mode_signal_names(self.omega, self.zeta)
         w, z = float(self.omega), float(self.zeta)
-        return {nx: ((w, z, "x"), "mode"), nF: ((w, z, "F"), "mode")}
+        return {n: ((w, z, h), "mode") for n, h in zip(self.raw, "xF", strict=True)}
 
     def free_response(self, dt: float, T: int, k0: int = 0):
         """Rows k0 … T − 1 of the mode's initial-state columns (T − k0, 2)."""
@@ -142,27 +129,17 @@ class ModeColumns(AbstractEffect):
 
 class FlexibleModeCandidate(AbstractCandidate):
     """A lightly damped flexible mode (:class:`ModeColumns`): mass ratio μ, frequency f_mode
-    [Hz] and damping ζ profiled on a grid, and the share κ of the input that passes through the
-    mode (0 collocated sensor, 1 non-collocated), fitted (``input``) or held at 0: the best
-    validated plausible variant is kept (in closed loop the free κ also fits the feedback of
-    position noise into F, and biases μ).
-
-    Plausible when 0 < μ ≤ :data:`MAX_MODE_MASS` (≤ :data:`MAX_HEAVY_MODE_MASS` for a
-    collocated mode, |κ| ≤ :data:`HEAVY_MODE_KAPPA`), ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤ 1.5,
-    f_mode inside the searched band (not on its first or last frequency: ``Limits.mode_band``),
-    μ ≥ :data:`MODE_OVER_HOLD`·(ωh)²/12 (unless |κ| ≥ :data:`HOLD_KAPPA`) and its deflection
-    rms(μ·(s²/D)[x]) on the validation record at least :data:`MODE_OVER_NOISE` times the
-    position noise in closed loop or for μ > :data:`MAX_MODE_MASS` (:data:`MODE_OVER_NOISE_OPEN`
-    otherwise): a mode on the search's edge located no resonance, a heavy one may be friction's
-    pre-sliding stiffness, one far above the excitation with μ/ω² ≈ h²/12 reproduces the
-    sampling's hold error (h the sample interval), and one whose deflection is below an encoder
-    count fits the quantisation that a position loop feeds back into F."""
+    [Hz] and damping ζ profiled, and the share κ of the input through the mode (0 collocated,
+    1 non-collocated) fitted (``input``) or held at 0, the best validated plausible variant kept
+    (in closed loop a free κ also fits the position noise fed into F, and biases μ). Plausible
+    (:meth:`_refusals`) when 0 < μ ≤ :data:`MAX_MODE_MASS` (heavier only collocated),
+    ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤ 1.5, f_mode inside the searched band, μ above the
+    sampling's hold error and its deflection on validation above the position noise."""
 
     input: bool = True
     omega: float = 0.0
     zeta: float = 0.0
-    #: the frequencies [Hz] its search covered, and whether it ended on their edge
-    band: tuple = ()
+    band: tuple = ()  # the band its search covered [Hz]; failed: it ended on the edge
     failed: bool = False
     name: ClassVar[str] = "flexible_mode"
     n_params: ClassVar[int] = 4
@@ -191,40 +168,30 @@ class FlexibleModeCandidate(AbstractCandidate):
         return [dataclasses.replace(self, input=m) for m in (False, True)]
 
     def pick(self, tries, limits) -> int:
-        # the variants are one model held to narrower forms: the best validated *plausible*
-        # one, since the wider form fitted outside the effect's physics describes something else
+        # the best validated *plausible* variant: the wider form fitted outside the effect's
+        # physics describes something else
         ok = [i for i, t in enumerate(tries) if not t[2].implausible(t[1].physical, limits)]
         return max(ok or range(len(tries)), key=lambda i: tries[i][0])
 
     def fits_noise(self) -> bool:
-        # (s²/D)[x] passes the position noise through the resonance: its gains count from the
-        # estimated floor
-        return True
+        return True  # (s²/D)[x] passes the position noise through the resonance
 
     def simulated(self) -> bool:
         return False  # the windowed simulation is of the rigid body
 
     def profile(self, objective, limits):
-        """(ω, ζ): least *validation* RSS of the mode alone fitted on the training record, the
-        RSS divided by (1 − μ)² (below), over the grid (the settings' frequencies ×
-        :data:`MODE_ZETAS`), then a pattern search in (ln ω, ln ζ) from the best, from the
-        equation-error guess of the mode (:func:`~.._streaming.mode_seed`) and from the
-        spectral peak of the training residual, within the grid's frequencies and
-        :data:`MODE_ZETA_RANGE`. A search that ends on the band's edge is widened once by
-        :data:`MODE_WIDEN` on that side (within 0.1 Hz … 0.45·f_s); one that ends on an edge
-        again failed to locate a resonance (``failed``): its fit is no evidence of anything.
+        """(ω, ζ): least *validation* RSS / (1 − μ)² of the mode alone fitted on the training
+        record, over the settings' frequencies × :data:`MODE_ZETAS`, then pattern searches in
+        (ln ω, ln ζ) from the best and from :func:`_seeds`. A search ending on the band's edge is
+        widened once by :data:`MODE_WIDEN` on that side (within 0.1 Hz … 0.45·f_s); ending on
+        an edge again, it located no resonance (``failed``).
 
-        Why validation: the columns (s²/D)[x] pass the position noise through the resonance
-        (gain ~1/2ζ), and in closed loop F's columns carry the same noise fed back, so least
-        squares on one record fits that record's noise with them (errors in variables); the
-        validation record's noise is independent.
-
-        Why (1 − μ)²: above the mode, ẍ − μ·s²h[x] → (1 − μ)ẍ; as μ → 1 the mode's column
-        cancels the acceleration that fixes the equation's scale, and a mode far below the
-        excited band with μ ≈ 1 drives every coefficient, and the residual, towards 0 (the
-        trivial solution of an equation error). Dividing the residual by the acceleration's
-        high-frequency coefficient keeps the criterion in the units of the rigid equation, so
-        such a fit gains nothing; only 0 < μ < 1 is a mode."""
+        Validation, since (s²/D)[x] passes the position noise through the resonance (and in
+        closed loop F carries it too): on one record least squares fits that record's noise
+        (errors in variables). Divided by (1 − μ)², since above the mode ẍ − μ·s²h[x] →
+        (1 − μ)ẍ: as μ → 1 the column cancels the acceleration that fixes the equation's scale,
+        and every coefficient and the residual go to 0; so the criterion stays in the rigid
+        equation's units, and only 0 < μ < 1 is a mode."""
         if self.omega > 0:
             return self
         st = objective.problem.st
@@ -232,7 +199,7 @@ class FlexibleModeCandidate(AbstractCandidate):
 
         def rss_of(modes, variants) -> dict[bool, np.ndarray]:
             rss: dict[bool, list] = {v: [] for v in variants}
-            for i in range(0, len(modes), 32):  # a pass each, a chunk of each mode held
+            for i in range(0, len(modes), 32):  # a pass per 32 modes
                 cols = ModeProfileColumns(modes[i : i + 32], lam, st.dt)
                 for v in variants:
                     sel = cols.select(slice(None) if v else [0, 2, 3])
@@ -258,13 +225,10 @@ class FlexibleModeCandidate(AbstractCandidate):
         band = (float(ws[0]), float(ws[-1]))
         side = _edge(w, z, band)
         if side:  # widened once on that side, its new edge then the limit
-            w_max = 2 * math.pi * 0.45 / st.dt
-            lo, hi = band
-            band = (
-                (max(lo / MODE_WIDEN, 2 * math.pi * 0.1), hi)
-                if side < 0
-                else (lo, min(hi * MODE_WIDEN, w_max))
-            )
+            if side < 0:
+                band = (max(band[0] / MODE_WIDEN, 2 * math.pi * 0.1), band[1])
+            else:
+                band = (band[0], min(band[1] * MODE_WIDEN, 2 * math.pi * 0.45 / st.dt))
             new = np.geomspace(*band, len(ws))
             wide = [(float(f), zz) for f in new for zz in MODE_ZETAS]
             rw = fn(wide)
@@ -347,17 +311,13 @@ class FlexibleModeCandidate(AbstractCandidate):
         # collocated: κ held at 0 (β ≡ 0), or fitted within HEAVY_MODE_KAPPA of it
         collocated = abs(r.get("input_share", 0.0)) <= HEAVY_MODE_KAPPA
         if not 0 < mu <= (MAX_HEAVY_MODE_MASS if collocated else MAX_MODE_MASS):
-            yield (
-                False,
-                (
-                    f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}] (up to "
-                    f"{MAX_HEAVY_MODE_MASS} collocated, |κ| ≤ {HEAVY_MODE_KAPPA})"
-                ),
+            why = (
+                f"no flexible mode: mass ratio outside (0, {MAX_MODE_MASS}] (up to "
+                f"{MAX_HEAVY_MODE_MASS} collocated, |κ| ≤ {HEAVY_MODE_KAPPA})"
             )
-        # the regressors hold x first-order between samples; the equation error this leaves is
-        # ≈ (h²/12)·x⁽⁴⁾, which a mode far above the excitation reproduces with μ/ω² = h²/12
-        # (μ·s²·s²/ω²): a mode that small is the sampling, not the device. That look-alike acts
-        # on x alone (κ = 0): a mode the force passes through (non-collocated) is not it
+            yield False, why
+        # x held first-order between samples leaves ≈ (h²/12)·x⁽⁴⁾ in ε₁, which a mode far above
+        # the excitation reproduces with μ/ω² = h²/12 and κ = 0: the sampling, not the device
         hold = (2 * math.pi * r.get("f_mode", 0.0) * lim.dt) ** 2 / 12
         through_input = abs(r.get("input_share", 0.0)) >= HOLD_KAPPA
         if r["mass_ratio"] < MODE_OVER_HOLD * hold and not through_input:
@@ -368,8 +328,7 @@ class FlexibleModeCandidate(AbstractCandidate):
             yield True, why
         if not -0.5 <= r.get("input_share", 0) <= 1.5:
             yield False, "no flexible mode: input share outside [−0.5, 1.5]"
-        # on the search's first or last frequency (or damping) the valley lies beyond it: no
-        # resonance was located
+        # on the search's edge the valley lies beyond it: no resonance was located
         f, (f_lo, f_hi) = r.get("f_mode", 0.0), self.band or lim.mode_band
         if self.failed or not f_lo * (1 + MODE_EDGE) < f < f_hi / (1 + MODE_EDGE):
             why = (
@@ -384,9 +343,8 @@ class FlexibleModeCandidate(AbstractCandidate):
                 f"{MAX_MODE_ZETA:g} (a resonance peak below 2×: a broadband lag, not a resonance)"
             )
             yield False, why
-        # in open loop no controller feeds the quantisation into F, and the mode's score already
-        # counts from the estimated floor: there a light mode must only stand above the noise;
-        # a heavy one keeps 2× (friction's pre-sliding stiffness lies there)
+        # in open loop no controller feeds the quantisation into F (and the score counts from the
+        # floor): a light mode need only stand above the noise, a heavy one 2× (pre-sliding)
         light = mu <= MAX_MODE_MASS
         over = MODE_OVER_NOISE_OPEN if light and not lim.closed_loop else MODE_OVER_NOISE
         if r.get("deflection", math.inf) < over * lim.position_noise:
@@ -395,5 +353,5 @@ class FlexibleModeCandidate(AbstractCandidate):
                 f"is within {over:g}× the position noise ({lim.position_noise:.3g} m)"
             )
             yield True, why
-        if why := b_positive(phys):
+        if why := super().implausible(phys, lim):
             yield False, why

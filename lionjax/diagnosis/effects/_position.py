@@ -18,15 +18,14 @@ from ..._model_effects import (
     position_values,
 )
 from .._search import GridSearch, PatternSearch
-from .._streaming import FilteredColumns
-from ._base import AbstractCandidate, Design, b_positive
+from .._streaming import FilteredColumns, rows, scaled
+from ._base import AbstractCandidate, Design
 
-#: Parameters the localized position counts: its four amplitudes and the profiled x₀, w.
+#: The localized position's parameters (four amplitudes, x₀, w), and its (x₀, w) grid: widths
+#: w = R·LOCAL_WIDTHS (R the span of the training positions' LOCAL_RANGE quantiles), centres
+#: across R spaced by max(w, R/LOCAL_SPACING); then a pattern search in (x₀, ln w) (LOCAL_ROUNDS
+#: step halvings, at most LOCAL_STEPS rings), w within R·LOCAL_W_RANGE.
 LOCAL_PARAMS = 6
-#: The localized position's (x₀, w) grid: the training positions' LOCAL_RANGE quantiles span R;
-#: widths w = R·LOCAL_WIDTHS, centres across R spaced by max(w, R/LOCAL_SPACING); then a pattern
-#: search in (x₀, ln w) (LOCAL_ROUNDS step halvings, at most LOCAL_STEPS rings) with w kept in
-#: R·LOCAL_W_RANGE.
 LOCAL_RANGE = (0.02, 0.98)
 LOCAL_WIDTHS = (1 / 40, 1 / 12, 1 / 4)
 LOCAL_SPACING = 32
@@ -36,9 +35,8 @@ LOCAL_W_RANGE = (1 / 100, 1.0)
 
 
 def _position_raw(x, center, scale, lo, hi, held: bool, k: int, which: int):
-    """Per rows, the degree-``k`` raw signal of :class:`HeldPosition`: ℓξ_cᵏ⁺¹/(k+1) +
-    ℓξ_cᵏ(ξ − ξ_c) (``which`` 0) or its multiplier ξ_cᵏ of F (1), ξ_c = clip(ξ, lo, hi) where
-    ``held``, else ξ."""
+    """Per rows, :class:`HeldPosition`'s degree-``k`` raw signal ℓξ_cᵏ⁺¹/(k+1) + ℓξ_cᵏ(ξ − ξ_c)
+    (``which`` 0) or F's multiplier ξ_cᵏ (1); ξ_c = clip(ξ, lo, hi) where ``held``, else ξ."""
 
     def raw(k0, k1):
         xi = (x[k0:k1] - center) / scale
@@ -50,9 +48,9 @@ def _position_raw(x, center, scale, lo, hi, held: bool, k: int, which: int):
 
 
 class HeldPosition(PolynomialPosition):
-    """:class:`~lionjax.PolynomialPosition` whose raw signals are computed per rows from the
-    record's samples, with a(x), b(x) held at their values at ξ = ``lo`` and ``hi`` beyond
-    them where ``held`` (aₖξ_cᵏẋ = d/dt ℓ(ξ_cᵏ⁺¹/(k+1) + ξ_cᵏ(ξ − ξ_c)) stays exact)."""
+    """:class:`~lionjax.PolynomialPosition` with raw signals per rows, a(x), b(x) held at their
+    values at ξ = ``lo``, ``hi`` beyond them where ``held`` (aₖξ_cᵏẋ = d/dt ℓ(ξ_cᵏ⁺¹/(k+1) +
+    ξ_cᵏ(ξ − ξ_c)) stays exact)."""
 
     held: bool = False
     lo: float = -math.inf
@@ -71,28 +69,23 @@ class HeldPosition(PolynomialPosition):
             g, f, _ = position_terms(k)
             m = _position_raw(x, c, sc, self.lo, self.hi, self.held, k, 1)
             out[g] = (_position_raw(x, c, sc, self.lo, self.hi, self.held, k, 0), "foh")
-            out[f] = (lambda k0, k1, m=m: m(k0, k1) * F[k0:k1], "zoh")
+            out[f] = (scaled(m, rows(F)), "zoh")
         return out
 
 
 def _local_raw(x, F, c: float, w: float, j: int):
-    """Raw signal ``j`` of the localized step and bump at (x₀ = ``c``, ``w``): w·log cosh ξ,
-    tanh ξ·F, w·tanh ξ, sech²ξ·F (:func:`~lionjax._model_effects.local_values`), per rows."""
-    i = (0, 2, 1, 3)[j]
-    if j % 2:
-        return lambda k0, k1: local_values(x[k0:k1], c, w)[i] * F[k0:k1]
-    return lambda k0, k1: local_values(x[k0:k1], c, w)[i]
+    """Per rows, raw signal ``j`` of the localized step and bump at (x₀ = ``c``, ``w``):
+    w·log cosh ξ, tanh ξ·F, w·tanh ξ, sech²ξ·F."""
+    raw = lambda k0, k1: local_values(x[k0:k1], c, w)[(0, 2, 1, 3)[j]]
+    return scaled(raw, rows(F)) if j % 2 else raw
 
 
 class PositionCandidate(AbstractCandidate):
-    """a(x), b(x) polynomial in position, degree 1 … 3 (exact §3-style columns), two parameters
-    per degree, or a step and a bump confined around x₀ of width w (``degree`` 0,
-    :class:`~lionjax.LocalizedPosition`): four parameters, x₀ and w profiled on the training RSS
-    (counted: six). The best validated form is kept; a polynomial with or without a(x), b(x)
-    held at their values at the ends of the training positions beyond them (``held``, tried
-    where validation leaves that range). Reports the polynomial's coefficients of (x − x_c)ᵏ
-    and the expansion point x_c, or the step's and bump's amplitudes with ``x_step`` (x₀) and
-    ``w_step`` (w). ``localized=False``: the polynomials only."""
+    """a(x), b(x) polynomial in position of degree 1 … 3 (two parameters per degree), held or
+    not beyond the training positions (``held``), or a step and a bump around x₀ of width w
+    (``degree`` 0, :class:`~lionjax.LocalizedPosition`, x₀ and w profiled); the best validated
+    form kept (``localized=False``: the polynomials only). Reports the coefficients of
+    (x − x_c)ᵏ and x_c, or the amplitudes with ``x_step`` (x₀) and ``w_step`` (w)."""
 
     localized: bool = True
     degree: int = 1
@@ -136,54 +129,43 @@ class PositionCandidate(AbstractCandidate):
         return self.degree != 0 or bool(self.local)
 
     def variants(self, limits, chosen):
-        # the degree, and whether a(x), b(x) are held constant beyond the training positions:
-        # where validation leaves train's range the polynomial extrapolates, right for a slow
-        # dependence (a tanh wider than the range) and wildly wrong for a saturating one (a
-        # bowl 1 − exp(−d²))
+        # held or not where validation leaves train's range: the polynomial extrapolates right
+        # for a slow dependence, wildly wrong for a saturating one (a bowl 1 − exp(−d²))
         out = [
             dataclasses.replace(self, degree=d, held=held)
             for held in ((False, True) if limits.outside else (False,))
             for d in range(1, MAX_POSITION_DEGREE + 1)
         ]
-        # and the localized step and bump (bounded, so never held): a transition or a dip a
-        # few % of the travel wide, which a cubic over the whole travel cannot follow
+        # the localized step and bump (bounded: never held), a few % of the travel wide
         if self.localized:
             out.append(dataclasses.replace(self, degree=0, held=False))
         return out
 
     def profile(self, objective, limits):
-        """(x₀, w) of the localized step and bump: least training RSS of the candidate alone
-        (the baseline's Gram shared) over the grid of :data:`LOCAL_WIDTHS` and centres, then a
-        pattern search from the best. A narrow dip is invisible from a centre more than a few w
-        away, so the grid's centres are spaced by w down to R/:data:`LOCAL_SPACING`."""
+        """The localized (x₀, w): least training RSS over the grid of :data:`LOCAL_WIDTHS` and
+        centres (spaced by w: a narrow dip is invisible a few w away), then a pattern search."""
         if self.degree != 0 or self.local:
             return self
         rs = objective.train_signals
         x = np.asarray(rs.x, np.float64)
         F = np.asarray(rs.F, np.float64)
-        mask = objective.force_mask
-        if mask is not None:
-            F = F * mask
-        signs = (1.0, -1.0, 1.0, -1.0)  # the step's and the bump's first derivatives, forces
+        if objective.force_mask is not None:
+            F = F * objective.force_mask
         lo, hi = (float(q) for q in np.quantile(x, LOCAL_RANGE))
         R = hi - lo
         if not R > 0:  # the axis does not move: nothing to localise (the fit says so)
             return dataclasses.replace(self, local=(lo, max(abs(lo), 1.0) * 1e-3))
         w_lo, w_hi = (R * f for f in LOCAL_W_RANGE)
-        # points per pass: 4 signals each, (4·m, chunk, 4) float64 held at once
         per = int(min(16, max(2, 2e8 // (rs.chunk * 4 * 32))))
 
         def rss_of(points) -> np.ndarray:
-            cols = FilteredColumns(
-                [
-                    [
-                        (_local_raw(x, F, c, w, j), (1.0, 0.0)[j % 2], 1 - j % 2, signs[j])
-                        for j in range(4)
-                    ]
-                    for c, w in points
-                ]
-            )
-            return objective.rss_with(cols)
+            # per point: the step's and the bump's signals, first-order hold and s/Λ for x's
+            signs = (1.0, -1.0, 1.0, -1.0)
+            terms = lambda c, w: [
+                (_local_raw(x, F, c, w, j), (1.0, 0.0)[j % 2], 1 - j % 2, signs[j])
+                for j in range(4)
+            ]
+            return objective.rss_with(FilteredColumns([terms(c, w) for c, w in points]))
 
         grid = []
         for f in LOCAL_WIDTHS:
@@ -202,10 +184,8 @@ class PositionCandidate(AbstractCandidate):
 
         steps = (0.5 * max(w, R / LOCAL_SPACING), 0.5 * math.log(2.0))
         search = PatternSearch(LOCAL_ROUNDS, LOCAL_STEPS)
-        batched = (
-            lambda pts: np.concatenate(  # noqa: E731
-                [rss_of(pts[i : i + per]) for i in range(0, len(pts), per)]
-            )
+        batched = lambda pts: np.concatenate(
+            [rss_of(pts[i : i + per]) for i in range(0, len(pts), per)]
         )
         (c, w), _ = search.minimise(batched, (c, w), best, steps, move, seen)
         return dataclasses.replace(self, local=(float(c), float(w)))
@@ -220,6 +200,3 @@ class PositionCandidate(AbstractCandidate):
 
     def simulation(self, phys, problem) -> dict:
         return {"x_lo": problem.st.x_range[0], "x_hi": problem.st.x_range[1]} if self.held else {}
-
-    def implausible(self, phys, lim):
-        return b_positive(phys)

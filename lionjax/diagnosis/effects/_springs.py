@@ -7,7 +7,7 @@ import math
 from typing import ClassVar
 
 from ..._model_effects import Offset, Spring
-from ._base import AbstractCandidate, b_positive
+from ._base import AbstractCandidate
 
 
 class OffsetCandidate(AbstractCandidate):
@@ -19,9 +19,6 @@ class OffsetCandidate(AbstractCandidate):
 
     def effects(self, st):
         return (Offset(),)
-
-    def implausible(self, phys, lim):
-        return b_positive(phys)
 
 
 class SpringCandidate(AbstractCandidate):
@@ -40,6 +37,3 @@ class SpringCandidate(AbstractCandidate):
     def physical(self, phys, problem) -> dict:
         k = phys.get("k", math.nan)
         return {"x0": phys["F0"] / k if k != 0 else math.nan}
-
-    def implausible(self, phys, lim):
-        return b_positive(phys)
