@@ -189,13 +189,16 @@ def inconclusive(
     None. Two reasons, unless a look-alike explains the gap (``decided``: the record shows that
     effect): the validation residual's effective sample count below :data:`N_EFF_LEAST` (its
     evidence too coarse: nothing named is then no evidence of no effect, and a residual with
-    structure no evidence of one outside the library); or, where the verdict would claim no
-    effect (``absent``: "none"), the detection limit (``worst``, the size an effect needs to be
-    seen) at or above :data:`DETECTION_MOST` of the input's term. A significant gap no
-    candidate removes ("unexplained") is decided however large the limit: a large unmodelled
-    residual itself raises it."""
+    structure no evidence of one outside the library), unless even so an effect of ``min_size``
+    would have been seen (``detection``, the one-parameter limit, below it: a residual that
+    small decides); or, where the verdict would claim no effect (``absent``: "none"), the
+    detection limit (``worst``, the size an effect needs to be seen) at or above
+    :data:`DETECTION_MOST` of the input's term. A significant gap no candidate removes
+    ("unexplained") is decided however large the limit: a large unmodelled residual itself
+    raises it."""
     n = run.base.n_eff
-    few, blind = n < N_EFF_LEAST, absent and worst >= DETECTION_MOST
+    few = n < N_EFF_LEAST and detection >= run.crit.min_size
+    blind = absent and worst >= DETECTION_MOST
     if decided or not (few or blind):
         return None
     reasons, advice = [], []
