@@ -55,6 +55,9 @@ MODE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 MODE_ROUNDS = 4
 MODE_STEPS = 16
 MODE_WIDEN = 4.0
+#: The neighbourhood (factor on ω either way) in which the located mode is refined on the
+#: plain validation RSS (:meth:`FlexibleModeCandidate.profile`).
+MODE_REFINE = 1.25
 
 
 def _edge(w: float, z: float, band: tuple[float, float]) -> int:
@@ -191,13 +194,16 @@ class FlexibleModeCandidate(AbstractCandidate):
         (errors in variables). Divided by (1 − μ)², since above the mode ẍ − μ·s²h[x] →
         (1 − μ)ẍ: as μ → 1 the column cancels the acceleration that fixes the equation's scale,
         and every coefficient and the residual go to 0; so the criterion stays in the rigid
-        equation's units, and only 0 < μ < 1 is a mode."""
+        equation's units, and only 0 < μ < 1 is a mode. That division locates the mode but
+        biases where it lies (μ varies along the valley): a located mode is then refined on the
+        plain validation RSS within :data:`MODE_REFINE` of its frequency, where the fit of a
+        true mode is least."""
         if self.omega > 0:
             return self
         st = objective.problem.st
         lam = 2 * math.pi * st.filter_hz
 
-        def rss_of(modes, variants) -> dict[bool, np.ndarray]:
+        def rss_of(modes, variants, scaled=True) -> dict[bool, np.ndarray]:
             rss: dict[bool, list] = {v: [] for v in variants}
             for i in range(0, len(modes), 32):  # a pass per 32 modes
                 cols = ModeProfileColumns(modes[i : i + 32], lam, st.dt)
@@ -207,7 +213,8 @@ class FlexibleModeCandidate(AbstractCandidate):
                     r = objective.validate_with(sel, c, 2 if v else 1)
                     mu = c[:, n]
                     ok = (mu > 0) & (mu < 1)
-                    rss[v].append(np.where(ok, r / np.where(ok, 1 - mu, 1.0) ** 2, np.inf))
+                    scale = np.where(ok, 1 - mu, 1.0) ** 2 if scaled else 1.0
+                    rss[v].append(np.where(ok, r / scale, np.inf))
             return {k: np.concatenate(v) for k, v in rss.items()}
 
         ws = 2 * math.pi * np.asarray(st.mode_grid)
@@ -235,6 +242,10 @@ class FlexibleModeCandidate(AbstractCandidate):
             k = int(np.argmin(rw))
             (w, z), r = self._search(fn, [(wide[k], float(rw[k])), ((w, z), r)], new)
             side = _edge(w, z, band)
+        if not side:  # refined where the plain RSS is least, near the located mode
+            plain = lambda todo: rss_of(todo, (self.input,), False)[self.input]  # noqa: E731
+            near = np.clip([w / MODE_REFINE, w * MODE_REFINE], *band)
+            (w, z), _ = self._search(plain, [((w, z), float(plain([(w, z)])[0]))], near)
         hz = (band[0] / (2 * math.pi), band[1] / (2 * math.pi))
         return dataclasses.replace(self, omega=float(w), zeta=float(z), band=hz, failed=bool(side))
 
