@@ -93,21 +93,23 @@ def test_a_weak_mode_the_named_stack_adds_nothing_to_discounts_it():
         assert d.confidence < 0.5 and "flexible_mode" in d.rivals, (d.verdict, d.confidence)
     d, info = _diagnose("flexible_mode", 70081006, "scipy")
     assert info["truth"] == ["flexible_mode"] and info["closed_loop"]
-    if d.verdict != "flexible_mode":
-        assert d.confidence <= 0.5 and "flexible_mode" in d.ambiguous, (d.verdict, d.confidence)
+    if d.verdict != "flexible_mode":  # the mode a second reading or a rival
+        assert d.confidence <= 0.5, (d.verdict, d.confidence)
+        assert "flexible_mode" in d.ambiguous or "flexible_mode" in d.rivals
 
 
 def test_a_heavy_mode_that_imitates_the_named_delay_is_no_rival():
     """A fractional input delay, open loop (scipy source, 563 Hz, response change 27 %): the
-    flexible mode's columns fit it as a heavy mode the input passes through (μ > 0.6, κ ≈ 1 —
-    implausible, the delay's known look-alike) and score above the delay. That fit is no
-    evidence against the delay: the verdict keeps its confidence (it was 0.00 when every
-    implausible fit above the stack counted)."""
+    flexible mode's columns may fit it as a heavy mode the input passes through (μ > 0.6, κ ≈ 1
+    — implausible, the delay's known look-alike) and score above the delay (on the plain
+    validation RSS they did; the mode's criterion in the rigid equation's units finds a light,
+    insignificant fit). Either way no evidence against the delay: the verdict keeps its
+    confidence (it was 0.00 when every implausible fit above the stack counted)."""
     d, info = _diagnose("delay", 8051010, "scipy")
     assert info["truth"] == ["delay"]
     mode = {e.name: e for e in d.effects}["flexible_mode"]
-    assert not mode.plausible and mode.score > _stack_score(d)  # the case is what it says
-    assert mode.params["mass_ratio"] > 0.6 and mode.params["input_share"] > 0.5
+    if not mode.plausible and mode.score > _stack_score(d):  # the mode imitates the delay
+        assert mode.params["mass_ratio"] > 0.6 and mode.params["input_share"] > 0.5
     assert d.verdict == "delay" and d.confidence > 0.9, (d.verdict, d.confidence, d.rivals)
     assert "flexible_mode" not in d.rivals
 
@@ -208,7 +210,7 @@ def test_a_mode_too_small_to_name_bounds_the_detection_limit():
 @pytest.mark.parametrize(
     "cls, seed, source, why",
     [
-        ("backlash", 150131003, "scipy", "broadband lag"),
+        ("backlash", 150131003, "scipy", "the other way the mode is"),
         ("delay", 160051001, "scipy", "the other way the mode is"),
         ("backlash", 160130002, "twin", "broadband lag"),
     ],
@@ -219,8 +221,8 @@ def test_a_mode_that_is_another_resonance_the_other_way_is_not_named_confidently
     """Each was named `flexible_mode` at 1.00, and fitted on validation the "mode" is not the
     same resonance, so no confidence (a true mode is: test_a_true_resonance_holds_both_ways).
     Backlash between two masses, closed loop (scipy, 526 Hz): the mode's columns (ζ 0.18) leave
-    nothing of the excess either way, but the other way the "mode" is a broadband lag at ζ 0.40,
-    the search's limit (the mode refuses ζ > 0.25). A 2.3 ms input delay, closed loop (scipy,
+    nothing of the excess either way, but the other way the "mode" is another (a broadband lag
+    at ζ 0.40, the search's limit, or a resonance more than 25 % away). A 2.3 ms input delay, closed loop (scipy,
     1.2 kHz): a collocated mode at 18 Hz (ζ 0.18) removes all the excess and outscores the
     delay (τ 2.1 ms, half the excess); the other way it is another resonance (at 11.4 Hz, more
     than 25 % away) or a broadband lag.

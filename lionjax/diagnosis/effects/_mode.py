@@ -197,7 +197,10 @@ class FlexibleModeCandidate(AbstractCandidate):
         equation's units, and only 0 < μ < 1 is a mode. That division locates the mode but
         biases where it lies (μ varies along the valley): a located mode is then refined on the
         plain validation RSS within :data:`MODE_REFINE` of its frequency, where the fit of a
-        true mode is least."""
+        true mode is least, among light fits (μ ≤ :data:`MAX_MODE_MASS`: a heavier fit is judged
+        in the rigid equation's units only, where μ → 1 would otherwise gain); a refinement that
+        ends on the edge of that neighbourhood left the located valley, and the located mode
+        stands."""
         if self.omega > 0:
             return self
         st = objective.problem.st
@@ -212,7 +215,7 @@ class FlexibleModeCandidate(AbstractCandidate):
                     c, _, n = objective.fit_with(sel)
                     r = objective.validate_with(sel, c, 2 if v else 1)
                     mu = c[:, n]
-                    ok = (mu > 0) & (mu < 1)
+                    ok = (mu > 0) & (mu < (1 if scaled else MAX_MODE_MASS))
                     scale = np.where(ok, 1 - mu, 1.0) ** 2 if scaled else 1.0
                     rss[v].append(np.where(ok, r / scale, np.inf))
             return {k: np.concatenate(v) for k, v in rss.items()}
@@ -245,7 +248,9 @@ class FlexibleModeCandidate(AbstractCandidate):
         if not side:  # refined where the plain RSS is least, near the located mode
             plain = lambda todo: rss_of(todo, (self.input,), False)[self.input]  # noqa: E731
             near = np.clip([w / MODE_REFINE, w * MODE_REFINE], *band)
-            (w, z), _ = self._search(plain, [((w, z), float(plain([(w, z)])[0]))], near)
+            (w2, z2), _ = self._search(plain, [((w, z), float(plain([(w, z)])[0]))], near)
+            if not _edge(w2, z2, tuple(near)):  # on its edge it left the located valley
+                w, z = w2, z2
         hz = (band[0] / (2 * math.pi), band[1] / (2 * math.pi))
         # failed: on the band's edge in frequency, where the valley lies beyond it (at ζ's upper
         # limit it is a damped look-alike: located, and refused by its damping)
