@@ -3,7 +3,9 @@
 :func:`diagnose` works on recorded data alone: it names the unmodelled effect that explains the
 model's error, with a confidence; :func:`plot_diagnosis` draws the one-page figure;
 :func:`decimation_for` gives the least decimation that lets long records fit the memory;
-:func:`diagnose_many` diagnoses many (train, valid) pairs in one process, one row per pair.
+:func:`diagnose_many` diagnoses many (train, valid) pairs in one process, one row per pair;
+:func:`find_regions` searches the validation record for the regions where the gap lies
+(``Diagnosis.regions``, :class:`Region`).
 The library is open: a :class:`ForceEffect` subclass is a candidate of the user's own
 (docs/effects.md), passed as ``candidates=DEFAULT_CANDIDATES + (MyEffect(),)`` or loaded from a
 file by :func:`load_candidates`.
@@ -37,5 +39,6 @@ from ._many import (
 )
 from ._mode import FlexibleModeCandidate as FlexibleModeCandidate
 from ._plot import plot_diagnosis as plot_diagnosis
+from ._regions import Region as Region, find_regions as find_regions
 from ._result import Diagnosis as Diagnosis, EffectScore as EffectScore
 from ._statistics import decimation_for as decimation_for

@@ -102,6 +102,11 @@ class Criteria(eqx.Module):
     The confidence:
         tie_ratio: near-tie: a name whose BIC weight is at least 1/tie_ratio of the verdict's is
             listed in ``ambiguous``.
+
+    Where the gap lies:
+        alpha: the family-wise error rate of the searched regions (``Diagnosis.regions``,
+            :func:`~._regions.find_regions`): over the six variables, every candidate interval
+            and the steps of the search; nothing else is decided by it.
     """
 
     threshold: float = 10.0
@@ -126,6 +131,7 @@ class Criteria(eqx.Module):
     periodic_over_stack: float = 0.5
     feedback_share: float = 0.3
     tie_ratio: float = 20.0
+    alpha: float = 0.05
 
     def __check_init__(self):
         if not (
@@ -152,6 +158,11 @@ class Criteria(eqx.Module):
         if not self.periodic_over_stack >= 0:
             raise InputError(
                 f"diagnose: expected periodic_over_stack ≥ 0, got {self.periodic_over_stack!r}."
+            )
+        if not 0 < self.alpha < 1:
+            raise InputError(
+                f"diagnose: expected 0 < alpha < 1 (the regions' family-wise level), got "
+                f"{self.alpha!r}."
             )
         if not (isinstance(self.pair_from, int) and self.pair_from >= 0):
             raise InputError(f"diagnose: expected pair_from ≥ 0, got {self.pair_from!r}.")

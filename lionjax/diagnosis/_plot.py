@@ -16,7 +16,8 @@ def plot_diagnosis(diagnosis, path: str | Path):
 
     Panels: measured position vs the windowed simulations of the baseline and the stacked model
     (restarts every H s); the filtered equation error ε₁ before and after; the residual's shares
-    by band (the 'where' findings); the candidates ranked by score with their shrink.
+    by band (the 'where' findings); the candidates ranked by score with their shrink. The
+    samples of each region (``diagnosis.regions``) are shaded on the error panels.
     """
     path = Path(path)
     if path.parent and not path.parent.exists():
@@ -60,8 +61,9 @@ def plot_diagnosis(diagnosis, path: str | Path):
     a.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
     floor = diagnosis.noise["equation_floor"]
     a.axhspan(-floor, floor, color="0.85", label="noise floor (±1σ)")
-    a.set(xlabel="t [s]", ylabel="ε₁ [m/s²]", title="filtered equation error")
-    a.legend(fontsize=8, loc=loc)
+    _shade_regions((a, e), diagnosis.regions, s)
+    a.set(xlabel="t [s]", ylabel="ε₁ [m/s²]", title="filtered equation error, regions shaded")
+    a.legend(fontsize=7, loc=loc)
     a = ax[1, 0]
     bands = [w for w in diagnosis.where if w.get("share") is not None and "fraction" in w]
     labels = [f"{w['kind']}: {w['band']}" for w in bands]
@@ -86,3 +88,22 @@ def plot_diagnosis(diagnosis, path: str | Path):
     )
     fig.tight_layout()
     return save_figure(fig, path, dpi=110)
+
+
+def _shade_regions(axes, regions, s) -> None:
+    """Shade, on each time axis, the samples each region covers (one colour per region)."""
+    t = s["t"]
+    for k, region in enumerate(regions):
+        inside = region.mask(s)
+        for j, ax in enumerate(axes):
+            ax.fill_between(
+                t,
+                0,
+                1,
+                where=inside,
+                transform=ax.get_xaxis_transform(),
+                color=f"C{(k + 2) % 10}",
+                alpha=0.15,
+                lw=0,
+                label=region.describe().split(":")[0] if j == 0 else None,
+            )

@@ -9,6 +9,7 @@ import numpy as np
 
 from .._tables import jsonable
 from ..twin._windows import WINDOW_PARAMETERS
+from ._regions import Region
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +59,9 @@ class Diagnosis:
             discounted by their odds), or ``{}``.
         final: the stacked model's physical parameters and its ``gap``.
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
+        regions: where the gap lies: the regions of the validation record where the dynamics
+            depart from the rest, each significant at the family-wise level ``Criteria.alpha``,
+            strongest first (:class:`~._regions.Region`; ``[]``: none is significant).
         series: validation signals for plotting (not in the JSON).
     """
 
@@ -74,7 +78,8 @@ class Diagnosis:
     ambiguous: list[str]
     weights: dict[str, float]
     rivals: dict[str, float]
-    series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
+    regions: list[Region] = dataclasses.field(default_factory=list)
+    series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False, default=None)
 
     def to_json(self) -> dict[str, Any]:
         """The JSON payload (plain Python types; non-finite numbers become ``None``; converted by
@@ -83,6 +88,7 @@ class Diagnosis:
             {
                 "baseline": self.baseline,
                 "where": self.where,
+                "regions": [r.to_json() for r in self.regions],
                 "effects": [e.to_json() for e in self.effects],
                 "stack": self.stack,
                 "verdict": self.verdict,

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from ._candidates import AbstractCandidate
+from ._regions import find_regions
 from ._result import _UNITS, Diagnosis, EffectScore
 from ._stages import Run, Stack, prepare, shrink, sim_share, try_fit
 from ._structures import Fitted
@@ -615,7 +616,7 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
 
 
 def _series_and_where(run: Run, stk: Stack, v: Verdict):
-    """The validation signals for plotting and the ``where`` findings on them."""
+    """The validation signals for plotting, the ``where`` findings and the regions on them."""
     valid, fitter, base, cur = run.valid, run.fitter, run.base, stk.fit
     series = {
         "t": float(valid.t0) + float(valid.dt) * np.arange(valid.n_samples),
@@ -641,7 +642,9 @@ def _series_and_where(run: Run, stk: Stack, v: Verdict):
                 "the stack: share = its part of the excess validation error the stack leaves",
             }
         )
-    return series, where
+    final = {"residual_final": series["residual_final"] if stk.cands else None}
+    regions = find_regions({**series, **final}, alpha=run.crit.alpha, filter_hz=run.st.filter_hz)
+    return series, where, regions
 
 
 def _baseline(run: Run, v: Verdict) -> dict[str, Any]:
@@ -684,6 +687,7 @@ def _settings_json(run: Run) -> dict[str, Any]:
         "min_share": crit.min_share,
         "min_size": crit.min_size,
         "floor_factor": crit.floor_factor,
+        "alpha": crit.alpha,
         # whether friction's force columns are masked where the axis sticks (chosen by the
         # validated score of the first friction candidate)
         "friction_stick_masked": bool(fitter.stick),
@@ -694,7 +698,7 @@ def report(
     run: Run, effects: list[EffectScore], stk: Stack, v: Verdict, c: Confidence
 ) -> Diagnosis:
     """The :class:`~lionjax.diagnosis.Diagnosis` of the stages' results."""
-    series, where = _series_and_where(run, stk, v)
+    series, where, regions = _series_and_where(run, stk, v)
     stuck = run.fitter.stuck_masks
     return Diagnosis(
         baseline=_baseline(run, v),
@@ -721,5 +725,6 @@ def report(
         ambiguous=c.ambiguous,
         weights=c.weights,
         rivals=c.rivals,
+        regions=regions,
         series=series,
     )

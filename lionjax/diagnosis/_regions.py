@@ -1,0 +1,573 @@
+"""Where the gap lies: regions of the validation record searched in the data, at a stated
+family-wise error rate (:func:`find_regions`, :class:`Region`).
+
+A region is a set of validation samples where the dynamics depart from the rest of the record:
+an interval or a half-line of one variable z ∈ {x, v, |v|, F, |F|, t}. The search is model-based
+recursive partitioning (Zeileis, Hothorn & Hornik 2008, the idea of partykit's ``mob``) on the
+baseline's filtered equation error ε₁ (``residual_base``):
+
+1. ε₁ is averaged over blocks of m samples (``n_points`` points at most) and regressed on the
+   columns c = L[1, F, v, sgn v, sgn F] (L the filter of ε₁, λ³/(s + λ)³ at ``filter_hz``): the
+   record-wide correction r₀ = ε₁ − cβ̂. A local effect leaves ε₁ a different linear function of
+   these columns inside its region: a clip above F_max or a dead zone changes the gain on F and
+   adds an offset in sgn F, friction on a stretch of rail adds sgn v there, a payload scales the
+   F and v terms from a moment on, a drift adds a growing constant.
+2. For a candidate region I the statistic is the Chow (Andrews sup-F) statistic of a break in
+   β between I and the rest, Λ_I = s_Iᵀ(G_I⁻¹ + G_O⁻¹)s_I / σ̂², with s_I = Σ_I c·r₀,
+   G_I = Σ_I ccᵀ, G_O the rest's, σ̂² the mean square of r₀: the misfit removed by letting I
+   have its own correction, in units of the residual variance. Candidates are on ``bins``
+   quantile bins of z: half-lines of v, |v|, F and |F| (a force or velocity effect sets in at a
+   level: clip, dead zone, stiction, drag), intervals and half-lines of x and t (a spot on the
+   rail, an episode), each side holding at least ``min_share`` of the points.
+3. Calibration: the maximum of Λ over each variable's candidates is compared with its maximum
+   on resampled residuals, the covariates kept: circular shifts of r₀'s series against x, v, F
+   (which keep the autocorrelation of both; under the null the residual process is
+   independent of the covariates' process), block permutations of the series for t (a shift
+   moves a time profile whole, so it cannot test one; blocks of a quarter second or 20 filter
+   time constants keep the residual's short-range dependence). The six variables' p-values
+   are combined by Westfall–Young's minP over the same resamples: the first region's p-value
+   is adjusted for every variable and every candidate (family-wise level ``alpha``).
+4. Several regions: the iterative scan (Zhang, Assunção & Kulldorff 2010): the accepted
+   region's points (and the filter's lag after them) are removed and the search runs again on
+   the rest with fresh resamples, until a step's adjusted p-value exceeds ``alpha``; p-values
+   are kept non-decreasing along the steps (step-down).
+5. A half-line split makes two regimes; the region is the side with fewer samples: the
+   record-wide fit follows the majority, so the minority side departs from it (by the least-
+   squares weights, the side holding a share π of the points departs by a factor (1 − π)/π
+   more). Edges are refined between the two bins next to each edge, at point resolution
+   (sample resolution when m = 1).
+6. Effect sizes: ``gap_share`` is the region's share of the baseline's misfit Σε₁² minus the
+   mean excess share (share − sample share) of the regions the search selects on the
+   resampled residuals: the selection's own bias, so that the worst slice is not overstated.
+
+No region is sought where the baseline already fits to the noise: when ``floor`` is given and
+ε₁'s RMS is at most ``floor_factor`` × ``floor`` (the diagnosis' "at the noise floor"), the
+answer is ``[]``. The misfit of encoder quantisation depends on the speed (resolved steps at low
+|v|, aliasing where the axis moves a whole number of counts per sample), and a test for regions
+correctly finds it there: it is structure of the measurement, not a gap of the model.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import NamedTuple
+
+import equinox as eqx
+import numpy as np
+
+from .._errors import InputError
+
+#: The variables searched, their units, and those searched for thresholds only.
+VARIABLES = ("x", "v", "|v|", "F", "|F|", "t")
+UNITS = {"x": "m", "v": "m/s", "|v|": "m/s", "F": "N", "|F|": "N", "t": "s"}
+THRESHOLD_ONLY = ("v", "|v|", "F", "|F|")
+#: the shortest block of the time permutation [s]
+BLOCK_S = 0.25
+_RIDGE = 1e-9
+
+
+class Region(eqx.Module):
+    """One region of the validation record where the dynamics depart from the rest.
+
+    Attributes:
+        variable: one of ``x``, ``v``, ``|v|``, ``F``, ``|F|``, ``t``.
+        low, high: the bounds [SI units: m, m/s, N, s; t in the validation record's own time];
+            ``None`` for an open side.
+        gap_share: the region's share of the baseline's validation misfit (Σ ε₁²), less the
+            selection's bias (see the module).
+        sample_share: its share of the validation samples.
+        p_value: adjusted for all variables, candidates and earlier steps.
+        stack_removes: 1 − Σε₁²(stack)/Σε₁²(baseline) over the region's samples: how far the
+            verdict's stack shrinks the misfit there (``None``: no stack given).
+        simulation_share: the region's share of the baseline's windowed-simulation error
+            (Σ e_sim²), or ``None``.
+        statistic: the Chow statistic Λ of the region (in residual variances).
+    """
+
+    variable: str
+    low: float | None
+    high: float | None
+    gap_share: float
+    sample_share: float
+    p_value: float
+    stack_removes: float | None
+    simulation_share: float | None
+    statistic: float
+
+    def mask(self, signals: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The samples of ``signals`` (t, x, v, F) the region covers: low ≤ z ≤ high."""
+        z = _covariate(self.variable, signals)
+        lo = -np.inf if self.low is None else self.low
+        hi = np.inf if self.high is None else self.high
+        return (z >= lo) & (z <= hi)
+
+    def to_json(self) -> dict:
+        return {
+            "variable": self.variable,
+            "low": self.low,
+            "high": self.high,
+            "units": UNITS[self.variable],
+            "gap_share": self.gap_share,
+            "sample_share": self.sample_share,
+            "p_value": self.p_value,
+            "stack_removes": self.stack_removes,
+            "simulation_share": self.simulation_share,
+            "statistic": self.statistic,
+        }
+
+    def describe(self) -> str:
+        """One line, e.g. ``|F| > 0.71 N: 24 % of samples, 68 % of the gap, p < 0.001; the
+        stack removes 81 % of it``."""
+        u, z = UNITS[self.variable], self.variable
+        if self.low is not None and self.high is not None:
+            where = f"{self.low:.3g} ≤ {z} ≤ {self.high:.3g} {u}"
+        elif self.low is not None:
+            where = f"{z} > {self.low:.3g} {u}"
+        else:
+            where = f"{z} < {self.high:.3g} {u}"
+        p = "p < 0.001" if self.p_value < 0.001 else f"p = {self.p_value:.3f}"
+        head = (
+            f"{where}: {100 * self.sample_share:.0f} % of samples, "
+            f"{100 * self.gap_share:.0f} % of the gap, {p}"
+        )
+        if self.stack_removes is None:
+            return f"{head}; no effect is stacked"
+        if self.stack_removes < 0:
+            return f"{head}; the stack adds {-100 * self.stack_removes:.0f} % to it"
+        return f"{head}; the stack removes {100 * self.stack_removes:.0f} % of it"
+
+
+def _covariate(name, s) -> np.ndarray:
+    if name in ("|v|", "|F|"):
+        return np.abs(np.asarray(s[name[1]], np.float64))
+    return np.asarray(s[name], np.float64)
+
+
+# ------------------------------------------------------------------------------------- input
+
+_REQUIRED = ("t", "x", "v", "F", "residual_base")
+#: the fewest samples a search needs: 20 points per side of the smallest region
+MIN_SAMPLES = 200
+
+
+def _validated(signals) -> dict[str, np.ndarray]:
+    """The signals as float64 arrays of one length T, checked."""
+    if not isinstance(signals, Mapping):
+        raise InputError(
+            "find_regions: argument 'signals' must be a mapping of arrays (t, x, v, F, "
+            f"residual_base; optionally residual_final, sim_base), got {type(signals).__name__}."
+        )
+    out = {}
+    for k in (*_REQUIRED, "residual_final", "sim_base"):
+        if k not in signals or signals[k] is None:
+            if k in _REQUIRED:
+                raise InputError(
+                    f"find_regions: signals lack {k!r}; expected the arrays t [s], x [m], "
+                    "v [m/s], F [N] and residual_base (ε₁ [m/s²]) of one length."
+                )
+            continue
+        a = np.asarray(signals[k], np.float64)
+        if a.ndim != 1:
+            raise InputError(f"find_regions: signals[{k!r}] must be 1-D, got shape {a.shape}.")
+        bad = np.flatnonzero(~np.isfinite(a))
+        if bad.size:
+            raise InputError(
+                f"find_regions: signals[{k!r}] holds {bad.size} non-finite values (first at "
+                f"sample {int(bad[0])}); remove or repair them before the search."
+            )
+        out[k] = a
+    T = out["t"].size
+    for k, a in out.items():
+        n_ok = a.size <= T if k == "sim_base" else a.size == T
+        if not n_ok:
+            raise InputError(
+                f"find_regions: signals[{k!r}] has {a.size} samples, t has {T}; pass arrays of "
+                "one length (sim_base may be shorter: the windowed simulation's whole windows)."
+            )
+    if T < MIN_SAMPLES:
+        raise InputError(f"find_regions: needs at least {MIN_SAMPLES} samples, got {T}.")
+    if not np.all(np.diff(out["t"]) > 0):
+        raise InputError("find_regions: signals['t'] must increase strictly (sample times [s]).")
+    return out
+
+
+# ------------------------------------------------------------------------------------- points
+
+
+def _block_means(a: np.ndarray, m: int) -> np.ndarray:
+    n = a.size // m * m
+    head = a[:n].reshape(-1, m).mean(1)
+    return np.append(head, a[n:].mean()) if n < a.size else head
+
+
+def _lowpass(u: np.ndarray, lam: float, h: float) -> np.ndarray:
+    """λ³/(s + λ)³ applied to u sampled every h [s] (causal; u held at u[0] before the start):
+    the kernel's mass over each sample interval, from the Gamma(3, λ) distribution function."""
+    K = int(math.ceil(15.0 / max(lam * h, 1e-12))) + 1
+    edges = np.concatenate([[0.0], (np.arange(K) + 0.5) * h]) * lam
+    cdf = 1.0 - np.exp(-edges) * (1.0 + edges + edges**2 / 2)
+    w = np.diff(cdf)
+    w /= w.sum()
+    pad = np.concatenate([np.full(K - 1, u[0]), u])
+    return np.convolve(pad, w, mode="valid")
+
+
+class _Points(NamedTuple):
+    """The search's data: block means of m samples (the last block may be shorter)."""
+
+    r: np.ndarray  # ε₁ [m/s²], (N,)
+    cols: np.ndarray  # 1, L[F], L[v], L[sgn v], L[sgn F], t (scaled), (N, 6)
+    z: dict  # variable name -> (N,) block means
+    m: int
+    h: float  # point spacing [s]
+    lag: int  # the filter's mean lag 3/λ, in points
+
+
+def _points(sig: dict, filter_hz: float, n_points: int) -> _Points:
+    T = sig["t"].size
+    m = max(1, -(-T // n_points))
+    dt = float(sig["t"][-1] - sig["t"][0]) / (T - 1)
+    h, lam = m * dt, 2 * math.pi * filter_hz
+    F, v = sig["F"], sig["v"]
+    raw = (F, v, np.sign(v), np.sign(F))
+    cols = [np.ones(-(-T // m))] + [_lowpass(_block_means(u, m), lam, h) for u in raw]
+    tt = _block_means(sig["t"], m)
+    cols.append((tt - tt.mean()) / max(float(np.ptp(tt)), 1e-300))
+    z = {name: _block_means(_covariate(name, sig), m) for name in VARIABLES}
+    lag = int(math.ceil(3.0 / lam / h))
+    return _Points(_block_means(sig["residual_base"], m), np.stack(cols, 1), z, m, h, lag)
+
+
+# ------------------------------------------------------------------------------------- search
+
+
+class _Candidates(NamedTuple):
+    """The candidate regions of one variable on the active points: bins [lo, hi) of ``bins``
+    quantile bins, with their A = G_I⁻¹ + G_O⁻¹ and point counts."""
+
+    b: np.ndarray  # bin of each active point, (N,)
+    edges: np.ndarray  # the bins' inner edges (bins − 1,)
+    lo: np.ndarray
+    hi: np.ndarray
+    A: np.ndarray  # (n_cand, k, k)
+    n: np.ndarray  # points in each candidate
+
+
+def _sym_inv(M: np.ndarray) -> np.ndarray:
+    k = M.shape[-1]
+    tr = np.trace(M, axis1=-2, axis2=-1)[..., None, None] / k
+    return np.linalg.inv(M + (_RIDGE * tr + 1e-300) * np.eye(k))
+
+
+def _candidates(z, C, name: str, bins: int, min_n: int) -> _Candidates:
+    edges = np.quantile(z, np.arange(1, bins) / bins)
+    b = np.searchsorted(edges, z, side="right")
+    lo, hi = (a.ravel() for a in np.triu_indices(bins + 1, 1))
+    keep = ~((lo == 0) & (hi == bins))
+    if name in THRESHOLD_ONLY:
+        keep &= (lo == 0) | (hi == bins)
+    counts = np.concatenate([[0], np.cumsum(np.bincount(b, minlength=bins))])
+    n = counts[hi] - counts[lo]
+    keep &= (n >= min_n) & (z.size - n >= min_n)
+    # a region is the minority regime: an interval inside the range holds at most half the
+    # points (a half-line is reported on its smaller side, see _flipped)
+    keep &= (lo == 0) | (hi == bins) | (2 * n <= z.size)
+    lo, hi, n = lo[keep], hi[keep], n[keep]
+    k = C.shape[1]
+    outer = (C[:, :, None] * C[:, None, :]).reshape(-1, k * k)
+    Gb = np.stack([np.bincount(b, outer[:, j], bins) for j in range(k * k)], 1)
+    Gc = np.concatenate([np.zeros((1, k * k)), np.cumsum(Gb, 0)]).reshape(-1, k, k)
+    GI = Gc[hi] - Gc[lo]
+    A = _sym_inv(GI) + _sym_inv(Gc[-1][None] - GI) if lo.size else np.zeros((0, k, k))
+    return _Candidates(b, edges, lo, hi, A, n)
+
+
+def _cumulative(S: np.ndarray) -> np.ndarray:
+    """Sums over bins (..., bins) → cumulative with a leading 0 (..., bins + 1)."""
+    return np.concatenate([np.zeros(S.shape[:-1] + (1,)), np.cumsum(S, -1)], -1)
+
+
+def _one_hot(b: np.ndarray, bins: int) -> np.ndarray:
+    M = np.zeros((b.size, bins))
+    M[np.arange(b.size), b] = 1.0
+    return M
+
+
+def _gains(Y0, s2, C, cand: _Candidates, bins: int) -> np.ndarray:
+    """Λ of every candidate for each row of the corrected residuals Y0 (R, N): (R, n_cand).
+    The bins' sums of c·r₀ for all rows and columns are one product Y0·[c ⊗ onehot]."""
+    k = C.shape[1]
+    M = (C[:, :, None] * _one_hot(cand.b, bins)[:, None, :]).reshape(C.shape[0], k * bins)
+    S = _cumulative((Y0 @ M).reshape(-1, k, bins))
+    SI = (S[:, :, cand.hi] - S[:, :, cand.lo]).transpose(2, 0, 1)  # (n_cand, R, k)
+    return ((SI @ cand.A) * SI).sum(-1).T / s2[:, None]
+
+
+def _shift_rows(rng, N: int, P: int) -> np.ndarray:
+    """P circular shifts of a series of N points, by at least N/20 either way."""
+    lo = max(1, N // 20)
+    sh = rng.integers(lo, N - lo + 1, P)
+    return (np.arange(N)[None, :] + sh[:, None]) % N
+
+
+def _block_rows(rng, N: int, P: int, L: int) -> np.ndarray:
+    """P permutations of blocks of L points, each from a random circular offset."""
+    K = -(-N // L)
+    out = np.empty((P, N), np.int64)
+    for i in range(P):
+        order = rng.permutation(K)
+        idx = (order[:, None] * L + np.arange(L)[None, :]).ravel()
+        out[i] = (idx[idx < N] + rng.integers(N)) % N
+    return out
+
+
+class _Found(NamedTuple):
+    """One step's winner on the active points (before the edges' refinement)."""
+
+    name: str
+    cand: _Candidates
+    c: int  # the winning candidate's index
+    statistic: float
+    p_value: float
+    bias: float  # the null's mean excess share of the selected region
+
+
+def _excess_share(Y, cand: _Candidates, best: np.ndarray, bins: int) -> np.ndarray:
+    """Per row of Y (R, N): share of Σy² in the row's selected candidate minus its point share,
+    the candidate taken on its minority side (as the region is reported)."""
+    E = _cumulative((Y * Y) @ _one_hot(cand.b, bins))
+    rows = np.arange(Y.shape[0])
+    inside = (E[rows, cand.hi[best]] - E[rows, cand.lo[best]]) / np.maximum(E[:, -1], 1e-300)
+    frac = cand.n[best] / cand.b.size
+    flip = _flipped(cand, best)
+    return np.where(flip, (1 - inside) - (1 - frac), inside - frac)
+
+
+def _flipped(cand: _Candidates, c) -> np.ndarray:
+    """Whether a candidate is reported as its complement: a half-line holding the majority."""
+    nb = cand.edges.size + 1
+    half = (cand.lo[c] == 0) | (cand.hi[c] == nb)
+    return half & (cand.n[c] > cand.b.size / 2)
+
+
+def _gumbel_p(x: np.ndarray, null: np.ndarray) -> np.ndarray:
+    """P(M ≥ x) for the maximum M of a scan, from a Gumbel law fitted by moments to its
+    resampled maxima ``null`` (P, V) (the approximation of Abrams, Kleinman & Kulldorff 2010 for
+    scan statistics: small p-values from few resamples)."""
+    beta = np.maximum(null.std(0), 1e-300) * math.sqrt(6.0) / math.pi
+    mu = null.mean(0) - 0.5772156649015329 * beta
+    return -np.expm1(-np.exp(-(x - mu) / beta))
+
+
+def _step(pts: _Points, active, rng, *, bins, P, min_share, block, alpha) -> _Found | None:
+    """The strongest candidate region on the active points and its adjusted p-value."""
+    idx = np.flatnonzero(active)
+    N = idx.size
+    r, C = pts.r[idx], pts.cols[idx]
+    k = C.shape[1]
+    min_n = max(k + 2, int(math.ceil(min_share * N)))
+    if N < 2 * min_n + 2:
+        return None
+    Ginv = _sym_inv(C.T @ C)
+    Y = np.concatenate([r[None], r[_shift_rows(rng, N, P)], r[_block_rows(rng, N, P, block)]])
+    Y0 = Y - ((Y @ C) @ Ginv) @ C.T
+    s2 = np.maximum((Y0 * Y0).mean(1), 1e-300)
+    obs, null, keep = np.full(len(VARIABLES), -np.inf), np.full((P, len(VARIABLES)), -np.inf), {}
+    for i, name in enumerate(VARIABLES):
+        cand = _candidates(pts.z[name][idx], C, name, bins, min_n)
+        if not cand.lo.size:
+            continue
+        rows = np.r_[0, (P + 1 + np.arange(P)) if name == "t" else 1 + np.arange(P)]
+        g = _gains(Y0[rows], s2[rows], C, cand, bins)
+        best = g.argmax(1)
+        obs[i], null[:, i] = g[0, best[0]], g[1:][np.arange(P), best[1:]]
+        bias = float(np.mean(_excess_share(Y[rows[1:]], cand, best[1:], bins)))
+        keep[name] = (cand, int(best[0]), bias)
+    if not keep:
+        return None
+    # each variable's p-value, adjusted over the variables (Šidák: their scans are positively
+    # dependent, so this is conservative)
+    p = -np.expm1(len(VARIABLES) * np.log1p(-np.minimum(_gumbel_p(obs, null), 1.0 - 1e-16)))
+    p[~np.isfinite(obs)] = 1.0
+    # the strongest region: of the significant ones, the one that explains the most misfit
+    sig = np.flatnonzero(p <= alpha)
+    i = int(sig[np.argmax(obs[sig])]) if sig.size else int(np.argmin(p))
+    cand, c, bias = keep[VARIABLES[i]]
+    return _Found(VARIABLES[i], cand, c, float(obs[i]), float(p[i]), bias)
+
+
+# ------------------------------------------------------------------------------------- edges
+
+
+def _refine(pts: _Points, active, found: _Found, min_share: float):
+    """The winner's edges, each moved to the best split between the two bins next to it (at
+    point resolution), as (low, high) values of the variable; the side with fewer points."""
+    idx = np.flatnonzero(active)
+    z, C, r = pts.z[found.name][idx], pts.cols[idx], pts.r[idx]
+    N, k = C.shape
+    r0 = r - C @ (_sym_inv(C.T @ C) @ (C.T @ r))
+    s2 = max(float(np.mean(r0 * r0)), 1e-300)
+    o = np.argsort(z, kind="stable")
+    zs, Cs = z[o], C[o]
+    cs = np.concatenate([np.zeros((1, k)), np.cumsum(Cs * r0[o][:, None], 0)])
+    cg = np.concatenate([np.zeros((1, k, k)), np.cumsum(Cs[:, :, None] * Cs[:, None, :], 0)])
+    pos = np.concatenate(
+        [[0], np.cumsum(np.bincount(found.cand.b, minlength=found.cand.edges.size + 1))]
+    )
+    min_n = max(k + 2, int(math.ceil(min_share * N)))
+
+    def gain(a, b):
+        G = cg[b] - cg[a]
+        A = _sym_inv(G) + _sym_inv(cg[-1][None] - G)
+        s = cs[b] - cs[a]
+        return np.einsum("ca,cab,cb->c", s, A, s) / s2
+
+    def best(fixed, moving, is_low):
+        j = found.cand.lo[found.c] if is_low else found.cand.hi[found.c]
+        span = np.arange(pos[max(j - 1, 0)], pos[min(j + 1, pos.size - 1)] + 1)
+        span = span[(span > 0) & (span < N)]
+        span = span[zs[span - 1] < zs[span]]  # a split between distinct values
+        a, b = (span, np.full_like(span, fixed)) if is_low else (np.full_like(span, fixed), span)
+        ok = (b - a >= min_n) & (N - (b - a) >= min_n)
+        if not ok.any():
+            return moving
+        g = gain(a[ok], b[ok])
+        return int(span[ok][np.argmax(g)])
+
+    a, b = int(pos[found.cand.lo[found.c]]), int(pos[found.cand.hi[found.c]])
+    if a > 0:
+        a = best(b, a, True)
+    if b < N:
+        b = best(a, b, False)
+    low = None if a == 0 else float((zs[a - 1] + zs[a]) / 2)
+    high = None if b == N else float((zs[b - 1] + zs[b]) / 2)
+    if (a == 0 or b == N) and b - a > N / 2:  # a half-line holding the majority: the other side
+        low, high = (high, None) if a == 0 else (None, low)
+    return low, high
+
+
+def _within(z: np.ndarray, low, high) -> np.ndarray:
+    return (z >= (-np.inf if low is None else low)) & (z <= (np.inf if high is None else high))
+
+
+def _region(sig: dict, found: _Found, low, high, p_value: float) -> Region:
+    """The region's shares over the validation samples."""
+    inside = _within(_covariate(found.name, sig), low, high)
+    e = sig["residual_base"] ** 2
+    raw = float(e[inside].sum() / max(e.sum(), 1e-300))
+    removes = None
+    if "residual_final" in sig:
+        ef = sig["residual_final"][inside] ** 2
+        removes = float(1.0 - ef.sum() / max(e[inside].sum(), 1e-300))
+    sim = None
+    if "sim_base" in sig and sig["sim_base"].size:
+        es = sig["sim_base"] ** 2
+        sim = float(es[inside[: es.size]].sum() / max(es.sum(), 1e-300))
+    return Region(
+        variable=found.name,
+        low=low,
+        high=high,
+        gap_share=float(np.clip(raw - found.bias, 0.0, 1.0)),
+        sample_share=float(np.mean(inside)),
+        p_value=p_value,
+        stack_removes=removes,
+        simulation_share=sim,
+        statistic=found.statistic,
+    )
+
+
+# ------------------------------------------------------------------------------------- entry
+
+
+def _check_settings(alpha, n_resamples, max_regions, bins, min_share, min_explained, n_points):
+    if not (isinstance(alpha, int | float) and 0 < alpha < 1):
+        raise InputError(
+            f"find_regions: expected 0 < alpha < 1 (a family-wise level), got {alpha!r}."
+        )
+    for name, val, least in (
+        ("n_resamples", n_resamples, 19),
+        ("max_regions", max_regions, 1),
+        ("bins", bins, 4),
+        ("n_points", n_points, 64),
+    ):
+        if not (isinstance(val, int) and val >= least):
+            raise InputError(f"find_regions: expected an integer {name} ≥ {least}, got {val!r}.")
+    if not 0 < min_share < 0.5:
+        raise InputError(f"find_regions: expected 0 < min_share < 0.5, got {min_share!r}.")
+    if not 0 <= min_explained < 1:
+        raise InputError(f"find_regions: expected 0 ≤ min_explained < 1, got {min_explained!r}.")
+
+
+def find_regions(
+    signals: Mapping[str, np.ndarray],
+    *,
+    alpha: float = 0.05,
+    seed: int = 0,
+    filter_hz: float | None = None,
+    min_explained: float = 0.05,
+    n_resamples: int = 199,
+    max_regions: int = 3,
+    bins: int = 32,
+    min_share: float = 0.05,
+    n_points: int = 2048,
+) -> list[Region]:
+    """The regions of the validation record where the dynamics depart from the rest, strongest
+    first, each significant at the family-wise level ``alpha`` (method: the module docstring).
+
+    Arguments:
+        signals: arrays of one length T: ``t`` [s], ``x`` [m], ``v`` [m/s], ``F`` [N] of the
+            validation record and ``residual_base`` (the baseline's ε₁ [m/s²]); optionally
+            ``residual_final`` (the stacked model's ε₁, for ``stack_removes``) and ``sim_base``
+            (the baseline's windowed-simulation error [m], ≤ T samples). Other keys are ignored.
+        alpha: the family-wise error rate over variables, candidates and steps.
+        seed: the resamples' seed (same inputs and seed, same answer).
+        filter_hz: the corner of ε₁'s filter [Hz] (default min(f_s/25, 40 Hz), the diagnosis').
+        min_explained: the least share of the misfit a region must explain (Λ/N: the mean
+            square its own correction removes over that of the record-wide one) to be reported.
+        n_resamples: resamples per step.
+        max_regions: the most regions reported.
+        bins: quantile bins of each variable (the candidates' grid before the edges' refinement).
+        min_share: the least share of the points on each side of a candidate.
+        n_points: the most points searched (ε₁ and the columns averaged over blocks of
+            ⌈T/n_points⌉ samples).
+
+    Returns:
+        a list of :class:`Region` (``[]``: no region is significant).
+    """
+    _check_settings(alpha, n_resamples, max_regions, bins, min_share, min_explained, n_points)
+    sig = _validated(signals)
+    dt = float(sig["t"][-1] - sig["t"][0]) / (sig["t"].size - 1)
+    fh = min(1.0 / (25.0 * dt), 40.0) if filter_hz is None else float(filter_hz)
+    if not (math.isfinite(fh) and fh > 0):
+        raise InputError(f"find_regions: expected filter_hz > 0, got {filter_hz!r}.")
+    pts = _points(sig, fh, n_points)
+    block = max(8, int(math.ceil(max(BLOCK_S, 20.0 / (2 * math.pi * fh)) / pts.h)))
+    rng = np.random.default_rng(seed)
+    active = np.ones(pts.r.size, bool)
+    out: list[Region] = []
+    for _ in range(max_regions):
+        n_active = int(np.count_nonzero(active))
+        found = _step(
+            pts,
+            active,
+            rng,
+            bins=bins,
+            P=n_resamples,
+            min_share=min_share,
+            block=block,
+            alpha=alpha,
+        )
+        if found is None:
+            break
+        p = max(found.p_value, out[-1].p_value) if out else found.p_value
+        if p > alpha or found.statistic < min_explained * n_active:
+            break
+        low, high = _refine(pts, active, found, min_share)
+        out.append(_region(sig, found, low, high, p))
+        gone = _within(pts.z[found.name], low, high)
+        # the filter carries an effect into ε₁ for about its mean lag after the region
+        for j in range(1, pts.lag + 1):
+            gone[j:] |= gone[:-j].copy()
+        active &= ~gone
+    return out
