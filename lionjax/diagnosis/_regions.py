@@ -55,6 +55,7 @@ from typing import NamedTuple
 
 import equinox as eqx
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .._errors import InputError
 
@@ -64,7 +65,6 @@ UNITS = {"x": "m", "v": "m/s", "|v|": "m/s", "F": "N", "|F|": "N", "t": "s"}
 THRESHOLD_ONLY = ("v", "|v|", "F", "|F|")
 #: the shortest block of the time permutation [s]
 BLOCK_S = 0.25
-_RIDGE = 1e-9
 
 
 class Region(eqx.Module):
@@ -96,11 +96,8 @@ class Region(eqx.Module):
     statistic: float
 
     def mask(self, signals: Mapping[str, np.ndarray]) -> np.ndarray:
-        """The samples of ``signals`` (t, x, v, F) the region covers: low ≤ z ≤ high."""
-        z = _covariate(self.variable, signals)
-        lo = -np.inf if self.low is None else self.low
-        hi = np.inf if self.high is None else self.high
-        return (z >= lo) & (z <= hi)
+        """The samples of ``signals`` (t, x, v, F) the region covers: low ≤ z < high."""
+        return _within(_covariate(self.variable, signals), self.low, self.high)
 
     def to_json(self) -> dict:
         return {
@@ -201,26 +198,35 @@ def _block_means(a: np.ndarray, m: int) -> np.ndarray:
     return np.append(head, a[n:].mean()) if n < a.size else head
 
 
-def _lowpass(u: np.ndarray, lam: float, h: float) -> np.ndarray:
-    """λ³/(s + λ)³ applied to u sampled every h [s] (causal; u held at u[0] before the start):
-    the kernel's mass over each sample interval, from the Gamma(3, λ) distribution function."""
+def _kernel(lam: float, h: float) -> np.ndarray:
+    """λ³/(s + λ)³ sampled every h [s]: its impulse response's mass over each sample interval,
+    from the Gamma(3, λ) distribution function (DC gain 1)."""
     K = int(math.ceil(15.0 / max(lam * h, 1e-12))) + 1
-    edges = np.concatenate([[0.0], (np.arange(K) + 0.5) * h]) * lam
-    cdf = 1.0 - np.exp(-edges) * (1.0 + edges + edges**2 / 2)
-    w = np.diff(cdf)
-    w /= w.sum()
-    pad = np.concatenate([np.full(K - 1, u[0]), u])
-    return np.convolve(pad, w, mode="valid")
+    x = np.concatenate([[0.0], (np.arange(K) + 0.5) * h]) * lam
+    w = np.diff(1.0 - np.exp(-x) * (1.0 + x + x**2 / 2))
+    return w / w.sum()
+
+
+def _filtered(U: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Each column of U (N, n) through the kernel w, causally, each held at its first value
+    before the start (an FFT convolution)."""
+    N, K = U.shape[0], w.size
+    n = 1 << int(math.ceil(math.log2(N + K)))
+    y = np.fft.irfft(np.fft.rfft(U, n, axis=0) * np.fft.rfft(w, n)[:, None], n, axis=0)[:N]
+    tail = 1.0 - np.cumsum(w)  # the kernel's mass on the samples before the start
+    return y + np.pad(tail, (0, max(0, N - K)))[:N, None] * U[:1]
 
 
 class _Points(NamedTuple):
     """The search's data: block means of m samples (the last block may be shorter)."""
 
     r: np.ndarray  # ε₁ [m/s²], (N,)
-    cols: np.ndarray  # 1, L[F], L[v], L[sgn v], L[sgn F], t (scaled), (N, 6)
+    raw: np.ndarray  # the columns before the filter: 1, F, v, sgn v, sgn F, t (scaled), (N, 6)
+    C: np.ndarray  # the columns through ε₁'s filter, (N, 6)
     z: dict  # variable name -> (N,) block means
-    m: int
+    w: np.ndarray  # ε₁'s filter at the points' spacing
     h: float  # point spacing [s]
+    lam: float  # the filter's λ [1/s]
     lag: int  # the filter's mean lag 3/λ, in points
 
 
@@ -229,58 +235,94 @@ def _points(sig: dict, filter_hz: float, n_points: int) -> _Points:
     m = max(1, -(-T // n_points))
     dt = float(sig["t"][-1] - sig["t"][0]) / (T - 1)
     h, lam = m * dt, 2 * math.pi * filter_hz
-    F, v = sig["F"], sig["v"]
-    raw = (F, v, np.sign(v), np.sign(F))
-    cols = [np.ones(-(-T // m))] + [_lowpass(_block_means(u, m), lam, h) for u in raw]
-    tt = _block_means(sig["t"], m)
-    cols.append((tt - tt.mean()) / max(float(np.ptp(tt)), 1e-300))
+    F, v, t = sig["F"], sig["v"], sig["t"]
+    tt = (t - t.mean()) / max(float(np.ptp(t)), 1e-300)
+    raw = np.stack([_block_means(u, m) for u in (np.ones(T), F, v, np.sign(v), np.sign(F), tt)], 1)
+    w = _kernel(lam, h)
     z = {name: _block_means(_covariate(name, sig), m) for name in VARIABLES}
     lag = int(math.ceil(3.0 / lam / h))
-    return _Points(_block_means(sig["residual_base"], m), np.stack(cols, 1), z, m, h, lag)
+    r = _block_means(sig["residual_base"], m)
+    return _Points(r, raw, _filtered(raw, w), z, w, h, lam, lag)
 
 
 # ------------------------------------------------------------------------------------- search
 
 
-class _Candidates(NamedTuple):
-    """The candidate regions of one variable on the active points: bins [lo, hi) of ``bins``
-    quantile bins, with their A = G_I⁻¹ + G_O⁻¹ and point counts."""
+class _Binned(NamedTuple):
+    """One variable's bins on the active points, with the columns gated to each bin before
+    ε₁'s filter, L[c·1_b]: an effect confined to a region enters ε₁ so (its misfit follows the
+    region's samples through the filter), and a region's columns are the sum over its bins."""
 
     b: np.ndarray  # bin of each active point, (N,)
-    edges: np.ndarray  # the bins' inner edges (bins − 1,)
+    edges: np.ndarray  # inner edges, (bins − 1,)
+    D: np.ndarray  # L[c·1_b] on the active points, (N, bins·k)
+    P2: np.ndarray  # prefix sums over (b, b') of DᵀD, (bins + 1, bins + 1, k, k)
+    PE: np.ndarray  # prefix sums over b of DᵀC, (bins + 1, k, k)
+    counts: np.ndarray  # prefix counts, (bins + 1,)
+
+
+def _binned(pts: _Points, idx: np.ndarray, z: np.ndarray, edges: np.ndarray) -> _Binned:
+    nb, k = edges.size + 1, pts.raw.shape[1]
+    b = np.searchsorted(edges, z, side="right")
+    U = np.zeros((pts.r.size, nb, k))
+    U[idx, b] = pts.raw[idx]  # inactive points gate no bin
+    D = _filtered(U.reshape(pts.r.size, nb * k), pts.w)[idx]
+    A = (D.T @ D).reshape(nb, k, nb, k).transpose(0, 2, 1, 3)
+    P2 = np.zeros((nb + 1, nb + 1, k, k))
+    P2[1:, 1:] = A.cumsum(0).cumsum(1)
+    PE = np.zeros((nb + 1, k, k))
+    PE[1:] = (D.T @ pts.C[idx]).reshape(nb, k, k).cumsum(0)
+    counts = np.concatenate([[0], np.cumsum(np.bincount(b, minlength=nb))])
+    return _Binned(b, edges, D, P2, PE, counts)
+
+
+def _schur_inverse(bn: _Binned, lo, hi, CtC: np.ndarray) -> np.ndarray:
+    """(D_Iᵀ M D_I)⁻¹ for each candidate I = bins [lo, hi), M the residual maker of the
+    record-wide columns C: the information of the region's own correction beyond C's."""
+    P2 = bn.P2
+    Q = P2[hi, hi] - P2[lo, hi] - P2[hi, lo] + P2[lo, lo]
+    E = bn.PE[hi] - bn.PE[lo]
+    return _sym_inv(Q - E @ _sym_inv(CtC) @ np.swapaxes(E, -1, -2))
+
+
+def _gains(Y0, s2, bn: _Binned, lo, hi, Qinv) -> np.ndarray:
+    """Λ_I = g_Iᵀ(D_IᵀMD_I)⁻¹g_I/σ̂², g_I = D_Iᵀr₀, for each row of Y0 (R, N): (R, n_cand)."""
+    nb, k = bn.edges.size + 1, Qinv.shape[-1]
+    G = _cumulative((Y0 @ bn.D).reshape(-1, nb, k).transpose(0, 2, 1))
+    g = (G[:, :, hi] - G[:, :, lo]).transpose(2, 0, 1)  # (n_cand, R, k)
+    return ((g @ Qinv) * g).sum(-1).T / s2[:, None]
+
+
+class _Candidates(NamedTuple):
+    """The candidate regions of one variable: bins [lo, hi), their inverses and point counts."""
+
+    bn: _Binned
     lo: np.ndarray
     hi: np.ndarray
-    A: np.ndarray  # (n_cand, k, k)
-    n: np.ndarray  # points in each candidate
+    Qinv: np.ndarray
+    n: np.ndarray
 
 
-def _sym_inv(M: np.ndarray) -> np.ndarray:
-    k = M.shape[-1]
-    tr = np.trace(M, axis1=-2, axis2=-1)[..., None, None] / k
-    return np.linalg.inv(M + (_RIDGE * tr + 1e-300) * np.eye(k))
-
-
-def _candidates(z, C, name: str, bins: int, min_n: int) -> _Candidates:
-    edges = np.quantile(z, np.arange(1, bins) / bins)
-    b = np.searchsorted(edges, z, side="right")
+def _candidates(pts, idx, name: str, bins: int, min_n: int, CtC) -> _Candidates:
+    z = pts.z[name][idx]
+    bn = _binned(pts, idx, z, np.quantile(z, np.arange(1, bins) / bins))
     lo, hi = (a.ravel() for a in np.triu_indices(bins + 1, 1))
     keep = ~((lo == 0) & (hi == bins))
     if name in THRESHOLD_ONLY:
         keep &= (lo == 0) | (hi == bins)
-    counts = np.concatenate([[0], np.cumsum(np.bincount(b, minlength=bins))])
-    n = counts[hi] - counts[lo]
+    n = bn.counts[hi] - bn.counts[lo]
     keep &= (n >= min_n) & (z.size - n >= min_n)
     # a region is the minority regime: an interval inside the range holds at most half the
     # points (a half-line is reported on its smaller side, see _flipped)
     keep &= (lo == 0) | (hi == bins) | (2 * n <= z.size)
     lo, hi, n = lo[keep], hi[keep], n[keep]
-    k = C.shape[1]
-    outer = (C[:, :, None] * C[:, None, :]).reshape(-1, k * k)
-    Gb = np.stack([np.bincount(b, outer[:, j], bins) for j in range(k * k)], 1)
-    Gc = np.concatenate([np.zeros((1, k * k)), np.cumsum(Gb, 0)]).reshape(-1, k, k)
-    GI = Gc[hi] - Gc[lo]
-    A = _sym_inv(GI) + _sym_inv(Gc[-1][None] - GI) if lo.size else np.zeros((0, k, k))
-    return _Candidates(b, edges, lo, hi, A, n)
+    return _Candidates(bn, lo, hi, _schur_inverse(bn, lo, hi, CtC), n)
+
+
+def _sym_inv(M: np.ndarray) -> np.ndarray:
+    k = M.shape[-1]
+    tr = np.trace(M, axis1=-2, axis2=-1)[..., None, None] / k
+    return np.linalg.inv(M + (1e-12 * tr + 1e-300) * np.eye(k))
 
 
 def _cumulative(S: np.ndarray) -> np.ndarray:
@@ -292,16 +334,6 @@ def _one_hot(b: np.ndarray, bins: int) -> np.ndarray:
     M = np.zeros((b.size, bins))
     M[np.arange(b.size), b] = 1.0
     return M
-
-
-def _gains(Y0, s2, C, cand: _Candidates, bins: int) -> np.ndarray:
-    """Λ of every candidate for each row of the corrected residuals Y0 (R, N): (R, n_cand).
-    The bins' sums of c·r₀ for all rows and columns are one product Y0·[c ⊗ onehot]."""
-    k = C.shape[1]
-    M = (C[:, :, None] * _one_hot(cand.b, bins)[:, None, :]).reshape(C.shape[0], k * bins)
-    S = _cumulative((Y0 @ M).reshape(-1, k, bins))
-    SI = (S[:, :, cand.hi] - S[:, :, cand.lo]).transpose(2, 0, 1)  # (n_cand, R, k)
-    return ((SI @ cand.A) * SI).sum(-1).T / s2[:, None]
 
 
 def _shift_rows(rng, N: int, P: int) -> np.ndarray:
@@ -331,24 +363,24 @@ class _Found(NamedTuple):
     statistic: float
     p_value: float
     bias: float  # the null's mean excess share of the selected region
+    explained: float  # Λ·σ̂²: the misfit (Σr₀²) the region's own correction removes
+    total: float  # Σr₀² over the active points
 
 
-def _excess_share(Y, cand: _Candidates, best: np.ndarray, bins: int) -> np.ndarray:
+def _excess_share(Y, cand: _Candidates, best: np.ndarray) -> np.ndarray:
     """Per row of Y (R, N): share of Σy² in the row's selected candidate minus its point share,
     the candidate taken on its minority side (as the region is reported)."""
-    E = _cumulative((Y * Y) @ _one_hot(cand.b, bins))
+    E = _cumulative((Y * Y) @ _one_hot(cand.bn.b, cand.bn.edges.size + 1))
     rows = np.arange(Y.shape[0])
     inside = (E[rows, cand.hi[best]] - E[rows, cand.lo[best]]) / np.maximum(E[:, -1], 1e-300)
-    frac = cand.n[best] / cand.b.size
-    flip = _flipped(cand, best)
-    return np.where(flip, (1 - inside) - (1 - frac), inside - frac)
+    frac = cand.n[best] / cand.bn.b.size
+    return np.where(_flipped(cand, best), frac - inside, inside - frac)
 
 
 def _flipped(cand: _Candidates, c) -> np.ndarray:
     """Whether a candidate is reported as its complement: a half-line holding the majority."""
-    nb = cand.edges.size + 1
-    half = (cand.lo[c] == 0) | (cand.hi[c] == nb)
-    return half & (cand.n[c] > cand.b.size / 2)
+    half = (cand.lo[c] == 0) | (cand.hi[c] == cand.bn.edges.size + 1)
+    return half & (cand.n[c] > cand.bn.b.size / 2)
 
 
 def _gumbel_p(x: np.ndarray, null: np.ndarray) -> np.ndarray:
@@ -360,95 +392,100 @@ def _gumbel_p(x: np.ndarray, null: np.ndarray) -> np.ndarray:
     return -np.expm1(-np.exp(-(x - mu) / beta))
 
 
-def _step(pts: _Points, active, rng, *, bins, P, min_share, block, alpha) -> _Found | None:
+def _step(pts: _Points, active, rng, cfg: _Settings, block: int) -> _Found | None:
     """The strongest candidate region on the active points and its adjusted p-value."""
     idx = np.flatnonzero(active)
-    N = idx.size
-    r, C = pts.r[idx], pts.cols[idx]
-    k = C.shape[1]
-    min_n = max(k + 2, int(math.ceil(min_share * N)))
+    N, P = idx.size, cfg.P
+    r, C = pts.r[idx], pts.C[idx]
+    min_n = max(2 * C.shape[1] + 2, int(math.ceil(cfg.min_share * N)))
     if N < 2 * min_n + 2:
         return None
-    Ginv = _sym_inv(C.T @ C)
+    CtC = C.T @ C
     Y = np.concatenate([r[None], r[_shift_rows(rng, N, P)], r[_block_rows(rng, N, P, block)]])
-    Y0 = Y - ((Y @ C) @ Ginv) @ C.T
+    Y0 = Y - ((Y @ C) @ _sym_inv(CtC)) @ C.T
     s2 = np.maximum((Y0 * Y0).mean(1), 1e-300)
     obs, null, keep = np.full(len(VARIABLES), -np.inf), np.full((P, len(VARIABLES)), -np.inf), {}
     for i, name in enumerate(VARIABLES):
-        cand = _candidates(pts.z[name][idx], C, name, bins, min_n)
+        cand = _candidates(pts, idx, name, cfg.bins, min_n, CtC)
         if not cand.lo.size:
             continue
+        # the observed row, then the variable's resamples: block permutations for t, else shifts
         rows = np.r_[0, (P + 1 + np.arange(P)) if name == "t" else 1 + np.arange(P)]
-        g = _gains(Y0[rows], s2[rows], C, cand, bins)
+        g = _gains(Y0[rows], s2[rows], cand.bn, cand.lo, cand.hi, cand.Qinv)
         best = g.argmax(1)
         obs[i], null[:, i] = g[0, best[0]], g[1:][np.arange(P), best[1:]]
-        bias = float(np.mean(_excess_share(Y[rows[1:]], cand, best[1:], bins)))
-        keep[name] = (cand, int(best[0]), bias)
+        keep[name] = (
+            cand,
+            int(best[0]),
+            float(np.mean(_excess_share(Y[rows[1:]], cand, best[1:]))),
+        )
     if not keep:
         return None
     # each variable's p-value, adjusted over the variables (Šidák: their scans are positively
     # dependent, so this is conservative)
-    p = -np.expm1(len(VARIABLES) * np.log1p(-np.minimum(_gumbel_p(obs, null), 1.0 - 1e-16)))
-    p[~np.isfinite(obs)] = 1.0
+    p = np.ones(len(VARIABLES))
+    on = np.isfinite(obs)
+    p_one = np.minimum(_gumbel_p(obs[on], null[:, on]), 1.0 - 1e-16)
+    p[on] = -np.expm1(len(VARIABLES) * np.log1p(-p_one))
     # the strongest region: of the significant ones, the one that explains the most misfit
-    sig = np.flatnonzero(p <= alpha)
+    sig = np.flatnonzero(p <= cfg.alpha)
     i = int(sig[np.argmax(obs[sig])]) if sig.size else int(np.argmin(p))
     cand, c, bias = keep[VARIABLES[i]]
-    return _Found(VARIABLES[i], cand, c, float(obs[i]), float(p[i]), bias)
+    total = float(s2[0]) * N
+    return _Found(VARIABLES[i], cand, c, float(obs[i]), float(p[i]), bias, obs[i] * s2[0], total)
 
 
 # ------------------------------------------------------------------------------------- edges
 
 
-def _refine(pts: _Points, active, found: _Found, min_share: float):
-    """The winner's edges, each moved to the best split between the two bins next to it (at
-    point resolution), as (low, high) values of the variable; the side with fewer points."""
+#: sub-bins of the two bins next to an edge, where the edge's refinement looks
+SUB_BINS = 16
+
+
+def _refine(pts: _Points, active, found: _Found):
+    """The winner's edges, each moved to the best of ``SUB_BINS`` quantile steps across the two
+    bins next to it, as (low, high) values of the variable, on the side with fewer points."""
     idx = np.flatnonzero(active)
-    z, C, r = pts.z[found.name][idx], pts.cols[idx], pts.r[idx]
-    N, k = C.shape
-    r0 = r - C @ (_sym_inv(C.T @ C) @ (C.T @ r))
-    s2 = max(float(np.mean(r0 * r0)), 1e-300)
-    o = np.argsort(z, kind="stable")
-    zs, Cs = z[o], C[o]
-    cs = np.concatenate([np.zeros((1, k)), np.cumsum(Cs * r0[o][:, None], 0)])
-    cg = np.concatenate([np.zeros((1, k, k)), np.cumsum(Cs[:, :, None] * Cs[:, None, :], 0)])
-    pos = np.concatenate(
-        [[0], np.cumsum(np.bincount(found.cand.b, minlength=found.cand.edges.size + 1))]
-    )
-    min_n = max(k + 2, int(math.ceil(min_share * N)))
-
-    def gain(a, b):
-        G = cg[b] - cg[a]
-        A = _sym_inv(G) + _sym_inv(cg[-1][None] - G)
-        s = cs[b] - cs[a]
-        return np.einsum("ca,cab,cb->c", s, A, s) / s2
-
-    def best(fixed, moving, is_low):
-        j = found.cand.lo[found.c] if is_low else found.cand.hi[found.c]
-        span = np.arange(pos[max(j - 1, 0)], pos[min(j + 1, pos.size - 1)] + 1)
-        span = span[(span > 0) & (span < N)]
-        span = span[zs[span - 1] < zs[span]]  # a split between distinct values
-        a, b = (span, np.full_like(span, fixed)) if is_low else (np.full_like(span, fixed), span)
-        ok = (b - a >= min_n) & (N - (b - a) >= min_n)
-        if not ok.any():
-            return moving
-        g = gain(a[ok], b[ok])
-        return int(span[ok][np.argmax(g)])
-
-    a, b = int(pos[found.cand.lo[found.c]]), int(pos[found.cand.hi[found.c]])
-    if a > 0:
-        a = best(b, a, True)
-    if b < N:
-        b = best(a, b, False)
-    low = None if a == 0 else float((zs[a - 1] + zs[a]) / 2)
-    high = None if b == N else float((zs[b - 1] + zs[b]) / 2)
-    if (a == 0 or b == N) and b - a > N / 2:  # a half-line holding the majority: the other side
-        low, high = (high, None) if a == 0 else (None, low)
-    return low, high
+    z, C, r = pts.z[found.name][idx], pts.C[idx], pts.r[idx]
+    CtC = C.T @ C
+    r0 = r - C @ (_sym_inv(CtC) @ (C.T @ r))
+    cand, nb = found.cand, found.cand.bn.edges.size + 1
+    edges = cand.bn.edges
+    lo, hi = int(cand.lo[found.c]), int(cand.hi[found.c])
+    bounds = [None if lo == 0 else edges[lo - 1], None if hi == nb else edges[hi - 1]]
+    for side, j in ((0, lo), (1, hi)):
+        if bounds[side] is None:  # an open end
+            continue
+        # the two bins next to the edge: between the edges either side of it
+        left = edges[j - 2] if j >= 2 else -np.inf
+        right = edges[j] if j < nb - 1 else np.inf
+        near = z[(z >= left) & (z < right)]
+        steps = np.quantile(near, np.arange(1, SUB_BINS) / SUB_BINS) if near.size else []
+        grid = np.unique(np.concatenate([np.delete(edges, j - 1), steps]))
+        bn = _binned(pts, idx, z, grid)
+        at = np.searchsorted(grid, steps) + 1  # each step as a bin boundary of the new grid
+        other = bounds[1 - side]
+        fixed = (
+            (0 if side == 1 else grid.size + 1)
+            if other is None
+            else np.searchsorted(grid, other) + 1
+        )
+        a_, b_ = (at, np.full_like(at, fixed)) if side == 0 else (np.full_like(at, fixed), at)
+        n = bn.counts[b_] - bn.counts[a_]
+        ok = (b_ > a_) & (n > 0) & (n < z.size)
+        if ok.any():
+            Qinv = _schur_inverse(bn, a_[ok], b_[ok], CtC)
+            s2 = np.array([max(float(np.mean(r0 * r0)), 1e-300)])
+            g = _gains(r0[None], s2, bn, a_[ok], b_[ok], Qinv)[0]
+            bounds[side] = float(np.asarray(steps)[ok][int(np.argmax(g))])
+    low, high = bounds
+    if _flipped(cand, found.c):  # a half-line holding the majority: the other side
+        low, high = (high, None) if low is None else (None, low)
+    return (None if low is None else float(low)), (None if high is None else float(high))
 
 
 def _within(z: np.ndarray, low, high) -> np.ndarray:
-    return (z >= (-np.inf if low is None else low)) & (z <= (np.inf if high is None else high))
+    return (z >= (-np.inf if low is None else low)) & (z < (np.inf if high is None else high))
 
 
 def _region(sig: dict, found: _Found, low, high, p_value: float) -> Region:
@@ -480,23 +517,36 @@ def _region(sig: dict, found: _Found, low, high, p_value: float) -> Region:
 # ------------------------------------------------------------------------------------- entry
 
 
-def _check_settings(alpha, n_resamples, max_regions, bins, min_share, min_explained, n_points):
-    if not (isinstance(alpha, int | float) and 0 < alpha < 1):
+class _Settings(NamedTuple):
+    alpha: float
+    min_explained: float
+    P: int  # resamples per step
+    max_regions: int
+    bins: int
+    min_share: float
+    n_points: int
+
+
+def _checked(cfg: _Settings) -> _Settings:
+    if not (isinstance(cfg.alpha, int | float) and 0 < cfg.alpha < 1):
         raise InputError(
-            f"find_regions: expected 0 < alpha < 1 (a family-wise level), got {alpha!r}."
+            f"find_regions: expected 0 < alpha < 1 (a family-wise level), got {cfg.alpha!r}."
         )
     for name, val, least in (
-        ("n_resamples", n_resamples, 19),
-        ("max_regions", max_regions, 1),
-        ("bins", bins, 4),
-        ("n_points", n_points, 64),
+        ("n_resamples", cfg.P, 19),
+        ("max_regions", cfg.max_regions, 1),
+        ("bins", cfg.bins, 4),
+        ("n_points", cfg.n_points, 64),
     ):
         if not (isinstance(val, int) and val >= least):
             raise InputError(f"find_regions: expected an integer {name} ≥ {least}, got {val!r}.")
-    if not 0 < min_share < 0.5:
-        raise InputError(f"find_regions: expected 0 < min_share < 0.5, got {min_share!r}.")
-    if not 0 <= min_explained < 1:
-        raise InputError(f"find_regions: expected 0 ≤ min_explained < 1, got {min_explained!r}.")
+    if not 0 < cfg.min_share < 0.5:
+        raise InputError(f"find_regions: expected 0 < min_share < 0.5, got {cfg.min_share!r}.")
+    if not 0 <= cfg.min_explained < 1:
+        raise InputError(
+            f"find_regions: expected 0 ≤ min_explained < 1, got {cfg.min_explained!r}."
+        )
+    return cfg
 
 
 def find_regions(
@@ -535,35 +585,37 @@ def find_regions(
     Returns:
         a list of :class:`Region` (``[]``: no region is significant).
     """
-    _check_settings(alpha, n_resamples, max_regions, bins, min_share, min_explained, n_points)
+    cfg = _checked(
+        _Settings(alpha, min_explained, n_resamples, max_regions, bins, min_share, n_points)
+    )
     sig = _validated(signals)
     dt = float(sig["t"][-1] - sig["t"][0]) / (sig["t"].size - 1)
-    fh = min(1.0 / (25.0 * dt), 40.0) if filter_hz is None else float(filter_hz)
-    if not (math.isfinite(fh) and fh > 0):
-        raise InputError(f"find_regions: expected filter_hz > 0, got {filter_hz!r}.")
-    pts = _points(sig, fh, n_points)
-    block = max(8, int(math.ceil(max(BLOCK_S, 20.0 / (2 * math.pi * fh)) / pts.h)))
-    rng = np.random.default_rng(seed)
+    fh = min(1.0 / (25.0 * dt), 40.0) if filter_hz is None else filter_hz
+    if not (isinstance(fh, int | float) and math.isfinite(fh) and fh > 0):
+        raise InputError(f"find_regions: expected filter_hz > 0 [Hz], got {filter_hz!r}.")
+    # the search's products are thin (resamples × points by a few hundred columns): one BLAS
+    # thread computes them fastest, and more contend with the host's other work
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _search(_points(sig, float(fh), n_points), sig, np.random.default_rng(seed), cfg)
+
+
+def _search(pts: _Points, sig: dict, rng, cfg: _Settings) -> list[Region]:
+    """The iterative search: a region per step while one is significant."""
+    block = max(8, int(math.ceil(max(BLOCK_S, 20.0 / pts.lam) / pts.h)))
     active = np.ones(pts.r.size, bool)
     out: list[Region] = []
-    for _ in range(max_regions):
-        n_active = int(np.count_nonzero(active))
-        found = _step(
-            pts,
-            active,
-            rng,
-            bins=bins,
-            P=n_resamples,
-            min_share=min_share,
-            block=block,
-            alpha=alpha,
-        )
+    total = None
+    for _ in range(cfg.max_regions):
+        found = _step(pts, active, rng, cfg, block)
         if found is None:
             break
+        total = found.total if total is None else total
         p = max(found.p_value, out[-1].p_value) if out else found.p_value
-        if p > alpha or found.statistic < min_explained * n_active:
+        # a region explains at least min_explained of the record's misfit (after the
+        # record-wide correction): later steps count against the first step's whole
+        if p > cfg.alpha or found.explained < cfg.min_explained * total:
             break
-        low, high = _refine(pts, active, found, min_share)
+        low, high = _refine(pts, active, found)
         out.append(_region(sig, found, low, high, p))
         gone = _within(pts.z[found.name], low, high)
         # the filter carries an effect into ε₁ for about its mean lag after the region
