@@ -166,7 +166,7 @@ def test_cli_line():
     )
     line = _region(variable="x", low=0.12, high=0.35, p_value=0.0123, stack_removes=None)
     assert line.describe() == (
-        "0.12 ≤ x ≤ 0.35 m: 24 % of samples, 68 % of the gap, p = 0.012; no effect is stacked"
+        "0.12 ≤ x < 0.35 m: 24 % of samples, 68 % of the gap, p = 0.012; no effect is stacked"
     )
     line = _region(variable="t", low=None, high=2.5, stack_removes=-0.25)
     assert line.describe().startswith("t < 2.5 s: ")
