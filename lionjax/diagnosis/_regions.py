@@ -235,7 +235,7 @@ class _Points(NamedTuple):
 
     r: np.ndarray  # ε₁ [m/s²], (N,)
     raw: np.ndarray  # the columns before the filter: 1, F, v, sgn v, sgn F, t (scaled), (N, 6)
-    C: np.ndarray  # the columns through ε₁'s filter, (N, 6)
+    C: np.ndarray  # the columns through ε₁'s filter and its three free responses, (N, 9)
     z: dict  # variable name -> (N,) block means
     w: np.ndarray  # ε₁'s filter at the points' spacing
     h: float  # point spacing [s]
@@ -255,7 +255,11 @@ def _points(sig: dict, filter_hz: float, n_points: int) -> _Points:
     z = {name: _block_means(_covariate(name, sig), m) for name in VARIABLES}
     lag = int(math.ceil(3.0 / lam / h))
     r = _block_means(sig["residual_base"], m)
-    return _Points(r, raw, _filtered(raw, w), z, w, h, lam, lag)
+    # the filter's free responses (λt)ʲ/j!·e^(−λt), j = 0, 1, 2: ε₁'s start from the filter's
+    # initial state, which the diagnosis fits and no region should
+    lt = lam * _block_means(t - t[0], m)
+    free = np.stack([lt**j / math.factorial(j) * np.exp(-lt) for j in range(3)], 1)
+    return _Points(r, raw, np.concatenate([_filtered(raw, w), free], 1), z, w, h, lam, lag)
 
 
 # ------------------------------------------------------------------------------------- search
@@ -270,7 +274,7 @@ class _Binned(NamedTuple):
     edges: np.ndarray  # inner edges, (bins − 1,)
     D: np.ndarray  # L[c·1_b] on the active points, (N, bins·k)
     P2: np.ndarray  # prefix sums over (b, b') of DᵀD, (bins + 1, bins + 1, k, k)
-    PE: np.ndarray  # prefix sums over b of DᵀC, (bins + 1, k, k)
+    PE: np.ndarray  # prefix sums over b of DᵀC, (bins + 1, k, columns of C)
     counts: np.ndarray  # prefix counts, (bins + 1,)
 
 
@@ -283,8 +287,9 @@ def _binned(pts: _Points, idx: np.ndarray, z: np.ndarray, edges: np.ndarray) -> 
     A = (D.T @ D).reshape(nb, k, nb, k).transpose(0, 2, 1, 3)
     P2 = np.zeros((nb + 1, nb + 1, k, k))
     P2[1:, 1:] = A.cumsum(0).cumsum(1)
-    PE = np.zeros((nb + 1, k, k))
-    PE[1:] = (D.T @ pts.C[idx]).reshape(nb, k, k).cumsum(0)
+    kc = pts.C.shape[1]
+    PE = np.zeros((nb + 1, k, kc))
+    PE[1:] = (D.T @ pts.C[idx]).reshape(nb, k, kc).cumsum(0)
     counts = np.concatenate([[0], np.cumsum(np.bincount(b, minlength=nb))])
     return _Binned(b, edges, D, P2, PE, counts)
 
@@ -410,7 +415,7 @@ def _step(pts: _Points, active, rng, cfg: _Settings, block: int) -> _Found | Non
     idx = np.flatnonzero(active)
     N, P = idx.size, cfg.P
     r, C = pts.r[idx], pts.C[idx]
-    min_n = max(2 * C.shape[1] + 2, int(math.ceil(cfg.min_share * N)))
+    min_n = max(2 * pts.raw.shape[1] + 2, int(math.ceil(cfg.min_share * N)))
     if N < 2 * min_n + 2:
         return None
     CtC = C.T @ C
