@@ -23,11 +23,15 @@ region's share of the clean validation record's samples, uniform in :data:`SHARE
     drift           a force r·(t − t_r)₊ on the axis from t_r = (1 − p)·T on
                     the validation record (train has none)                    t ≥ t_r
 
-Saturation and the dead zone are hard maps; their size follows from p (the region is the size).
-The others' strength s (F_c = s·F_rms; α = ±s; μ = s; r·(T − t_r) = ±s·F_rms) is sized so that
-the response change c = ‖v − v₀‖/‖v₀‖ of the validation record (v its true velocity, v₀ the same
-run without the effect) lies in :data:`BAND`: drawn from its prior up to four times, then
-bisected in log s (eight more tries); a case whose size stays outside is kept and flagged.
+The level that bounds a region (F_max, d, x₁ and x₂, x_b) is set from the quantiles of the
+record with the effect, re-anchored twice (an effect moves x and, in closed loop, F), so that the
+region holds p of its samples; a draw whose region ends outside :data:`TRUE_SHARE` or whose size
+misses the band is drawn again (up to :data:`DRAWS` times, then kept and flagged). Saturation and
+the dead zone are hard maps; their size follows from p. The others' strength s (F_c = s·F_rms;
+α = ±s; μ = s; r·(T − t_r) = ±s·F_rms) is sized so that the response change
+c = ‖v − v₀‖/‖v₀‖ of the validation record (v its true velocity, v₀ the same run without the
+effect) lies in :data:`BAND`: drawn from its prior up to four times, then bisected in log s
+(eight more tries).
 
 The twin has no time-varying effect and no position-gated friction, so its payload is simulated
 in two pieces (the second, with a and b scaled, starting from the true state at t_p; in closed
@@ -37,7 +41,8 @@ with a clock state, and its friction spot is a smooth friction F_c·tanh(ẋ/ε)
 friction gated by position, a and b switched at the sample t_p, the drift held per sample).
 
 A reported region covers the samples of the validation record whose variable lies in
-[low, high]. Scores (IoU on the validation samples, mask against mask):
+[low, high] (read from the JSON alone, ends included). Scores (IoU on the validation samples,
+mask against mask):
 
 - hit: some reported region has IoU ≥ 0.5 with the true region (also given: the strongest one
   does);
