@@ -89,13 +89,15 @@ class Region(eqx.Module):
             ``None`` for an open side.
         gap_share: the region's share of the baseline's validation misfit (Σ ε₁²), less the
             selection's bias (see the module).
-        sample_share: its share of the validation samples.
+        sample_share: its share of the validation samples. The shares of a later region count
+            the samples the earlier regions leave (the search's later steps run on those).
         p_value: adjusted for all variables, candidates and earlier steps.
         stack_removes: 1 − Σε₁²(stack)/Σε₁²(baseline) over the region's samples: how far the
             verdict's stack shrinks the misfit there (``None``: no stack given).
         simulation_share: the region's share of the baseline's windowed-simulation error
             (Σ e_sim²), or ``None``.
-        statistic: the Chow statistic Λ of the region (in residual variances).
+        statistic: the region's Lagrange-multiplier (Chow) statistic Λ: the misfit its own
+            correction removes, in residual variances.
     """
 
     variable: str
@@ -113,6 +115,7 @@ class Region(eqx.Module):
         return _within(_covariate(self.variable, signals), self.low, self.high)
 
     def to_json(self) -> dict:
+        """The JSON fields (``units`` added: SI, of ``variable``)."""
         return {
             "variable": self.variable,
             "low": self.low,
