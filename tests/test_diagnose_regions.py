@@ -114,6 +114,10 @@ def test_stack_removes_and_simulation_share():
     assert r.stack_removes == pytest.approx(1 - 0.09)
     m = r.mask(s)[:-10]
     assert r.simulation_share == pytest.approx(e[:-10][m].sum() / e[:-10].sum())
+    # a diverged simulation (overflowed) has no share; the regions are the same
+    s["sim_base"] = np.where(np.arange(s["sim_base"].size) == 5, np.inf, s["sim_base"])
+    (d, *_) = find_regions(s, n_resamples=99)
+    assert d.simulation_share is None and (d.low, d.high) == (r.low, r.high)
 
 
 def test_deterministic_and_pure():

@@ -103,9 +103,16 @@ def points(sig: dict, filter_hz: float, n_points: int) -> Points:
     t, T = sig["t"], sig["t"].size
     m = max(1, -(-T // n_points))
     h, lam = m * (float(t[-1] - t[0]) / (T - 1)), 2 * math.pi * filter_hz
-    tt = (t - t.mean()) / max(float(np.ptp(t)), 1e-300)
-    cols = (np.ones(T), sig["F"], sig["v"], np.sign(sig["v"]), np.sign(sig["F"]), tt)
-    raw = np.stack([_block_means(u, m) for u in cols], 1)
+    F, v, span = sig["F"], sig["v"], max(float(np.ptp(t)), 1e-300)
+    means = (  # one (T,) temporary at a time: a long record's signals are large
+        _block_means(np.ones(T), m),
+        _block_means(F, m),
+        _block_means(v, m),
+        _block_means(np.sign(v), m),
+        _block_means(np.sign(F), m),
+        _block_means((t - t.mean()) / span, m),
+    )
+    raw = np.stack(means, 1)
     w = _kernel(lam, h)
     lt = lam * _block_means(t - t[0], m)
     free = np.stack([lt**j / math.factorial(j) * np.exp(-lt) for j in range(3)], 1)

@@ -122,7 +122,8 @@ def find_regions(
         signals: arrays of one length T: ``t`` [s], ``x`` [m], ``v`` [m/s], ``F`` [N] of the
             validation record and ``residual_base`` (the baseline's ε₁ [m/s²]); optionally
             ``residual_final`` (the stacked model's ε₁, for ``stack_removes``) and ``sim_base``
-            (the baseline's windowed-simulation error [m], ≤ T samples). Other keys are ignored.
+            (the baseline's windowed-simulation error [m], ≤ T samples; ignored where it is not
+            finite: a diverged simulation). Other keys are ignored.
         alpha: the family-wise error rate over variables, candidates and steps.
         seed: the resamples' seed (the same inputs and seed give the same answer).
         filter_hz: the corner of ε₁'s filter [Hz] (default min(f_s/25, 40 Hz), the diagnosis').
@@ -176,7 +177,8 @@ _REQUIRED = ("t", "x", "v", "F", "residual_base")
 
 
 def _validated(signals) -> dict[str, np.ndarray]:
-    """The signals as float64 arrays, checked: finite, 1-D, of one length T (sim_base ≤ T)."""
+    """The signals as float64 arrays, checked: finite, 1-D, of one length T (sim_base ≤ T, or
+    left out where it is not finite)."""
     if not isinstance(signals, Mapping):
         raise InputError(
             "find_regions: argument 'signals' must be a mapping of arrays (t, x, v, F, "
@@ -194,6 +196,9 @@ def _validated(signals) -> dict[str, np.ndarray]:
             continue
         a = out[k] = np.asarray(signals[k], np.float64)
         bad = np.flatnonzero(~np.isfinite(a))
+        if k == "sim_base" and bad.size:  # a diverged simulation: no simulation_share
+            del out[k]
+            continue
         if a.ndim != 1:
             raise InputError(f"find_regions: signals[{k!r}] must be 1-D, got shape {a.shape}.")
         if bad.size:
