@@ -68,7 +68,11 @@ P_CQ = 26  # quadratic drag c₂ [N·s²/m²]
 P_LA, P_LF, P_LP = 27, 28, 29  # force-sensor line: amplitude [N], f₀ [Hz], phase [rad]
 P_LA2, P_LP2, P_LA3, P_LP3 = 30, 31, 32, 33  # its 2nd and 3rd harmonic: amplitude [N], phase
 P_DRIFT = 34  # force-sensor drift rate [N/s]
-N_P = 35
+P_FX1, P_FX2 = 35, 36  # friction acts only for x in [x1, x2] [m] (with F_FGATE)
+P_KAPPA, P_TP = 37, 38  # payload: a, b scaled by κ from time t_p [s] on (with F_TIME)
+P_RAMP, P_TR = 39, 40  # device force drift: r·(t − t_r)₊ [N], r [N/s], t_r [s] (with F_TIME)
+P_TSCALE, P_TFORCE = 41, 42  # the kernel's current κ (1 before t_p) and drift force [N]
+N_P = 43
 # integer flags f[...]
 F_FRIC = 0  # 0 none, 1 Stribeck–Coulomb, 2 LuGre, 3 Dahl, 4 asymmetric
 F_PSHAPE = 1  # 0 none, 1 tanh, 2 bowl, 3 algebraic sigmoid
@@ -76,7 +80,9 @@ F_SAT = 2  # 0 none, 1 hard, 2 soft (tanh)
 F_BODY2 = 3  # 0 none, 1 flexible mode, 2 backlash (load through a gap)
 F_MEAS2 = 4  # 1: the sensor reads the second body (non-collocated)
 F_FSENS = 5  # 1: the force sensor adds a line and/or a drift to the logged force
-N_F = 6
+F_FGATE = 6  # 1: the switched friction acts only for x in [P_FX1, P_FX2]
+F_TIME = 7  # 1: a payload and/or a device force drift, switched per sample (P_KAPPA … P_TR)
+N_F = 8
 # state y = (x, ẋ, z, x₂, ẋ₂): z the friction state (LuGre bristle [m] / Dahl force [N])
 N_Y = 5
 
@@ -91,6 +97,8 @@ def _shape(flags, p, x):
         return math.tanh(d)
     if s == 2:
         return 1.0 - math.exp(-d * d)
+    if s == 4:  # one boundary at x_c: 0 on the side L points away from, 1 on the other
+        return 1.0 if d > 0.0 else 0.0
     return d / math.sqrt(1.0 + d * d)
 
 
@@ -98,7 +106,7 @@ def _shape(flags, p, x):
 def _smooth_force(flags, p, y, u):
     """u + every force on the driven mass except friction and viscous damping [N]."""
     x = y[0]
-    f = u + p[P_F0] - p[P_K] * (x - p[P_XK])
+    f = u + p[P_F0] - p[P_K] * (x - p[P_XK]) + p[P_TFORCE]
     if p[P_CA] != 0.0:
         f += p[P_CA] * math.sin(2.0 * math.pi * x / p[P_CP] + p[P_CPHI])
     body2 = flags[F_BODY2]
@@ -124,9 +132,10 @@ def _gap_force(p, e, de):
 def _rhs(flags, p, y, u, s, out):
     x, v = y[0], y[1]
     w = _shape(flags, p, x)
-    a = p[P_A] * (1.0 + p[P_AA] * w)
-    b = p[P_B] * (1.0 + p[P_AB] * w)
+    a = p[P_A] * (1.0 + p[P_AA] * w) * p[P_TSCALE]
+    b = p[P_B] * (1.0 + p[P_AB] * w) * p[P_TSCALE]
     f = _smooth_force(flags, p, y, u)
+    g = _gate(flags, p, x)
     if p[P_CQ] != 0.0:  # quadratic drag (0 at rest, so it never enters the break-away test)
         f -= p[P_CQ] * v * abs(v)
     kind = flags[F_FRIC]
@@ -136,15 +145,15 @@ def _rhs(flags, p, y, u, s, out):
             f = 0.0
             v = 0.0
         else:
-            f -= s * (p[P_R1] + (p[P_R2] - p[P_R1]) * math.exp(-((v / p[P_R3]) ** 2)))
+            f -= g * s * (p[P_R1] + (p[P_R2] - p[P_R1]) * math.exp(-((v / p[P_R3]) ** 2)))
     elif kind == 4:  # asymmetric, switched
         if s == 0:
             f = 0.0
             v = 0.0
         elif s > 0:
-            f -= p[P_R1] + p[P_R3] * v
+            f -= g * (p[P_R1] + p[P_R3] * v)
         else:
-            f += p[P_R2] - p[P_R4] * v
+            f += g * (p[P_R2] - p[P_R4] * v)
     elif kind == 2:  # LuGre: z bristle deflection [m]
         g = p[P_R1] + (p[P_R2] - p[P_R1]) * math.exp(-((v / p[P_R3]) ** 2))
         dz = v - p[P_R4] * abs(v) * y[2] / g
@@ -169,6 +178,14 @@ def _rhs(flags, p, y, u, s, out):
 
 
 @njit(cache=True)
+def _gate(flags, p, x):
+    """1 where the switched friction acts (everywhere, or on [x1, x2] with F_FGATE), else 0."""
+    if flags[F_FGATE] == 0:
+        return 1.0
+    return 1.0 if p[P_FX1] <= x <= p[P_FX2] else 0.0
+
+
+@njit(cache=True)
 def _rk4(flags, p, y, u, s, h, k1, k2, k3, k4, tmp, out):
     _rhs(flags, p, y, u, s, k1)
     for i in range(N_Y):
@@ -188,10 +205,11 @@ def _rk4(flags, p, y, u, s, h, k1, k2, k3, k4, tmp, out):
 def _breakaway(flags, p, y, u):
     """New direction from rest: +1/−1 if the net force breaks away, else 0 (stuck)."""
     fo = _smooth_force(flags, p, y, u)
+    g = _gate(flags, p, y[0])
     if flags[F_FRIC] == 1:
-        up, dn = p[P_R2], p[P_R2]
+        up, dn = g * p[P_R2], g * p[P_R2]
     else:
-        up, dn = p[P_R1], p[P_R2]
+        up, dn = g * p[P_R1], g * p[P_R2]
     if fo > up:
         return 1
     if fo < -dn:
@@ -267,6 +285,9 @@ def _sensor_force(flags, p, Fk, t):
 @njit(cache=True)
 def _kernel(flags, p, exc, noise, dt, x0, v0, q, closed, kp, kd, alpha_v, x_ref, lam, lam_v):
     T = exc.shape[0]
+    p = p.copy()  # P_TSCALE, P_TFORCE change per sample (F_TIME)
+    p[P_TSCALE] = 1.0
+    p[P_TFORCE] = 0.0
     xm = np.empty(T)
     Fc = np.empty(T)
     Flog = np.empty(T)
@@ -311,6 +332,10 @@ def _kernel(flags, p, exc, noise, dt, x0, v0, q, closed, kp, kd, alpha_v, x_ref,
         u_log[k] = u2 if phi == 0.0 else u1
         if k == T - 1:
             break
+        if flags[F_TIME] == 1:  # held over the interval, as the command is
+            tk = k * dt
+            p[P_TSCALE] = p[P_KAPPA] if tk >= p[P_TP] else 1.0
+            p[P_TFORCE] = p[P_RAMP] * max(tk + 0.5 * dt - p[P_TR], 0.0)
         # sub-steps: smooth rate λ (h·λ ≤ 0.05) and the friction-state rate λ_v·|v| (h·rate ≤ 1)
         rate = max(lam / 0.05, lam_v * 2.0 * max(abs(y[1]), abs(y[4])))
         n_sub = max(2, int(math.ceil(dt * rate)))
@@ -553,6 +578,7 @@ class PositionDependence(Effect):
 
         a(x) = a·(1 + α_a·w(x)),   b(x) = b·(1 + α_b·w(x)),   d = (x − x_c)/L,
         w = tanh d ("tanh"), 1 − exp(−d²) ("bowl", even in d), d/√(1 + d²) ("algebraic"),
+    [d > 0] ("step": one boundary at x_c, the coefficients changed on the side L points to),
 
     |w| ≤ 1 so |α| < 1 keeps a, b > 0. Attributes: alpha_a, alpha_b; length L [m] > 0;
     center x_c [m]; shape.
@@ -566,11 +592,62 @@ class PositionDependence(Effect):
     name = "position"
 
     def fill(self, p, flags, axis):
-        flags[F_PSHAPE] = {"tanh": 1, "bowl": 2, "algebraic": 3}[self.shape]
+        flags[F_PSHAPE] = {"tanh": 1, "bowl": 2, "algebraic": 3, "step": 4}[self.shape]
         p[P_AA], p[P_AB], p[P_L], p[P_XC] = self.alpha_a, self.alpha_b, self.length, self.center
 
     def rate(self, axis):
         return axis.a * (1 + abs(self.alpha_a)), 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class FrictionSpot(Effect):
+    """Coulomb friction on part of the rail only (a rough spot), exact sign and stick–slip:
+
+        F_fr = −sgn(ẋ)·F_c·[x₁ ≤ x ≤ x₂]   for ẋ ≠ 0,   stuck while |F_net,other| ≤ F_c there,
+
+    (the Stribeck kernel with F_s = F_c, gated by the position). Attributes: fc = F_c [N] > 0,
+    x1 < x2 [m].
+    """
+
+    fc: float
+    x1: float
+    x2: float
+    name = "friction_spot"
+
+    def fill(self, p, flags, axis):
+        flags[F_FRIC], flags[F_FGATE] = 1, 1
+        p[P_R1], p[P_R2], p[P_R3] = self.fc, self.fc, 1.0
+        p[P_FX1], p[P_FX2] = self.x1, self.x2
+
+
+@dataclasses.dataclass(frozen=True)
+class Payload(Effect):
+    """A payload m = μ·M fixed to the axis from time t_p [s] on (the record's own time, t = k·dt):
+    from the first sample at or after t_p, a and b are scaled by κ = 1/(1 + μ) (the viscous
+    coefficient C stays: a = C/(M + m), b = 1/(M + m)). Attributes: mass_ratio μ > 0, t_p."""
+
+    mass_ratio: float
+    t_p: float
+    name = "payload"
+
+    def fill(self, p, flags, axis):
+        flags[F_TIME] = 1
+        p[P_KAPPA], p[P_TP] = 1.0 / (1.0 + self.mass_ratio), self.t_p
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceDrift(Effect):
+    """A force on the axis that drifts from time t_r [s] on: adds r·(t − t_r)₊ [N] (held per
+    sample interval at its mid-point value); r [N/s], either sign (a cable's pull or a
+    thermal offset that creeps)."""
+
+    rate_n_per_s: float
+    t_r: float
+    name = "device_drift"
+
+    def fill(self, p, flags, axis):
+        flags[F_TIME] = 1
+        p[P_RAMP], p[P_TR] = self.rate_n_per_s, self.t_r
 
 
 @dataclasses.dataclass(frozen=True)
@@ -757,18 +834,22 @@ def compile_axis(axis: Axis):
     p = np.zeros(N_P)
     flags = np.zeros(N_F, np.int64)
     p[P_A], p[P_B] = axis.a, axis.b
+    p[P_KAPPA] = 1.0  # no payload unless one sets it
     lam, lam_v = abs(axis.a), 0.0
     names = [e.name for e in axis.effects]
     fr = [
         e
         for e in axis.effects
-        if isinstance(e, StribeckFriction | LuGreFriction | DahlFriction | AsymmetricFriction)
+        if isinstance(
+            e,
+            StribeckFriction | LuGreFriction | DahlFriction | AsymmetricFriction | FrictionSpot,
+        )
     ]
     if len(fr) > 1 or sum(isinstance(e, FlexibleMode | Backlash) for e in axis.effects) > 1:
         raise ValueError(f"at most one friction and one second body, got {names}")
     if sum(isinstance(e, HardSaturation | SoftSaturation) for e in axis.effects) > 1:
         raise ValueError(f"at most one saturation, got {names}")
-    for kind in (QuadraticDrag, ForceSensorLine, ForceSensorDrift):
+    for kind in (QuadraticDrag, ForceSensorLine, ForceSensorDrift, Payload, DeviceDrift):
         if sum(isinstance(e, kind) for e in axis.effects) > 1:
             raise ValueError(f"at most one {kind.name}, got {names}")
     # the mass split first: it rewrites a, b that the position dependence then modulates

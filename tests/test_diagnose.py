@@ -64,10 +64,23 @@ def test_json_contract(emps):
     assert "gap" in j["final"] and "Fc" in j["final"]
     kinds = {w["kind"] for w in j["where"]}
     assert kinds >= {"position", "velocity", "force", "frequency", "time", "whiteness"}
+    # where the gap lies: the searched regions, strongest first, each at the family-wise level
+    assert isinstance(j["regions"], list) and j["regions"]
+    assert j["settings"]["alpha"] == 0.05
+    for r in j["regions"]:
+        assert r["variable"] in ("x", "v", "|v|", "F", "|F|", "t")
+        assert r["low"] is not None or r["high"] is not None
+        assert 0 < r["p_value"] <= 0.05 and 0 < r["sample_share"] < 1
+        assert 0 <= r["gap_share"] <= 1 and r["stack_removes"] <= 1
+    # the regions are recomputed from the validation signals alone (a pure function, seeded)
+    again = lj.diagnosis.find_regions(
+        {**emps.series}, alpha=0.05, filter_hz=j["settings"]["filter_hz"]
+    )
+    assert [r.to_json() for r in again] == emps.to_json()["regions"]
 
 
 @pytest.mark.slow  # whole diagnoses (EMPS, a figure)
-def test_cli_roundtrip_and_plot(tmp_path):
+def test_cli_roundtrip_and_plot(tmp_path, capsys):
     tr, va, _ = blind.make_case("offset", 11, duration=2.5, rate=(1000.0, 1000.0))
     for name, r in (("train", tr), ("valid", va)):
         t = np.asarray(r.t)
@@ -94,6 +107,9 @@ def test_cli_roundtrip_and_plot(tmp_path):
     j = json.loads(out.read_text())
     assert j["verdict"] == "offset" and j["stack"] == ["offset"]
     assert png.stat().st_size > 10_000
+    # an offset acts on the whole record: no region of it, and the CLI says so
+    assert j["regions"] == []
+    assert "where the gap lies: no region is significant at α = 0.05" in capsys.readouterr().out
 
 
 def test_cli_refuses_nonuniform(tmp_path, capsys):

@@ -151,6 +151,12 @@ def test_rotary_diagnosis_and_identification(tmp_path, monkeypatch, capsys):
     assert "1/(kg·m²)" in text and re.search(r"gap \S+ rad", text) and " 1/kg" not in text
     assert {"x [rad]", "sim. error [mrad]", "ε₁ [rad/s²]"} <= set(labels)
     assert 1 / base["params"]["b"] == pytest.approx(J, rel=0.05)  # b = 1/J of the rotor
+    # the searched regions: the same bounds, stated in rad, rad/s, N·m (t in s)
+    bounds = [(r["variable"], r["low"], r["high"]) for r in out["regions"]]
+    assert bounds == [(r["variable"], r["low"], r["high"]) for r in ref["regions"]]
+    assert [r["units"] for r in out["regions"]] == [
+        unit(r["units"], "rotary") for r in ref["regions"]
+    ]
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")

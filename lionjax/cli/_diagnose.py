@@ -3,8 +3,9 @@
 Fits the mass–damper on TRAIN, scores it and every candidate effect (coulomb_friction, offset,
 spring, delay, saturation, position_dependent, asymmetric_friction, flexible_mode, and the
 force sensor's artefacts force_sensor_line and force_sensor_drift) on VALID, stacks the
-significant ones, and prints the verdict. --candidates FILE.py:Name[,Name…] adds effects of
-one's own (docs/effects.md). --json writes the payload (baseline, where,
+significant ones, and prints the verdict and the regions where the gap lies (one line each,
+significant at the family-wise level --alpha). --candidates FILE.py:Name[,Name…] adds effects
+of one's own (docs/effects.md). --json writes the payload (baseline, where, regions,
 effects, stack, verdict, confidence, ambiguous, final, and the decimation applied);
 --plot writes a one-page summary (PNG/PDF/SVG by extension). Long records are streamed (the
 fits accumulated chunk by chunk, only the raw samples held whole; --streamed on/off/auto);
@@ -54,6 +55,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--filter-hz", type=float, help="filter corner λ/2π in Hz (default min(fs/25, 40 Hz))"
     )
     g.add_argument("--window", type=float, help="restart interval H [s] of the simulation gap")
+    g.add_argument(
+        "--alpha",
+        type=float,
+        help="family-wise error rate of the regions where the gap lies (default 0.05)",
+    )
     g.add_argument(
         "--candidates",
         metavar="FILE.py:Name[,Name…]",
@@ -128,6 +134,13 @@ def _name_files(message: str, args) -> str:
     return cli_words(message)
 
 
+def _criteria(args):
+    """The diagnosis' Criteria with --alpha, or None (the defaults)."""
+    import lionjax as lj
+
+    return None if args.alpha is None else lj.diagnosis.Criteria(alpha=args.alpha)
+
+
 def _library(args):
     import lionjax as lj
 
@@ -176,6 +189,7 @@ def _run_pairs(args) -> int:
         window_s=args.window,
         max_memory_gb=args.max_memory_gb,
         streamed=_streamed(args),
+        criteria=_criteria(args),
     )
     rows = [dataclasses.replace(r, error=cli_words(r.error)) if r.error else r for r in result.rows]
     if orphans:  # a folder's pairs come sorted by name: the unpaired files take their places
@@ -228,6 +242,7 @@ def _run_one(args) -> int:
             max_memory_gb=args.max_memory_gb,
             streamed=_streamed(args),
             progress=wanted(args.quiet),
+            criteria=_criteria(args),
         )
     except (InputError, IdentificationError) as e:
         raise type(e)(_name_files(str(e), args)) from None
@@ -273,6 +288,13 @@ def _run_one(args) -> int:
         f"detection limit: {number(out['noise']['detection_limit'], '.2g')} (the least effect "
         "this record would name, as a share of the input's term b·F)"
     )
+    alpha = number(out["settings"]["alpha"], "g")
+    if d.regions:
+        print(f"where the gap lies (regions, family-wise α = {alpha}):")
+        for region in d.regions:
+            print(f"  {region.describe()}")
+    else:
+        print(f"where the gap lies: no region is significant at α = {alpha}")
     out_of = {k: v for k, v in base["valid_outside_train"].items() if (v or 0) > OUTSIDE_WARN}
     if out_of:
         warnings.warn(

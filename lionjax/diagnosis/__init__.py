@@ -6,7 +6,8 @@ each; :func:`plot_diagnosis` draws the one-page figure; :func:`decimation_for` g
 decimation that lets long records fit the memory. The library (:mod:`lionjax.diagnosis.effects`,
 one module per family) is open: a :class:`ForceEffect` subclass is a candidate of one's own
 (docs/effects.md), passed as ``DEFAULT_CANDIDATES + (MyEffect(),)`` or loaded from a file by
-:func:`load_candidates`.
+:func:`load_candidates`. :func:`find_regions` searches the validation record for the regions
+where the gap lies (``Diagnosis.regions``, :class:`Region`).
 """
 
 from . import effects as effects
@@ -19,6 +20,7 @@ from ._many import (
     diagnose_many as diagnose_many,
 )
 from ._plot import plot_diagnosis as plot_diagnosis
+from ._regions import Region as Region, find_regions as find_regions
 from ._result import Diagnosis as Diagnosis, EffectScore as EffectScore
 from ._statistics import decimation_for as decimation_for
 from .effects import (

@@ -202,6 +202,7 @@ def _pipeline(run, st) -> Diagnosis:
     st.stage("verdict")
     verdict = judge(run, stk)
     confidence = weigh(run, effects, stk, verdict, fitted)
+    st.stage("where the gap lies: the regions")
     return report(run, effects, stk, verdict, confidence).in_units(run.problem.train.units)
 
 

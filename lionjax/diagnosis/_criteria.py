@@ -62,6 +62,11 @@ class Criteria(eqx.Module):
     The confidence:
         tie_ratio: a name whose BIC weight is at least 1/tie_ratio of the verdict's is listed
             in ``ambiguous``.
+
+    Where the gap lies:
+        alpha: the family-wise error rate of the searched regions (``Diagnosis.regions``,
+            :func:`~._regions.find_regions`) over the six variables, their candidate intervals
+            and the search's steps; it decides nothing else.
     """
 
     threshold: float = 10.0
@@ -86,6 +91,7 @@ class Criteria(eqx.Module):
     periodic_over_stack: float = 0.5
     feedback_share: float = 0.3
     tie_ratio: float = 20.0
+    alpha: float = 0.05
 
     def __check_init__(self):
         rules = {
@@ -99,6 +105,7 @@ class Criteria(eqx.Module):
             "pair_from": (lambda v: isinstance(v, int) and v >= 0, "an int ≥ 0"),
             "dead_zone_lookalike_gain": (lambda v: v > 0, "> 0"),
             "periodic_over_stack": (lambda v: v >= 0, "≥ 0"),
+            "alpha": (lambda v: 0 < v < 1, "in (0, 1)"),
         }
         for name, (ok, want) in rules.items():
             if not ok(getattr(self, name)):

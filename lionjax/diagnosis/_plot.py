@@ -21,7 +21,8 @@ def plot_diagnosis(diagnosis, path: str | Path):
 
     Panels: measured position vs the windowed simulations of the baseline and the stacked model
     (restarts every H s); the filtered equation error ε₁ before and after; the residual's shares
-    by band (the 'where' findings); the candidates ranked by score with their shrink.
+    by band (the 'where' findings); the candidates ranked by score with their shrink. The
+    samples of each searched region (``diagnosis.regions``) are shaded on the error panels.
     """
     path = Path(path)
     if path.parent and not path.parent.exists():
@@ -62,12 +63,13 @@ def plot_diagnosis(diagnosis, path: str | Path):
     eps.plot(t, s["residual_final"], "C0", lw=0.6, label="augmented")
     floor = diagnosis.noise["equation_floor"]
     eps.axhspan(-floor, floor, color="0.85", label="noise floor (±1σ)")
+    _shade_regions((eps, e), diagnosis.regions, s)
     eps.set(
         xlabel="t [s]",
         ylabel=f"ε₁ [{unit('m/s²', diagnosis.units)}]",
-        title="filtered equation error",
+        title="filtered equation error" + (", regions shaded" if diagnosis.regions else ""),
     )
-    eps.legend(fontsize=8, loc=loc)
+    eps.legend(fontsize=7, loc=loc)
     bands = [w for w in diagnosis.where if w.get("share") is not None and "fraction" in w]
     labels = [f"{w['kind']}: {w['band']}" for w in bands]
     y = np.arange(len(bands))
@@ -92,3 +94,20 @@ def plot_diagnosis(diagnosis, path: str | Path):
     )
     fig.tight_layout()
     return save_figure(fig, path, dpi=110)
+
+
+def _shade_regions(axes, regions, s) -> None:
+    """Shade, on each time axis, the samples each region covers (one colour per region)."""
+    for k, region in enumerate(regions):
+        for j, ax in enumerate(axes):
+            ax.fill_between(
+                s["t"],
+                0,
+                1,
+                where=region.mask(s),
+                transform=ax.get_xaxis_transform(),
+                color=f"C{(k + 2) % 10}",
+                alpha=0.15,
+                lw=0,
+                label=region.describe().split(":")[0] if j == 0 else None,
+            )

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from ._confidence import Confidence
+from ._regions import find_regions
 from ._result import _UNITS, Diagnosis, EffectScore
 from ._run import Run, shrink
 from ._stages import Stack
@@ -76,7 +77,7 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
 
 
 def _series_and_where(run: Run, stk: Stack, v: Verdict):
-    """The validation signals for plotting and the ``where`` findings on them."""
+    """The validation signals for plotting, the ``where`` findings and the regions on them."""
     problem, base, cur, valid = run.problem, run.base, stk.fit, run.problem.valid
     series = {
         "t": float(valid.t0) + float(valid.dt) * np.arange(valid.n_samples),
@@ -91,7 +92,11 @@ def _series_and_where(run: Run, stk: Stack, v: Verdict):
     }
     where = where_findings(series, problem.st, run.floor)
     where += [t.finding for t in v.lookalikes.values() if t.finding is not None]
-    return series, where
+    final = {"residual_final": series["residual_final"] if stk.cands else None}
+    regions = find_regions(
+        {**series, **final}, alpha=run.crit.alpha, filter_hz=problem.st.filter_hz
+    )
+    return series, where, regions
 
 
 def _baseline(run: Run, v: Verdict) -> dict[str, Any]:
@@ -136,6 +141,7 @@ def _settings_json(run: Run) -> dict[str, Any]:
         "min_share": crit.min_share,
         "min_size": crit.min_size,
         "floor_factor": crit.floor_factor,
+        "alpha": crit.alpha,
         # whether friction's force columns are masked where the axis sticks (the form the
         # candidates chose alone)
         "friction_stick_masked": bool(design_of(tuple(run.resolved.values())).stick),
@@ -146,7 +152,7 @@ def report(
     run: Run, effects: list[EffectScore], stk: Stack, v: Verdict, c: Confidence
 ) -> Diagnosis:
     """The :class:`~lionjax.diagnosis.Diagnosis` of the stages' results."""
-    series, where = _series_and_where(run, stk, v)
+    series, where, regions = _series_and_where(run, stk, v)
     stuck = run.problem.stuck
     return Diagnosis(
         baseline=_baseline(run, v),
@@ -175,4 +181,5 @@ def report(
         rivals=c.rivals,
         series=series,
         inconclusive=c.inconclusive,
+        regions=regions,
     )

@@ -10,6 +10,7 @@ import numpy as np
 from .._tables import jsonable
 from .._units import check_units, convert_units, unit
 from ..twin._windows import WINDOW_PARAMETERS
+from ._regions import Region
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,7 +43,8 @@ class Diagnosis:
 
     Attributes:
         baseline: {"model", "params", "gap", …} of ẍ + aẋ = bF.
-        where: findings (dicts with ``kind``, ``band``, ``share`` …, see :mod:`._where`).
+        where: findings (dicts with ``kind``, ``band``, ``share`` …, see :mod:`._where`): the
+            descriptive table of fixed bands.
         effects: every candidate alone on the baseline, best first.
         stack: names of the significant effects in the order added.
         verdict: ``stack[0]``, ``"none"``, ``"unexplained"`` or ``"inconclusive"``.
@@ -64,6 +66,9 @@ class Diagnosis:
             input's term), ``{"reason", "advice"}``: why, and what to record instead; else None.
         units: the records' unit system, ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad],
             F [N·m]), which every figure and text states (:meth:`in_units`).
+        regions: where the gap lies, searched: the regions of the validation record where the
+            dynamics depart from the rest, each significant at the family-wise level
+            ``Criteria.alpha``, strongest first (:class:`~._regions.Region`; ``[]``: none is).
     """
 
     baseline: dict[str, Any]
@@ -82,6 +87,7 @@ class Diagnosis:
     series: dict[str, np.ndarray] = dataclasses.field(repr=False, compare=False)
     inconclusive: dict[str, str] | None = None
     units: str = "linear"
+    regions: list[Region] = dataclasses.field(default_factory=list)
 
     def in_units(self, units: str) -> Diagnosis:
         """The same diagnosis stated in ``units`` (``"linear"`` or ``"rotary"``): every unit a
@@ -101,6 +107,7 @@ class Diagnosis:
             final=convert_units(self.final, units),
             where=where,
             units=units,
+            regions=[dataclasses.replace(r, units=units) for r in self.regions],
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -108,15 +115,17 @@ class Diagnosis:
         :func:`lionjax._tables.jsonable`)."""
         out = {k: getattr(self, k) for k in _JSON_KEYS}
         out.update(
-            effects=[e.to_json() for e in self.effects], steps=[e.to_json() for e in self.steps]
+            effects=[e.to_json() for e in self.effects],
+            steps=[e.to_json() for e in self.steps],
+            regions=[r.to_json() for r in self.regions],
         )
         return jsonable(out)
 
 
 #: The keys of :meth:`Diagnosis.to_json`, in order.
 _JSON_KEYS = (
-    "baseline where effects stack verdict confidence ambiguous weights rivals inconclusive final "
-    "steps noise settings units"
+    "baseline where regions effects stack verdict confidence ambiguous weights rivals "
+    "inconclusive final steps noise settings units"
 ).split()
 #: Units of the baseline's and the derived parameters (each candidate owns its own: ``units``).
 _UNITS = {"a": "1/s", "b": "1/kg", "F0": "N", "tau": "s", "Fmax": "N"}
