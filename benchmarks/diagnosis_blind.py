@@ -1746,21 +1746,30 @@ def streamed(train, valid, chunk: int, **kw):
 
 
 def merge_runs(paths: Sequence[str]) -> dict:
-    """The summary of the cases of several runs (disjoint classes, one seed, one per-class
-    count), with their configs' wall times summed."""
+    """The summary of the cases of several runs of distinct records (disjoint classes of one
+    seed, or blocks of seeds that do not overlap: ``--seed S`` and ``--seed S+10`` at
+    ``--per-class 10`` are the records of ``--per-class 20`` at S), with their wall times
+    summed; ``per_class`` is the cases per class and source the merged rows hold."""
     runs = [json.load(open(path)) for path in paths]
     cfg = [r["config"] for r in runs]
-    for key in ("per_class", "seed0", "sources"):
-        if len({json.dumps(c[key]) for c in cfg}) > 1:
-            raise SystemExit(f"--merge: the runs differ in {key}: {[c[key] for c in cfg]}")
-    classes = [k for c in cfg for k in c["classes"]]
-    if len(set(classes)) < len(classes):
-        raise SystemExit("--merge: the runs share classes; merge runs over disjoint --classes")
-    order = [k for k in CLASSES if k in classes]
+    if len({json.dumps(c["sources"]) for c in cfg}) > 1:
+        raise SystemExit(f"--merge: the runs differ in sources: {[c['sources'] for c in cfg]}")
     rows = sorted((r for run in runs for r in run["records"]), key=lambda r: r["seed"])
+    if len({r["seed"] for r in rows}) < len(rows):
+        raise SystemExit("--merge: the runs share records (seeds); merge runs of distinct records")
+    classes = {k for c in cfg for k in c["classes"]}
+    order = [k for k in CLASSES if k in classes]
+    counts = {(r["class"], r["source"]) for r in rows}
+    per = sorted({sum(1 for r in rows if (r["class"], r["source"]) == k) for k in counts})
     out = summarise(rows, order)
-    out["config"] = dict(cfg[0], classes=order, wall_s=sum(c["wall_s"] for c in cfg))
-    out["config"]["merged_from"] = [str(path) for path in paths]
+    out["config"] = dict(
+        cfg[0],
+        classes=order,
+        per_class=per[0] if len(per) == 1 else per,
+        seed0=min(c["seed0"] for c in cfg),
+        wall_s=sum(c["wall_s"] for c in cfg),
+        merged_from=[str(path) for path in paths],
+    )
     return out
 
 
@@ -1797,9 +1806,10 @@ def main(argv=None) -> None:
         "--merge",
         nargs="+",
         metavar="RUN.json",
-        help="summarise the cases of runs over disjoint --classes of one seed (the cases are "
-        "those of one run over all their classes: a case's seed depends on its class, not on "
-        "the run) instead of running",
+        help="summarise the cases of runs of distinct records instead of running: disjoint "
+        "--classes of one seed, or seed blocks that do not overlap (a case's seed is seed0 + "
+        "10000·class + 1000·source + i, so --seed S and S+10 at --per-class 10 are the records "
+        "of --per-class 20 at S)",
     )
     a = p.parse_args(argv)
     if a.merge:
