@@ -48,7 +48,7 @@ def records(result):
     return lj.paper.paper_records(cfg, key=k_run, calibration_gain=result.calibration.gain)
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_calibration_matches_polyfit(result):
     cal = result.calibration
     slope, intercept = np.polyfit(np.asarray(cal.measured_force), np.asarray(cal.set_force), 1)
@@ -59,7 +59,7 @@ def test_calibration_matches_polyfit(result):
     assert abs(float(cal.gain) / 1.75 - 1) < 0.01
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_records_stay_in_their_region(result, records):
     cfg = quick_config()
     assert records.x.shape == (3, 4, 1, cfg.n_samples)
@@ -69,7 +69,7 @@ def test_records_stay_in_their_region(result, records):
 
 
 # the paper's law runs on x in mm (its convention), which the units check warns about
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 @pytest.mark.filterwarnings("ignore:.*millimetres:lionjax.solutions.DataWarning")
 def test_table_matches_direct_lion(result, records):
     table = result.table
@@ -89,7 +89,7 @@ def test_table_matches_direct_lion(result, records):
         )
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_summary_vs_least_squares_and_truth(result, records):
     table = result.table
     flat = jax.tree.map(lambda z: z.reshape(-1, *z.shape[3:]), records)
@@ -112,7 +112,7 @@ def test_summary_vs_least_squares_and_truth(result, records):
     )
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_var_mm2_definition(result, records):
     from scipy.signal import cont2discrete
 
@@ -162,7 +162,7 @@ def test_var_mm2_definition(result, records):
     assert float(table.var_mm2[s, r, i, 0]) == pytest.approx(var, rel=1e-6)
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_verification(result):
     v = result.verifications[result.table.settings.index("recommended")]
     xd, xm = np.asarray(v.x_device), np.asarray(v.x_model)
@@ -186,7 +186,7 @@ def test_verification(result):
     assert np.abs(np.asarray(true.x_model) - xd).max() < 1.5 * twin.FALCON_ENCODER_RESOLUTION
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_effect_rows(result):
     names = [e.name for e in result.effects]
     assert names == [c.name for c in lj.paper.realistic_effects()]
@@ -206,7 +206,7 @@ def test_effect_rows(result):
     np.testing.assert_allclose(np.asarray(by["calibration_error"].b_err_pct), -9.1, atol=1.0)
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_batched_effects_equal_single_device(result):
     cfg = quick_config()
     _, k_run = jax.random.split(jax.random.key(SEED))
@@ -243,7 +243,7 @@ def test_bad_arguments():
         )
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_figures(result, tmp_path):
     figs = lj.paper.paper_figures(result)
     assert set(figs) == {
@@ -315,7 +315,7 @@ def out(result, tmp_path_factory):
     return d
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_files_written(out):
     for name in ("table.json", "table.csv", "effects.json", "summary.json", "report.md"):
         assert (out / name).stat().st_size > 100, name
@@ -334,7 +334,7 @@ def test_files_written(out):
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_table_schema_and_numbers(out):
     rows = json.loads((out / "table.json").read_text())
     cfg = lj.paper.PaperConfig.quick()
@@ -366,7 +366,7 @@ def test_table_schema_and_numbers(out):
     assert float(csv_rows[0]["a"]) == pytest.approx(rows[0]["a"], rel=1e-12)
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_table_row_vs_direct_least_squares(out):
     """One record re-simulated through the public API: Lion's row ≈ lj.least_squares (2 %)."""
     rows = json.loads((out / "table.json").read_text())
@@ -382,7 +382,7 @@ def test_table_row_vs_direct_least_squares(out):
     np.testing.assert_allclose([row["a"], row["b"]], np.asarray(ls.theta), rtol=2e-2)
 
 
-@pytest.mark.slow  # the paper's reproduction (the session's records and run)
+@pytest.mark.slow  # the paper's reproduction (the shared fixtures' records and run)
 def test_effects_and_report(out):
     effects = json.loads((out / "effects.json").read_text())
     assert [e["name"] for e in effects] == [c.name for c in lj.paper.realistic_effects()]
