@@ -370,16 +370,19 @@ def test_a_later_effect_takes_a_smaller_share_of_what_the_stack_leaves():
     assert lj.diagnose(train, valid, criteria=neither).stack == ["delay", "spring"]
 
 
-def test_a_candidate_the_later_stack_makes_redundant_is_dropped():
+def test_a_position_dependence_with_negative_damping_is_refused():
     """A closed-loop spring (k = 367 N/m) under a 15 ms delay (scipy, 1.1 kHz): the delay alone
-    fitted b ≤ 0, so b(x) and the spring were stacked as a pair (78), then the delay (1139),
-    and b(x), first in the stack, was named at 1.00. Backward elimination drops what the rest
-    explains: b(x) adds nothing significant given the spring and the delay."""
+    fits b ≤ 0, and b(x) alone scores 65 with a(x) dipping to about −2 1/s (a = 41 1/s): the
+    shape of the spring-and-delay residual, not a position dependence (a viscous damping is
+    positive everywhere). b(x) is refused, and the spring and the delay are stacked together
+    first. τ against the simulator's."""
     train, valid, info = blind.make_case("spring+delay", 70101011, source="scipy")
     truth = {e["name"]: e["params"] for e in info["effects"]}
     d = lj.diagnose(train, valid)
-    assert d.stack == ["spring", "delay"] and d.verdict == "spring"
-    assert "position_dependent dropped" in d.steps[0].reason
+    pos = next(e for e in d.effects if e.name == "position_dependent")
+    assert not pos.plausible and "negative damping" in pos.reason
+    assert d.stack[:2] == ["spring", "delay"] and d.verdict == "spring"
+    assert "position_dependent" not in d.stack
     assert d.final["params"]["tau"] == pytest.approx(truth["delay"]["tau"], rel=0.3)
 
 

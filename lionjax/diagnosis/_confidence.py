@@ -183,7 +183,7 @@ REVERSALS_LEAST = 10
 
 
 def inconclusive(
-    run: Run, detection: float, worst: float, decided: bool, absent: bool
+    run: Run, detection: float, worst: float, decided: bool, absent: bool, seen: bool
 ) -> dict | None:
     """Why the records cannot decide whether an effect is there, and what to record instead; or
     None. Two reasons, unless a look-alike explains the gap (``decided``: the record shows that
@@ -191,13 +191,14 @@ def inconclusive(
     evidence too coarse: nothing named is then no evidence of no effect, and a residual with
     structure no evidence of one outside the library), unless even so an effect of ``min_size``
     would have been seen (``detection``, the one-parameter limit, below it: a residual that
-    small decides); or, where the verdict would claim no effect (``absent``: "none"), the
-    detection limit (``worst``, the size an effect needs to be seen) at or above
-    :data:`DETECTION_MOST` of the input's term. A significant gap no candidate removes
-    ("unexplained") is decided however large the limit: a large unmodelled residual itself
-    raises it."""
+    small decides) or a candidate is significant at that sample count all the same (``seen``:
+    the record has resolved structure, which a library fit describes or not); or, where the
+    verdict would claim no effect (``absent``: "none"), the detection limit (``worst``, the size
+    an effect needs to be seen) at or above :data:`DETECTION_MOST` of the input's term. A
+    significant gap no candidate removes ("unexplained") is decided however large the limit: a
+    large unmodelled residual itself raises it."""
     n = run.base.n_eff
-    few = n < N_EFF_LEAST and detection >= run.crit.min_size
+    few = n < N_EFF_LEAST and detection >= run.crit.min_size and not seen
     blind = absent and worst >= DETECTION_MOST
     if decided or not (few or blind):
         return None
@@ -308,12 +309,16 @@ def weigh(
         confidence *= doubt
     undecided = None
     if not stk.cands:
+        seen = any(
+            s.score > crit.threshold and not run.by_name[s.name].search_failed() for s in effects
+        )
         undecided = inconclusive(
-            run, detection, detection_worst, bool(v.decided_by), verdict == "none"
+            run, detection, detection_worst, bool(v.decided_by), verdict == "none", seen
         )
     if undecided is not None:
-        # nothing named on a record that cannot decide: a statement about the record
-        verdict, confidence, ambiguous = "inconclusive", 1.0, []
+        # nothing named on a record that cannot decide: an abstention, which claims nothing
+        # about the device and so is held with no confidence (its reason says why)
+        verdict, confidence, ambiguous = "inconclusive", 0.0, []
     readings = list(dict.fromkeys([*_readings(run, effects, stk, verdict), *also]))
     if readings and verdict not in ("none", "unexplained", "inconclusive"):
         # one more reading of the same force: the confidence is shared among them

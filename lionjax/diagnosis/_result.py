@@ -51,7 +51,8 @@ class Diagnosis:
         final: the stacked model's physical parameters and its ``gap``.
         noise: noise estimates and the floor of ε₁; settings: what was chosen from the record.
         steps: each stacked effect's score as it was added.
-        confidence: evidence for the verdict in [0, 1] (docs/method.md, "The confidence").
+        confidence: evidence for the verdict in [0, 1] (docs/method.md, "The confidence");
+            0 for ``"inconclusive"``, an abstention that claims nothing about the device.
         ambiguous: the names within a weight ratio of 1/20 of the verdict (near-ties, best
             first, the verdict included), then the candidates of which the stack is a reading
             too (asymmetric friction for Coulomb friction plus a larger offset), or ``[]``.
@@ -59,7 +60,7 @@ class Diagnosis:
         rivals: {name: score} of the implausible candidates that, alone, explain the
             validation error better than the whole stack, and of the look-alikes
             (``"dead_zone_lookalike"``, ``"drag_lookalike"``) that score above the stack with
-            fewer parameters: evidence against the verdict, whose confidence they discount.
+            no more parameters: evidence against the verdict, whose confidence they discount.
         series: validation signals for plotting (not in the JSON).
         inconclusive: where the records cannot decide whether an effect is there (too few
             effective samples, or nothing significant left under a detection limit of half the

@@ -206,12 +206,13 @@ class DragLookalike(AbstractLookalike):
 
 def _rival(run, stk, ms: float, k: int) -> float | None:
     """A look-alike's score from the baseline (``k`` parameters; N_eff and floor as the stack's
-    :meth:`~.._run.Run.joint`) where it has fewer parameters and scores above the stack's joint
-    score; None otherwise, or against a stack the windowed simulation confirms where the
-    baseline is qualitatively wrong (there the equation error is no measure)."""
+    :meth:`~.._run.Run.joint`) where it has no more parameters and scores above the stack's
+    joint score (an explanation as simple that fits better is evidence against the stack); None
+    otherwise, or against a stack the windowed simulation confirms where the baseline is
+    qualitatively wrong (there the equation error is no measure)."""
     if not stk.cands or run.confirmed(stk) or not math.isfinite(ms):
         return None
-    if k >= run.params(stk.cands):
+    if k > run.params(stk.cands):
         return None
     s = run.score_ms(run.base, ms, k, run.fit_floor)
     return s if s > run.joint(stk) else None

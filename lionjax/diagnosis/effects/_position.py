@@ -32,6 +32,8 @@ LOCAL_SPACING = 32
 LOCAL_ROUNDS = 2
 LOCAL_STEPS = 8
 LOCAL_W_RANGE = (1 / 100, 1.0)
+#: Positions on which a(x) and b(x) are checked for sign across the covered range.
+RANGE_POINTS = 257
 
 
 def _position_raw(x, center, scale, lo, hi, held: bool, k: int, which: int):
@@ -189,6 +191,37 @@ class PositionCandidate(AbstractCandidate):
         )
         (c, w), _ = search.minimise(batched, (c, w), best, steps, move, seen)
         return dataclasses.replace(self, local=(float(c), float(w)))
+
+    def implausible(self, phys, lim) -> str:
+        """Besides b ≤ 0: b(x) ≤ 0 or a(x) < 0 at a position both records cover (``x_range``,
+        on a grid of :data:`RANGE_POINTS` and at x₀). A mass and a viscous damping vary along a
+        rail but stay positive: a fit whose input gain vanishes somewhere, or whose damping
+        turns into an energy source there, describes an input cut off or a residual's shape,
+        not a position dependence."""
+        if why := super().implausible(phys, lim):
+            return why
+        lo, hi = lim.x_range
+        if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+            return ""
+        x = np.linspace(lo, hi, RANGE_POINTS)
+        if self.degree == 0:
+            x = np.append(x, min(max(self.local[0], lo), hi))
+            _, _, t, s2 = local_values(x, *self.local)
+            a = phys["a"] + phys["a_step"] * t + phys["a_bump"] * s2
+            b = phys["b"] + phys["b_step"] * t + phys["b_bump"] * s2
+        else:
+            u = x - phys["x_center"]
+            a = phys["a"] + phys["da_dx"] * u
+            b = phys["b"] + phys["db_dx"] * u
+            for k in range(2, self.degree + 1):
+                a, b = a + phys[f"a_x{k}"] * u**k, b + phys[f"b_x{k}"] * u**k
+        if np.min(b) <= 0:
+            i = int(np.argmin(b))
+            return f"b(x) ≤ 0 at x = {x[i]:.4g} m: the input would not act there"
+        if np.min(a) < 0:
+            i = int(np.argmin(a))
+            return f"a(x) = {a[i]:.3g} 1/s < 0 at x = {x[i]:.4g} m: a negative damping"
+        return ""
 
     def physical(self, phys, problem) -> dict:
         if self.degree == 0:
