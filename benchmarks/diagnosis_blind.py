@@ -112,6 +112,7 @@ in the summary.
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import functools
 import json
@@ -1759,8 +1760,7 @@ def merge_runs(paths: Sequence[str]) -> dict:
         raise SystemExit("--merge: the runs share records (seeds); merge runs of distinct records")
     classes = {k for c in cfg for k in c["classes"]}
     order = [k for k in CLASSES if k in classes]
-    counts = {(r["class"], r["source"]) for r in rows}
-    per = sorted({sum(1 for r in rows if (r["class"], r["source"]) == k) for k in counts})
+    per = sorted(set(collections.Counter((r["class"], r["source"]) for r in rows).values()))
     out = summarise(rows, order)
     out["config"] = dict(
         cfg[0],
