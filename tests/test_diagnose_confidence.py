@@ -6,6 +6,7 @@ report shows — against the simulated truth."""
 import math
 
 import diagnosis_blind as blind  # benchmarks/ (tests/conftest.py)
+import numpy as np
 import pytest
 
 import lionjax as lj
@@ -235,3 +236,38 @@ def test_a_mode_that_is_another_resonance_the_other_way_is_not_named_confidently
         assert rev is not None and why in rev["refused"], rev
         assert d.confidence == 0.0
     assert d.verdict in (cls, "unexplained") or d.confidence < 0.9, (d.verdict, d.confidence)
+
+
+def _line_size(record, f0):
+    """The RMS of ``record``'s F at f₀ and its harmonics below 0.45·f_s over F's RMS (the mean
+    removed): numpy's least squares on cos and sin columns, independent of lionjax."""
+    F = np.asarray(record.F, np.float64)
+    F = F - F.mean()
+    t = record.dt * np.arange(F.size)
+    ks = [k for k in range(1, 6) if k * f0 < 0.45 / record.dt]
+    A = np.column_stack([g(2 * np.pi * k * f0 * t) for k in ks for g in (np.cos, np.sin)])
+    coef, *_ = np.linalg.lstsq(A, F, rcond=None)
+    return float(np.sqrt(np.mean((A @ coef) ** 2) / np.mean(F**2)))
+
+
+def test_a_line_the_force_shows_and_the_fit_does_not_resolve_bounds_the_detection_limit():
+    """A 50 Hz sensor line at 6 % of F (scipy, closed loop, 284 Hz, filter corner 11.4 Hz):
+    the line stands 20 times above F's own level beside it, yet the fit on training reads the
+    device as feeling −114 % of it (validated, it removes nothing), and the record was called
+    `none` at 0.99. F shows the line, which the fit reads as neither felt nor unfelt: a sensor
+    line of the line's own size may be there, so it bounds ``detection_limit_worst`` and
+    `none` is at most 1 − ln(D/min_size)/ln(1/min_size)."""
+    d, info = _diagnose("force_sensor_line", 250181005, "scipy")
+    assert info["truth"] == ["force_sensor_line"]
+    _, valid, _ = blind.make_case("force_sensor_line", 250181005, source="scipy")
+    line = next(e for e in d.effects if e.name == "force_sensor_line")
+    if d.verdict in ("none", "unexplained"):
+        assert not line.plausible  # the case is what it says
+        D = d.noise["detection_limit_worst"]
+        # the line's size at the profiled f₀, independently (profile within 0.1 Hz of 50)
+        assert abs(line.params["f_line"] - 50.0) < 0.1
+        assert D >= 0.99 * _line_size(valid, line.params["f_line"]), D
+        lo = lj.diagnosis.Criteria().min_size
+        hidden = math.log(max(D, lo) / lo) / math.log(1 / lo)
+        assert d.confidence <= 1 - hidden + 1e-12, (d.confidence, D)
+    assert d.verdict == "force_sensor_line" or d.confidence < 0.9, (d.verdict, d.confidence)

@@ -118,9 +118,12 @@ def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) ->
     ]
 
 
-def _detection(run: Run) -> tuple[float, float]:
+def _detection(run: Run, fitted: dict[str, Fitted]) -> tuple[float, float]:
     """(the record's detection limit, the largest of its candidates'): the least one-parameter
     effect reaching the threshold, √((threshold + ln N_eff)·MS₀/N_eff) over the input's term;
+    a candidate's own where it states one, given its fit alone in ``fitted``
+    (``detection_limit``: a force-sensor line the filter barely passes, or one F shows and the
+    fit does not resolve);
     for a candidate whose gains count only above the floor σ, the least that lifts MS₀ there
     first, √(max(MS₀, σ²)·exp((threshold + p·ln N_eff)/N_eff) − MS₀) over the input's term."""
     crit, base = run.crit, run.base
@@ -128,6 +131,10 @@ def _detection(run: Run) -> tuple[float, float]:
     generic = math.sqrt((crit.threshold + math.log(n)) * ms0 / n) / run.force_rms
     worst = generic
     for c in run.by_name.values():
+        alone = fitted.get(c.name)
+        own = c.detection_limit(run.problem, generic, None if alone is None else alone.physical)
+        if own is not None:
+            worst = max(worst, own)
         lo = run.floor_of([c])
         if lo**2 > ms0:
             grow = math.exp((crit.threshold + c.params() * math.log(n)) / n)
@@ -270,7 +277,7 @@ def weigh(
     crit = run.crit
     blind, also = uncounted(run, stk)
     weights = _weights(run, effects, stk)
-    detection, detection_worst = _detection(run)
+    detection, detection_worst = _detection(run, fitted)
     detection_worst = max(detection_worst, unresolved(run, fitted, effects))
     bar = run.bar(stk)
     rivals = _rivals(run, effects, stk, blind, bar)

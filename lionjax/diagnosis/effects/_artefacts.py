@@ -28,6 +28,29 @@ MAINS_POINTS = 21
 MAX_HARMONIC = 5
 LINE_ROWS = 1 << 18
 LINE_SHARE_TOL = 0.3
+#: Offsets (share of f₀) of the frequencies where F's line-shaped projection is measured as the
+#: record's own level beside the line (no mains there), and the false-alarm probability at which
+#: a line counts as present in F (:meth:`ForceSensorLine.detection_limit`).
+NULL_OFFSETS = (-0.1, -0.08, -0.06, -0.04, 0.04, 0.06, 0.08, 0.1)
+LINE_FALSE_ALARM = 1e-4
+
+
+def _chi2_even_quantile(dof: int, p: float) -> float:
+    """x with P(χ²_dof > x) = ``p`` for an even ``dof``: the survival function there is
+    e^{−x/2}·Σ_{j<dof/2} (x/2)^j/j! (closed form), solved by bisection."""
+
+    def sf(x: float) -> float:
+        term, total = 1.0, 1.0
+        for j in range(1, dof // 2):
+            term *= x / 2 / j
+            total += term
+        return float(np.exp(-x / 2) * total)
+
+    lo, hi = 0.0, 10.0 * dof + 100.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if sf(mid) > p else (lo, mid)
+    return hi
 
 
 def line_in(F: np.ndarray, t: np.ndarray, f0: float, dt: float) -> np.ndarray:
@@ -89,6 +112,50 @@ class ForceSensorLine(ForceEffect):
             if m < 0.45 * fs
             for f in np.linspace(m * (1 - MAINS_TOLERANCE), m * (1 + MAINS_TOLERANCE), MAINS_POINTS)
         ] or [self]
+
+    def detection_limit(self, problem, generic, phys):
+        """A line is seen in two steps. Whether F holds one at all, F tells alone: its
+        projection ``line_in`` at f₀ against the same projection's mean square at
+        :data:`NULL_OFFSETS` beside it (the record's own level there), χ²-distributed with 2K
+        degrees of freedom (K harmonics) where F holds no line; present above the quantile of
+        false-alarm probability :data:`LINE_FALSE_ALARM`. Absent, the least line it would show
+        is the limit (over F's RMS, the line's size). Present, whether the device felt it only
+        x tells, through the filter: the equation error sees the line's column at the gain the
+        filter passes it with, ρ = (RMS of the filtered line / of the filtered F) / (RMS of the
+        line / of F), so its limit is ``generic``/ρ (a 50 Hz line above a 10 Hz corner: ρ of a
+        few thousandths, a limit above the input's term). And where its fit alone reads the
+        line neither as felt nor as unfelt (the share ``line_unfelt`` within
+        :data:`LINE_SHARE_TOL` of neither 0 nor 1: no physical reading), the record has not
+        resolved the line it shows, and a sensor line of the line's own size may be there."""
+        rec = problem.valid
+        F = np.asarray(rec.F, np.float64)
+        F = F - np.mean(F)
+        dt = float(rec.dt)
+        t = float(rec.t0) + dt * np.arange(F.size)
+        line = line_in(F, t, self.f_line, dt)
+        K = sum(1 for k in range(1, MAX_HARMONIC + 1) if k * self.f_line < 0.45 / dt)
+        beside = [
+            line_in(F, t, f, dt)
+            for f in (self.f_line * (1 + d) for d in NULL_OFFSETS)
+            if f < 0.45 / dt
+        ]
+        F_rms = float(np.sqrt(np.mean(F**2)))
+        if not K or not beside or not F_rms > 0:
+            return None
+        level = float(np.mean([np.mean(b**2) for b in beside]))
+        seen = level * _chi2_even_quantile(2 * K, LINE_FALSE_ALARM) / (2 * K)
+        line_ms = float(np.mean(line**2))
+        least = float(np.sqrt(seen)) / F_rms
+        if not line_ms > seen:
+            return least
+        ms = problem.regressors_of(())[1].mean_square
+        passed = float(np.sqrt(ms(line, "zoh", 0) / max(ms(F, "zoh", 0), 1e-300)))
+        size = float(np.sqrt(line_ms)) / F_rms
+        limit = max(least, generic / max(passed / size, 1e-300))
+        share = None if phys is None else phys.get("line_unfelt")
+        if share is not None and min(abs(share), abs(1.0 - share)) > LINE_SHARE_TOL:
+            limit = max(limit, size)
+        return limit
 
     def implausible(self, phys, lim):
         share = phys.get("line_unfelt", 0.0)

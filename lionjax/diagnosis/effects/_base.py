@@ -163,6 +163,13 @@ class AbstractCandidate(eqx.Module):
         [m/s], (T,)); None for an effect on the device."""
         return None
 
+    def detection_limit(self, problem, generic: float, phys: dict[str, float] | None):
+        """The least size (as :meth:`~lionjax.diagnosis._run.Run.assess` sizes it) at which
+        this candidate would be seen on ``problem``'s validation record, where it is not the
+        record's one-parameter limit ``generic`` (over the input's term b·F), given its fit
+        alone ``phys`` (None: not fitted); None: it is."""
+        return None
+
     def implausible(self, phys: dict[str, float], lim: Limits) -> str:
         """Why the fitted parameters are not physical (``""`` when they are): by default b ≤ 0
         (every effect leaves the rigid body's mass positive)."""
