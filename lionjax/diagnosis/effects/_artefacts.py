@@ -53,10 +53,15 @@ def _chi2_even_quantile(dof: int, p: float) -> float:
     return hi
 
 
+def _harmonics(f0: float, dt: float) -> list[int]:
+    """The harmonics k = 1 … :data:`MAX_HARMONIC` of f₀ below 0.45/dt."""
+    return [k for k in range(1, MAX_HARMONIC + 1) if k * f0 < 0.45 / dt]
+
+
 def line_in(F: np.ndarray, t: np.ndarray, f0: float, dt: float) -> np.ndarray:
     """The line in ``F``: its least-squares projection (the mean removed) on cos and sin of
     2πk·f₀·t for the harmonics k = 1 … :data:`MAX_HARMONIC` below 0.45/dt; shape of F."""
-    ks = [k for k in range(1, MAX_HARMONIC + 1) if k * f0 < 0.45 / dt]
+    ks = _harmonics(f0, dt)
     if not ks:
         return np.zeros_like(F)
 
@@ -133,7 +138,7 @@ class ForceSensorLine(ForceEffect):
         dt = float(rec.dt)
         t = float(rec.t0) + dt * np.arange(F.size)
         line = line_in(F, t, self.f_line, dt)
-        K = sum(1 for k in range(1, MAX_HARMONIC + 1) if k * self.f_line < 0.45 / dt)
+        K = len(_harmonics(self.f_line, dt))
         beside = [
             line_in(F, t, f, dt)
             for f in (self.f_line * (1 + d) for d in NULL_OFFSETS)
