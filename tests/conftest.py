@@ -131,48 +131,10 @@ def pytest_configure(config):
         os.environ["XLA_FLAGS"] = f"{flags} {_FAST_TIER_FLAG}".strip()
 
 
-#: Test files by their measured run time on the 2-core machine (the slow tier's, then the fast
-#: tier's), longest first. pytest-xdist's ``--dist loadfile`` hands out whole files in
-#: collection order, so a long file collected last leaves one worker running it alone; longest
-#: first leaves the short ones for the end. A file not listed keeps its place after these.
-_LONGEST_FIRST = (
-    "test_diagnose_stacking.py",
-    "test_diagnose_confidence.py",
-    "test_effect_library.py",
-    "test_diagnose_floor.py",
-    "test_estimation.py",
-    "test_diagnose_streamed.py",
-    "test_diagnose_periodic.py",
-    "test_diagnose_many.py",
-    "test_benchmark_smoke.py",
-    "test_experiments.py",
-    "test_diagnose_rates.py",
-    "test_batched.py",
-    "test_diagnose_kernels.py",
-    "test_diagnose_dominant.py",
-    "04_add_your_own_effect.ipynb",
-    "test_tune.py",
-    "test_fuzz_careless.py",
-    "test_plant.py",
-    "test_diagnose.py",
-    "03_sim_to_real.ipynb",
-    "test_diagnose_modes.py",
-    "test_diagnose_real.py",
-    "test_diagnose_ranges.py",
-    "02_gain_pole_study.ipynb",
-    "01_paper.ipynb",
-    "test_blind_bench.py",
-    "test_study.py",
-)
-
-
 def pytest_collection_modifyitems(config, items):
     """The notebooks (nbmake's items) belong to the slow tier: the README's test command
-    (``-m "not slow"``) leaves them out, ``.ci/run``'s second step (``-m slow``) runs them.
-    Files run longest first (:data:`_LONGEST_FIRST`), each file's tests in their own order."""
+    (``-m "not slow"``) leaves them out, ``.ci/run``'s second step (``-m slow``) runs them."""
     notebooks = _ROOT / "notebooks"
     for item in items:
         if pathlib.Path(str(item.path)).is_relative_to(notebooks):
             item.add_marker(pytest.mark.slow)
-    rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(pathlib.Path(str(item.path)).name, len(rank)))
