@@ -27,7 +27,12 @@ they share one length bucket. It reports
   adds the separate processes without the cache (``LIONJAX_NO_COMPILE_CACHE=1``);
 - with ``--blas``: the same loop of ``lj.diagnose`` with the host BLAS on one thread (what the
   diagnosis sets) and on the host's default threads, alternated ``--repeats`` times (the least
-  of each), and whether the verdicts match.
+  of each), and whether the verdicts match;
+- with ``--call-sizes``: the same loop with the filter and mode-stage calls capped at
+  ``FILTER_SAMPLES`` and ``MODE_SAMPLES`` (lionjax.diagnosis._streaming: what the diagnosis
+  does) and uncapped (up to 32 signals or 4 modes per call whatever the chunk), alternated
+  ``--repeats`` times (the least of each), and whether the reports are the same bit for bit
+  (the caps bind from a chunk of 32768 samples: ``--duration 10 --rate 4000``).
 
     PYTHONPATH=<checkout> python benchmarks/diagnosis_speed.py --many [--pairs N] [--cli M]
 
@@ -87,6 +92,11 @@ def main(argv=None) -> dict:
     g.add_argument("--rate", type=float, default=1000.0, help="sampling rate [Hz] (default 1000)")
     g.add_argument(
         "--repeats", type=int, default=2, help="loop and diagnose_many runs, alternated (2)"
+    )
+    g.add_argument(
+        "--call-sizes",
+        action="store_true",
+        help="also time the loop with the filter and mode calls capped (the default) and not",
     )
     g.add_argument("--cli", type=int, default=0, help="pairs of the CLI comparison (default 0)")
     g.add_argument(
@@ -220,6 +230,8 @@ def many(args) -> dict:
     )
     if args.blas:
         out["blas"] = _blas_threads(pairs, lj, args.repeats)
+    if args.call_sizes:
+        out["call_sizes"] = _call_sizes(pairs, lj, args.repeats)
     if args.cli:
         out["cli"] = _cli(_pairs(args.cli, args.duration, args.rate), lj, args.no_cache_arm)
     if args.json:
@@ -257,6 +269,41 @@ def _blas_threads(pairs: list, lj, repeats: int) -> dict:
         f"{len(pairs)} pairs, BLAS on one thread {out['one_thread_s']:.2f} s, on the host's "
         f"default {out['default_threads_s']:.2f} s (default/one {out['default_over_one']:.2f}), "
         f"same verdicts: {out['same_verdicts']}"
+    )
+    return out
+
+
+def _call_sizes(pairs: list, lj, repeats: int) -> dict:
+    """The compiled loop of ``lj.diagnose`` over ``pairs`` with the filter and mode-stage calls
+    capped (the diagnosis' setting) and uncapped, alternated ``repeats`` times: the least of
+    each, and whether the reports (their whole JSON) are the same bit for bit."""
+    from lionjax.diagnosis import _streaming
+
+    kept = (_streaming.FILTER_SAMPLES, _streaming.MODE_SAMPLES)
+    arms = {"capped": kept, "uncapped": (1 << 62, 1 << 62)}
+    times: dict = {a: [] for a in arms}
+    prints: dict = {}
+    for _ in range(repeats):
+        for arm, caps in arms.items():
+            _streaming.FILTER_SAMPLES, _streaming.MODE_SAMPLES = caps
+            try:
+                t0 = time.perf_counter()
+                ds = [lj.diagnose(tr, va) for _, tr, va in pairs]
+                times[arm].append(time.perf_counter() - t0)
+            finally:
+                _streaming.FILTER_SAMPLES, _streaming.MODE_SAMPLES = kept
+            text = json.dumps([d.to_json() for d in ds], sort_keys=True, default=str)
+            prints[arm] = hashlib.sha256(text.encode()).hexdigest()
+    out = {
+        "capped_s": min(times["capped"]),
+        "uncapped_s": min(times["uncapped"]),
+        "same_reports": prints["capped"] == prints["uncapped"],
+    }
+    out["uncapped_over_capped"] = out["uncapped_s"] / out["capped_s"]
+    print(
+        f"{len(pairs)} pairs, calls capped {out['capped_s']:.2f} s, uncapped "
+        f"{out['uncapped_s']:.2f} s (uncapped/capped {out['uncapped_over_capped']:.2f}), "
+        f"the same reports bit for bit: {out['same_reports']}"
     )
     return out
 

@@ -500,6 +500,39 @@ def test_chunked_filter_equals_whole_record():
     _close(ref, back[::-1], 1e-12)
 
 
+def test_batches_of_any_size_give_the_same_numbers(monkeypatch):
+    """Signals filtered, and flexible modes' stages computed, several per call (the default) and
+    one per call (:data:`~lionjax.diagnosis._streaming.FILTER_SAMPLES` and ``MODE_SAMPLES`` at
+    one chunk): the same numbers bit for bit, so the calls' sizes, chosen for the processor's
+    caches, never change a diagnosis."""
+    from lionjax.diagnosis import _streaming
+
+    dt, T = 1 / 997.0, 3001
+    rng = np.random.default_rng(4)
+    U = np.cumsum(rng.standard_normal((5, T)), 1) * 1e-3
+    dsc = Discrete.of(_bank(30.0), dt)
+    modes = np.array([[2 * np.pi * f, z] for f, z in ((12.0, 0.02), (40.0, 0.1), (90.0, 0.3))])
+
+    def run():
+        f = Filters(dsc, T, 1024, {i: (rows(U[i]), float(i % 2)) for i in range(5)})
+        st = _streaming.ModeStages(modes, 2 * np.pi * 30.0, dt, 1024)
+        outs = []
+        for k0, k1 in spans(T, 1024):
+            o = f.step(k0, k1)
+            outs += [o[i] for i in range(5)]
+            outs += st.step(o[0], o[1], U[0], U[1], k0, k1)
+        return outs
+
+    batched = run()
+    monkeypatch.setattr(_streaming, "FILTER_SAMPLES", 1024)
+    monkeypatch.setattr(_streaming, "MODE_SAMPLES", 1024)
+    assert _streaming.batch_top(_streaming.BATCHES, 1024, 1024) == 1
+    single = run()
+    assert len(batched) == len(single)
+    for a, b in zip(batched, single, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_long_record_helpers_in_chunks(monkeypatch):
     """What a long record computes in chunks: the zero-phase velocity (forwards, then
     backwards, chunk by chunk) in chunks of 1024 samples against one chunk, 1e-12 of its peak; a mains

@@ -36,8 +36,21 @@ CHUNK = 1 << 16
 #: holds them (one program per batch).
 BATCHES = (1, 2, 4, 8, 16, 32)
 MODE_BUCKETS = (1, 2, 4)
+#: The most signal samples (signals × chunk) one filter call holds, and mode samples (modes ×
+#: chunk) one mode-stage call: beyond them a call's arrays leave the processor's caches and its
+#: cost per sample rises 2–5× (:func:`batch_top`).
+FILTER_SAMPLES = 1 << 19
+MODE_SAMPLES = 1 << 17
 
 Raw = Callable[[int, int], np.ndarray]
+
+
+def batch_top(buckets: Sequence[int], samples: int, chunk: int) -> int:
+    """The largest of ``buckets`` whose calls on chunks of ``chunk`` samples hold at most
+    ``samples`` (the smallest where none does). Each signal's or mode's numbers are the same in
+    any batch: the batch sets only the cost."""
+    fit = [b for b in buckets if b * chunk <= samples]
+    return fit[-1] if fit else buckets[0]
 
 
 def rows(a) -> Raw:
@@ -155,7 +168,7 @@ class Filters:
         z = np.zeros((S, n)) if first else self.z
         V = np.empty((S, np.shape(self.dsc.C)[0], c))
         z_next = np.empty_like(z)
-        top = BATCHES[-1]
+        top = batch_top(BATCHES, FILTER_SAMPLES, W.shape[1] - 3)
         for i in range(0, S, top):
             j = min(i + top, S)
             b = next(b for b in BATCHES if b >= j - i)
@@ -187,7 +200,7 @@ class ModeStages:
         modes = np.asarray(modes, np.float64).reshape(-1, 2)
         self.m, self.lam, self.chunk = len(modes), float(lam), chunk
         self.groups = []  # (stages, ζ) of each group
-        top = MODE_BUCKETS[-1]
+        top = batch_top(MODE_BUCKETS, MODE_SAMPLES, chunk)
         for i in range(0, self.m, top):
             g = modes[i : i + top]
             full = np.concatenate([g, np.repeat(g[-1:], top - len(g), 0)])
