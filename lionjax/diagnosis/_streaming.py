@@ -193,8 +193,9 @@ class Filters:
 
 class ModeStages:
     """Flexible modes' stages (:func:`~._filtering.mode_cascade_from`) of modes (ω [rad/s], ζ)
-    (m, 2) chunk by chunk, their states carried; in groups of four, the last padded to a bucket
-    of :data:`MODE_BUCKETS` by repeating its last mode (one program per bucket)."""
+    (m, 2) chunk by chunk, their states carried; in groups of up to four (fewer where a chunk is
+    long: :data:`MODE_SAMPLES`), the last padded to a bucket of :data:`MODE_BUCKETS` by
+    repeating its last mode (one program per bucket)."""
 
     def __init__(self, modes, lam: float, dt: float, chunk: int):
         modes = np.asarray(modes, np.float64).reshape(-1, 2)
