@@ -243,7 +243,12 @@ PRIVATE_IMPORTS = {
         "the filter bank, the hold correction's order and a flexible mode's signals against "
         "scipy's discretisations at 1e-8 to 1e-9; every recursion read in chunks (the filter "
         "bank both ways, the zero-phase velocity, the input map, the mode's seed) against one "
-        "chunk at 1e-12"
+        "chunk at 1e-12; the filter and mode-stage calls of any batch size bit for bit"
+    ),
+    ("test_diagnose_kernels.py", "diagnosis._where.odd_input_dependence"): (
+        "the odd-input test's level on independent autocorrelated residuals, and its power on "
+        "a dead zone's, over Monte Carlo draws (a record's verdict shows it only where the "
+        "residual is otherwise noise-like)"
     ),
     ("test_diagnose_kernels.py", "diagnosis.effects._artefacts"): (
         "a mains line's projection in row blocks against numpy's lstsq on the whole design"

@@ -45,9 +45,13 @@ def judge(run: Run, stk: Stack) -> Verdict:
     crit, base, cur, st = run.crit, run.base, stk.fit, run.problem.st
     F = np.asarray(run.problem.valid.F)
     at_floor = base.equation_gap <= crit.floor_factor * run.floor
-    s_final = structure(cur.residual, F, st)
-    s_base = structure(base.residual, F, st)
-    noise_like = s_base["input_correlation"] <= 1.0 and s_base["peak"] <= crit.noise_peak
+    # a residual that depends on the input beyond linearly has structure; its test reads F_ref,
+    # F less the controller's answer to x, which a feedback too weak to call closed loop still
+    # fills with the position noise (its encoder steps among it)
+    s_final = structure(cur.residual, F, st, run.F_ref)
+    s_base = structure(base.residual, F, st, run.F_ref)
+    linear = s_base["input_odd"] <= 1.0
+    noise_like = s_base["input_correlation"] <= 1.0 and s_base["peak"] <= crit.noise_peak and linear
     # the share of the excess the stack removes; where the baseline is qualitatively wrong, at
     # least the share of the simulated gap
     ex0 = run.excess(base.ms_valid)
@@ -70,7 +74,7 @@ def judge(run: Run, stk: Stack) -> Verdict:
     # tests against the reference), or a gap below the least effect worth naming
     negligible = base.equation_gap / run.force_rms < crit.min_size
     ref = structure(base.residual, run.F_ref, st) if at_floor and run.closed_loop else s_base
-    quiet = at_floor and ref["input_correlation"] <= 1.0
+    quiet = at_floor and ref["input_correlation"] <= 1.0 and linear
     tests = {la.name: la.test(run, stk) for la in run.lookalikes}
     # the look-alikes compete in the equation error: no measure against a stack the simulation
     # confirmed that does not lower it

@@ -12,9 +12,16 @@ from __future__ import annotations
 
 import math
 from itertools import pairwise
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
+
+#: Lags of the residual tests (MATLAB ``resid``'s 20), and the autocorrelation lags Bartlett's
+#: factor sums for the odd-input test (:func:`odd_input_dependence`).
+LAGS, BARTLETT_LAGS = 20, 50
+#: Family-wise level of the odd-input test (over its two functions and 21 lags).
+ODD_LEVEL = 0.01
 
 
 def _bands(kind, labels, masks, r2, note="", weight=None):
@@ -43,11 +50,54 @@ def _xcorr_test(a: np.ndarray, b: np.ndarray, lags: int) -> dict[str, Any]:
     return {"max_abs": worst, "bound_99": bound, "passed": bool(worst <= bound)}
 
 
+def _decimated(r: np.ndarray, F: np.ndarray, st) -> tuple[np.ndarray, np.ndarray]:
+    """``r`` and ``F`` decimated to the filter's time constant."""
+    step = max(1, int(round(1.0 / (2 * math.pi * st.filter_hz * st.dt))))
+    return r[::step], F[::step]
+
+
 def _resid_tests(r: np.ndarray, F: np.ndarray, st) -> tuple[dict, dict]:
     """(whiteness, input correlation) of ``r`` decimated to the filter's time constant."""
-    step = max(1, int(round(1.0 / (2 * math.pi * st.filter_hz * st.dt))))
-    rd, Fd = r[::step], F[::step]
-    return _xcorr_test(rd, rd, 20), _xcorr_test(rd, Fd, 20)
+    rd, Fd = _decimated(r, F, st)
+    return _xcorr_test(rd, rd, LAGS), _xcorr_test(rd, Fd, LAGS)
+
+
+def _acf(a: np.ndarray, lags: int) -> np.ndarray:
+    """Sample autocorrelation of ``a`` at lags 1…``lags``."""
+    a = (a - a.mean()) / (a.std() or 1.0)
+    n = a.size
+    return np.array([np.mean(a[k:] * a[: n - k]) for k in range(1, min(lags, n - 1) + 1)])
+
+
+def odd_input_dependence(r: np.ndarray, F: np.ndarray, st) -> float:
+    """How far a residual ``r`` depends on the input F beyond linearly, relative to the
+    family-wise :data:`ODD_LEVEL` bound (> 1: significant).
+
+    A least-squares residual is uncorrelated with the regressors' linear terms in F, so an
+    effect that is an odd function of the force — a dead zone (F − d·sign F outside ±d),
+    a saturation — leaves a residual the input correlation test cannot see. Billings and
+    Voon's higher-order correlation tests read it: with r and F decimated to the filter's time
+    constant, for g = sign F and g = F³, each less its least-squares part in (1, F), the
+    statistic is max over lags 0…20 of |ρ(r, g)|·√(n/β), β = 1 + 2Σₖρ_r(k)ρ_g(k) (k = 1…50)
+    Bartlett's factor for two autocorrelated series, over the normal quantile of
+    1 − ODD_LEVEL/(2·2·21) (Bonferroni over both functions and all lags)."""
+    rd, Fd = _decimated(np.asarray(r, np.float64), np.asarray(F, np.float64)[: np.size(r)], st)
+    n = rd.size
+    if n < 2 * BARTLETT_LAGS or not np.std(rd) > 0 or not np.std(Fd) > 0:
+        return 0.0
+    X = np.column_stack([np.ones(n), Fd])
+    a = (rd - rd.mean()) / rd.std()
+    ra = _acf(rd, BARTLETT_LAGS)
+    worst = 0.0
+    for g in (np.sign(Fd), Fd**3):
+        g = g - X @ np.linalg.lstsq(X, g, rcond=None)[0]
+        if not np.std(g) > 0:
+            continue
+        b = (g - g.mean()) / g.std()
+        beta = max(1.0 + 2.0 * float(np.sum(ra * _acf(g, BARTLETT_LAGS))), 1.0)
+        rho = max(abs(float(np.mean(a[k:] * b[: n - k]))) for k in range(LAGS + 1))
+        worst = max(worst, rho * math.sqrt(n / beta))
+    return worst / NormalDist().inv_cdf(1.0 - ODD_LEVEL / (2 * 2 * (LAGS + 1)))
 
 
 def _spectrum(r: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -114,11 +164,15 @@ def where_findings(series: dict[str, np.ndarray], st, floor: float) -> list[dict
     return out
 
 
-def structure(r: np.ndarray, F: np.ndarray, st) -> dict[str, float]:
+def structure(
+    r: np.ndarray, F: np.ndarray, st, F_odd: np.ndarray | None = None
+) -> dict[str, float]:
     """How structured a validation residual is, relative to the 99 % bound of white noise:
 
     - ``input_correlation``: max |ρ(r, F)| over lags 0…20 / bound — a residual that still
       follows the input holds an unmodelled input-driven effect;
+    - ``input_odd``: :func:`odd_input_dependence` on ``F_odd`` (default F) — one that depends
+      on the input beyond linearly (a dead zone, a saturation) does too;
     - ``whiteness``: max |ρ(r, r)| over lags 1…20 / bound (ε₁ is filtered, so this is > 1 even
       for white noise on x; compare a structure before and after a candidate);
     - ``peak``: the largest power of the residual's spectrum (smoothed over ±2 bins) in
@@ -136,6 +190,7 @@ def structure(r: np.ndarray, F: np.ndarray, st) -> dict[str, float]:
         peak, peak_power = 1.0, 0.0
     return {
         "input_correlation": c["max_abs"] / c["bound_99"],
+        "input_odd": odd_input_dependence(r, F if F_odd is None else F_odd, st),
         "whiteness": w["max_abs"] / w["bound_99"],
         "peak": peak,
         "peak_power": peak_power,
