@@ -48,7 +48,7 @@ Raw = Callable[[int, int], np.ndarray]
 def batch_top(buckets: Sequence[int], samples: int, chunk: int) -> int:
     """The largest of ``buckets`` whose calls on chunks of ``chunk`` samples hold at most
     ``samples`` (the smallest where none does). Each signal's or mode's numbers are the same in
-    any batch: the batch sets only the cost."""
+    any batch, bit for bit at XLA's default optimisation level: the batch sets only the cost."""
     fit = [b for b in buckets if b * chunk <= samples]
     return fit[-1] if fit else buckets[0]
 
