@@ -40,13 +40,21 @@ def _bands(kind, labels, masks, r2, note="", weight=None):
     return out
 
 
-def _xcorr_test(a: np.ndarray, b: np.ndarray, lags: int) -> dict[str, Any]:
+def _lagged(a: np.ndarray, b: np.ndarray, first: int, last: int) -> np.ndarray:
+    """ρ(a, b) at lags ``first`` … ``last``: the means of a[k:]·b[:n − k] of the two series
+    standardised (a series without spread left centred)."""
     a = (a - a.mean()) / (a.std() or 1.0)
     b = (b - b.mean()) / (b.std() or 1.0)
     n = a.size
-    vals = [float(np.mean(a[k:] * b[: n - k])) for k in range(0 if a is not b else 1, lags + 1)]
-    bound = 2.576 / math.sqrt(n)
-    worst = float(np.max(np.abs(vals))) if vals else 0.0
+    return np.array([np.mean(a[k:] * b[: n - k]) for k in range(first, last + 1)])
+
+
+def _xcorr_test(a: np.ndarray, b: np.ndarray, lags: int, first: int = 0) -> dict[str, Any]:
+    """The largest |ρ(a, b)| over lags ``first`` … ``lags`` against the 99 % bound of white
+    noise, 2.576/√n."""
+    vals = _lagged(a, b, first, lags)
+    bound = 2.576 / math.sqrt(a.size)
+    worst = float(np.max(np.abs(vals))) if vals.size else 0.0
     return {"max_abs": worst, "bound_99": bound, "passed": bool(worst <= bound)}
 
 
@@ -60,13 +68,6 @@ def _resid_tests(r: np.ndarray, F: np.ndarray, st) -> tuple[dict, dict]:
     """(whiteness, input correlation) of ``r`` decimated to the filter's time constant."""
     rd, Fd = _decimated(r, F, st)
     return _xcorr_test(rd, rd, LAGS), _xcorr_test(rd, Fd, LAGS)
-
-
-def _acf(a: np.ndarray, lags: int) -> np.ndarray:
-    """Sample autocorrelation of ``a`` at lags 1…``lags``."""
-    a = (a - a.mean()) / (a.std() or 1.0)
-    n = a.size
-    return np.array([np.mean(a[k:] * a[: n - k]) for k in range(1, min(lags, n - 1) + 1)])
 
 
 def odd_input_dependence(r: np.ndarray, F: np.ndarray, st) -> float:
@@ -86,16 +87,14 @@ def odd_input_dependence(r: np.ndarray, F: np.ndarray, st) -> float:
     if n < 2 * BARTLETT_LAGS or not np.std(rd) > 0 or not np.std(Fd) > 0:
         return 0.0
     X = np.column_stack([np.ones(n), Fd])
-    a = (rd - rd.mean()) / rd.std()
-    ra = _acf(rd, BARTLETT_LAGS)
+    ra = _lagged(rd, rd, 1, BARTLETT_LAGS)
     worst = 0.0
     for g in (np.sign(Fd), Fd**3):
         g = g - X @ np.linalg.lstsq(X, g, rcond=None)[0]
         if not np.std(g) > 0:
             continue
-        b = (g - g.mean()) / g.std()
-        beta = max(1.0 + 2.0 * float(np.sum(ra * _acf(g, BARTLETT_LAGS))), 1.0)
-        rho = max(abs(float(np.mean(a[k:] * b[: n - k]))) for k in range(LAGS + 1))
+        beta = max(1.0 + 2.0 * float(np.sum(ra * _lagged(g, g, 1, BARTLETT_LAGS))), 1.0)
+        rho = _xcorr_test(rd, g, LAGS)["max_abs"]
         worst = max(worst, rho * math.sqrt(n / beta))
     return worst / NormalDist().inv_cdf(1.0 - ODD_LEVEL / (2 * 2 * (LAGS + 1)))
 
