@@ -240,29 +240,41 @@ def many(args) -> dict:
     return out
 
 
+def _alternated(pairs: list, lj, repeats: int, module, arms: dict) -> tuple[dict, dict]:
+    """The compiled loop of ``lj.diagnose`` over ``pairs`` under each arm {name: {attribute:
+    value}} of ``module``'s settings, the arms alternated ``repeats`` times (other work on the
+    core), the settings restored after each: ({name: the least seconds}, {name: the diagnoses
+    of its last loop})."""
+    kept = {k: getattr(module, k) for values in arms.values() for k in values}
+    times: dict = {name: [] for name in arms}
+    last: dict = {}
+    for _ in range(repeats):
+        for name, values in arms.items():
+            for k, v in values.items():
+                setattr(module, k, v)
+            try:
+                t0 = time.perf_counter()
+                last[name] = [lj.diagnose(tr, va) for _, tr, va in pairs]
+                times[name].append(time.perf_counter() - t0)
+            finally:
+                for k, v in kept.items():
+                    setattr(module, k, v)
+    return {name: min(t) for name, t in times.items()}, last
+
+
 def _blas_threads(pairs: list, lj, repeats: int) -> dict:
     """The compiled loop of ``lj.diagnose`` over ``pairs`` with the host BLAS on one thread (the
     diagnosis' setting, ``lionjax.diagnosis._core.BLAS_THREADS``) and on the host's default,
     alternated ``repeats`` times: the least of each, and whether the verdicts match."""
     from lionjax.diagnosis import _core
 
-    times: dict = {1: [], None: []}
-    keys: dict = {}
-    kept = _core.BLAS_THREADS
-    for _ in range(repeats):
-        for n in (1, None):
-            _core.BLAS_THREADS = n
-            try:
-                t0 = time.perf_counter()
-                ds = [lj.diagnose(tr, va) for _, tr, va in pairs]
-                times[n].append(time.perf_counter() - t0)
-            finally:
-                _core.BLAS_THREADS = kept
-            keys[n] = [_key(d.verdict, d.confidence, d.stack) for d in ds]
+    arms = {"one": {"BLAS_THREADS": 1}, "default": {"BLAS_THREADS": None}}
+    t, ds = _alternated(pairs, lj, repeats, _core, arms)
+    keys = {a: [_key(d.verdict, d.confidence, d.stack) for d in ds[a]] for a in arms}
     out = {
-        "one_thread_s": min(times[1]),
-        "default_threads_s": min(times[None]),
-        "same_verdicts": keys[1] == keys[None],
+        "one_thread_s": t["one"],
+        "default_threads_s": t["default"],
+        "same_verdicts": keys["one"] == keys["default"],
     }
     out["default_over_one"] = out["default_threads_s"] / out["one_thread_s"]
     print(
@@ -279,24 +291,18 @@ def _call_sizes(pairs: list, lj, repeats: int) -> dict:
     each, and whether the reports (their whole JSON) are the same bit for bit."""
     from lionjax.diagnosis import _streaming
 
-    kept = (_streaming.FILTER_SAMPLES, _streaming.MODE_SAMPLES)
-    arms = {"capped": kept, "uncapped": (1 << 62, 1 << 62)}
-    times: dict = {a: [] for a in arms}
-    prints: dict = {}
-    for _ in range(repeats):
-        for arm, caps in arms.items():
-            _streaming.FILTER_SAMPLES, _streaming.MODE_SAMPLES = caps
-            try:
-                t0 = time.perf_counter()
-                ds = [lj.diagnose(tr, va) for _, tr, va in pairs]
-                times[arm].append(time.perf_counter() - t0)
-            finally:
-                _streaming.FILTER_SAMPLES, _streaming.MODE_SAMPLES = kept
-            text = json.dumps([d.to_json() for d in ds], sort_keys=True, default=str)
-            prints[arm] = hashlib.sha256(text.encode()).hexdigest()
+    capped = {"FILTER_SAMPLES": _streaming.FILTER_SAMPLES, "MODE_SAMPLES": _streaming.MODE_SAMPLES}
+    arms = {"capped": capped, "uncapped": dict.fromkeys(capped, 1 << 62)}
+    t, ds = _alternated(pairs, lj, repeats, _streaming, arms)
+    prints = {
+        a: hashlib.sha256(
+            json.dumps([d.to_json() for d in ds[a]], sort_keys=True, default=str).encode()
+        ).hexdigest()
+        for a in arms
+    }
     out = {
-        "capped_s": min(times["capped"]),
-        "uncapped_s": min(times["uncapped"]),
+        "capped_s": t["capped"],
+        "uncapped_s": t["uncapped"],
         "same_reports": prints["capped"] == prints["uncapped"],
     }
     out["uncapped_over_capped"] = out["uncapped_s"] / out["capped_s"]
