@@ -256,6 +256,31 @@ def test_odd_input_dependence_level_and_power():
     assert dead >= 0.95 * draws, dead
 
 
+def test_whiteness_reads_lags_one_to_twenty():
+    """The whiteness test (MATLAB ``resid``'s: max |ρ(r, r)| over lags 1…20 against 2.576/√n):
+    white noise passes it in at least 70 % of 200 draws (each lag's level 1 %: 1 − 0.99²⁰ =
+    18 % expected to fail), an AR(1) residual of pole 0.5 (ρ(1) = 0.5) fails it in all; lag 0,
+    ρ = 1, is no part of it."""
+    from types import SimpleNamespace
+
+    from lionjax.diagnosis._where import structure
+
+    st = SimpleNamespace(filter_hz=1000.0 / (2 * np.pi), dt=1e-3)  # no decimation
+    rng = np.random.default_rng(12)
+    n, draws = 2000, 200
+    white = ar = 0
+    for _ in range(draws):
+        e, F = rng.standard_normal(n), rng.standard_normal(n)
+        white += structure(e, F, st)["whiteness"] <= 1.0
+        r = np.empty(n)
+        r[0] = e[0]
+        for k in range(1, n):
+            r[k] = 0.5 * r[k - 1] + e[k]
+        ar += structure(r, F, st)["whiteness"] > 1.0
+    assert white >= 0.7 * draws, white
+    assert ar == draws, ar
+
+
 def test_noise_floor_counts_sparse_noise():
     """σ of the noise floor (third differences) against the drawn noise: Gaussian noise within
     5 %; sparse noise (a coarse encoder's steps: nonzero at 10 % of samples) within 20 % of its

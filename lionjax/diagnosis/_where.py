@@ -67,7 +67,7 @@ def _decimated(r: np.ndarray, F: np.ndarray, st) -> tuple[np.ndarray, np.ndarray
 def _resid_tests(r: np.ndarray, F: np.ndarray, st) -> tuple[dict, dict]:
     """(whiteness, input correlation) of ``r`` decimated to the filter's time constant."""
     rd, Fd = _decimated(r, F, st)
-    return _xcorr_test(rd, rd, LAGS), _xcorr_test(rd, Fd, LAGS)
+    return _xcorr_test(rd, rd, LAGS, first=1), _xcorr_test(rd, Fd, LAGS)
 
 
 def odd_input_dependence(r: np.ndarray, F: np.ndarray, st) -> float:
