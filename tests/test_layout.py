@@ -245,10 +245,11 @@ PRIVATE_IMPORTS = {
         "bank both ways, the zero-phase velocity, the input map, the mode's seed) against one "
         "chunk at 1e-12; the filter and mode-stage calls of any batch size bit for bit"
     ),
-    ("test_diagnose_kernels.py", "diagnosis._where.odd_input_dependence"): (
-        "the odd-input test's level on independent autocorrelated residuals, and its power on "
-        "a dead zone's, over Monte Carlo draws (a record's verdict shows it only where the "
-        "residual is otherwise noise-like)"
+    ("test_diagnose_kernels.py", "diagnosis._where"): (
+        "the residual tests over Monte Carlo draws: the odd-input test's level on independent "
+        "autocorrelated residuals and its power on a dead zone's, the whiteness test's on white "
+        "and AR(1) residuals (a record's verdict shows the first only where the residual is "
+        "otherwise noise-like, and no verdict reads the second)"
     ),
     ("test_diagnose_kernels.py", "diagnosis.effects._artefacts"): (
         "a mains line's projection in row blocks against numpy's lstsq on the whole design"
