@@ -131,6 +131,23 @@ def pytest_configure(config):
         os.environ["XLA_FLAGS"] = f"{flags} {_FAST_TIER_FLAG}".strip()
 
 
+@pytest.fixture
+def smoke_env() -> dict[str, str]:
+    """The environment of a subprocess that runs lionjax at tiny sizes (a benchmark script's
+    smoke run, the two-device sharding check): this run's, with the repository on PYTHONPATH
+    and, where the emitter flag above is set (a CPU run), LLVM at level 0. Such a child is
+    compile-bound like the README's test command: level 0 took throughput.py's smoke run from
+    34.9 to 24.4 s of CPU on the 2-core machine. Its comparisons are of programs compiled alike
+    (sharded against unsharded, Pallas against the XLA loop at its tolerance), not bit for bit
+    against the slow tier's own level."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    flags = env.get("XLA_FLAGS", "")
+    if _FLAG in flags and "xla_backend_optimization_level" not in flags:
+        env["XLA_FLAGS"] = f"{flags} {_FAST_TIER_FLAG}"
+    return env
+
+
 def pytest_collection_modifyitems(config, items):
     """The notebooks (nbmake's items) belong to the slow tier: the README's test command
     (``-m "not slow"``) leaves them out, ``.ci/run``'s second step (``-m slow``) runs them."""

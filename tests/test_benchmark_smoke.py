@@ -1,7 +1,6 @@
 """Smoke runs of the benchmarks at tiny sizes (throughput.py with its numba arm; gpu_check.py --dry-run; the records of diagnosis_speed.py --lengths against scipy)."""
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,9 +13,8 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_throughput_smoke(tmp_path):
+def test_throughput_smoke(tmp_path, smoke_env):
     out = tmp_path / "out.json"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     cmd = [
         sys.executable,
         str(ROOT / "benchmarks" / "throughput.py"),
@@ -31,7 +29,7 @@ def test_throughput_smoke(tmp_path):
         "--json",
         str(out),
     ]
-    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    res = subprocess.run(cmd, env=smoke_env, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-3000:]
     data = json.loads(out.read_text())
     assert data["lionjax"]["law"] == "exact" and data["lionjax"]["msps"] > 0
@@ -39,11 +37,10 @@ def test_throughput_smoke(tmp_path):
         assert data["numba"]["agrees"]
 
 
-def test_gpu_check_dry_run(tmp_path):
+def test_gpu_check_dry_run(tmp_path, smoke_env):
     """benchmarks/gpu_check.py --dry-run: the GPU check's code paths on the CPU at tiny sizes
     (Pallas in interpret mode, no CuPy, pytest collects only)."""
     out = tmp_path / "gpu_check.json"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     cmd = [
         sys.executable,
         str(ROOT / "benchmarks" / "gpu_check.py"),
@@ -51,7 +48,7 @@ def test_gpu_check_dry_run(tmp_path):
         "--out",
         str(out),
     ]
-    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    res = subprocess.run(cmd, env=smoke_env, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     data = json.loads(out.read_text())
     assert data["dry_run"] is True

@@ -1,11 +1,9 @@
 """Sharded over two forced host devices == unsharded (run in a subprocess: the device count
 must be fixed before JAX starts, and the rest of the suite keeps one device)."""
 
-import os
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import pytest
 
@@ -65,12 +63,9 @@ SCRIPT = textwrap.dedent(
 )
 
 
-def test_sharded_equals_unsharded_on_two_host_devices():
-    env = dict(os.environ)
+def test_sharded_equals_unsharded_on_two_host_devices(smoke_env):
+    env = dict(smoke_env)
     env["XLA_FLAGS"] = env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
-    env["PYTHONPATH"] = (
-        str(Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
-    )
     out = subprocess.run(
         [sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300
     )
