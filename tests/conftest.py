@@ -121,7 +121,8 @@ _FAST_TIER_FLAG = "--xla_backend_optimization_level=0"
 def pytest_configure(config):
     """Level 0 for the README's test command, set before any backend starts: XLA reads
     XLA_FLAGS when the first computation starts its backend, and the pytest-xdist workers,
-    started after this hook, inherit it."""
+    started after this hook, inherit it. (And the compile-bound notebooks' level.)"""
+    config.pluginmanager.register(_NotebookLevel(), "lionjax-notebook-level")
     flags = os.environ.get("XLA_FLAGS", "")
     if (
         (config.option.markexpr or "").strip() == "not slow"
@@ -129,6 +130,43 @@ def pytest_configure(config):
         and "xla_backend_optimization_level" not in flags
     ):
         os.environ["XLA_FLAGS"] = f"{flags} {_FAST_TIER_FLAG}".strip()
+
+
+def _level_zero(env) -> str | None:
+    """``env``'s XLA_FLAGS with LLVM at level 0, where the emitter flag above is set (a CPU run)
+    and no level is; None otherwise."""
+    flags = env.get("XLA_FLAGS", "")
+    if _FLAG in flags and "xla_backend_optimization_level" not in flags:
+        return f"{flags} {_FAST_TIER_FLAG}"
+    return None
+
+
+#: The notebooks whose kernels are compile-bound at their small size: their kernels compile at
+#: level 0 (CPU seconds of a cold kernel on the 2-core machine, default → level 0: 01 30.6 →
+#: 24.5, 02 42.0 → 28.3, 03 30.1 → 27.6; 04, whose diagnoses are run-bound, 34.2 → 35.7, keeps
+#: the default).
+COMPILE_BOUND_NOTEBOOKS = ("01_paper.ipynb", "02_gain_pole_study.ipynb", "03_sim_to_real.ipynb")
+
+
+class _NotebookLevel:
+    """A plugin (registered in :func:`pytest_configure`: a hook of this file would only see
+    items under tests/): a compile-bound notebook's kernel, started in the call phase, inherits
+    level 0. This process's own backend is untouched (the notebook item computes nothing here,
+    and XLA reads its flags when the backend starts), and the flags are restored after."""
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_call(self, item):
+        name = pathlib.Path(str(item.path)).name
+        flags = _level_zero(os.environ) if name in COMPILE_BOUND_NOTEBOOKS else None
+        if flags is None:
+            yield
+            return
+        before = os.environ["XLA_FLAGS"]
+        os.environ["XLA_FLAGS"] = flags
+        try:
+            yield
+        finally:
+            os.environ["XLA_FLAGS"] = before
 
 
 @pytest.fixture
@@ -142,9 +180,7 @@ def smoke_env() -> dict[str, str]:
     against the slow tier's own level."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    flags = env.get("XLA_FLAGS", "")
-    if _FLAG in flags and "xla_backend_optimization_level" not in flags:
-        env["XLA_FLAGS"] = f"{flags} {_FAST_TIER_FLAG}"
+    env["XLA_FLAGS"] = _level_zero(env) or env.get("XLA_FLAGS", "")
     return env
 
 
