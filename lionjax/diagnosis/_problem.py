@@ -125,7 +125,7 @@ class Problem:
             x, F = (np.asarray(a, np.float64) for a in (rec.x, rec.F))
             T = rec.n_samples
             chunk = self.chunk or (chunk_length(T) if self.streamed else padded_length(T))
-            self.memo[key] = RecordSignals(rec, x, F, np.asarray(v), chunk)
+            self.memo[key] = RecordSignals(rec, x, F, np.asarray(v), chunk, role=role)
         return self.memo[key]
 
     def regressors(self, d: Design) -> tuple[Regressors, Regressors]:

@@ -96,7 +96,8 @@ def model_key(model) -> tuple:
 class RecordSignals:
     """A record as the effects' ``signals(rs)`` read it: ``x`` [m], ``F`` [N] in float64, the
     zero-phase velocity ``v`` [m/s] (every friction column reads the same v̂), the chunk it is
-    read in, and a ``memo`` of costly raw signals (Dahl's states) its regressors share."""
+    read in, a ``memo`` of costly raw signals (Dahl's states) its regressors share, and its
+    ``role`` ("train", where the parameters are fitted, or "valid"; "" for another record)."""
 
     record: Record
     x: np.ndarray
@@ -104,6 +105,7 @@ class RecordSignals:
     v: np.ndarray
     chunk: int
     memo: dict = dataclasses.field(default_factory=dict)
+    role: str = ""
 
     @property
     def dt(self) -> float:

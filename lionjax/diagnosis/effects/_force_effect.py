@@ -157,7 +157,7 @@ class ForceColumns(AbstractEffect):
 
     def signals(self, rs) -> dict:
         x = jnp.asarray(rs.x)
-        phis = checked_basis(self.effect, rs.record, jnp.asarray(rs.v))
+        phis = checked_basis(self.effect, rs.record, jnp.asarray(rs.v), fitted=rs.role == "train")
         # a correction of the measured F is held as F is (zero order), a force of the state as
         # x is (first order)
         hold = "zoh" if self.effect.acts_on == "measurement" else "foh"

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._errors import InputError
+from ..._units import unit
 from ._base import AbstractCandidate
 
 #: The rules of docs/effects.md ("Rules for a good candidate", "What a candidate is"), quoted.
@@ -36,6 +37,8 @@ RULES = {
     "each parameter and nonlinear field",
     "names": "Names of one's own: a parameter name may not be one the diagnosis already "
     "reports, nor another candidate's",
+    "fitted": "Nonzero where it is fitted: each basis function is fitted on the training "
+    "record, and one that is zero at every training sample leaves its parameter undetermined",
 }
 
 #: Samples of each traced argument in the probe of a basis (a few simulated windows).
@@ -244,8 +247,10 @@ def _probe(candidate, prefix: str = "diagnose: ") -> None:
     _PROBED.add(cls)
 
 
-def checked_basis(candidate, record, v) -> tuple:
-    """``candidate.record_basis(record, v)``, checked as :func:`_values` and finite."""
+def checked_basis(candidate, record, v, *, fitted: bool = False) -> tuple:
+    """``candidate.record_basis(record, v)``, checked as :func:`_values` and finite; on the
+    record its parameters are ``fitted`` on (the training record), not zero throughout either
+    (its column would be zero: no value of the parameter fits better than another)."""
     if not is_users(candidate):
         return tuple(candidate.record_basis(record, v))
     try:
@@ -259,6 +264,7 @@ def checked_basis(candidate, record, v) -> tuple:
             "make basis work on jnp arrays elementwise (no Python if on their values: jnp.where)",
         ) from None
     phis = _values(candidate, phis, tuple(record.x.shape), "on the record")
+    m = unit("m", record.units)
     for j, phi in enumerate(phis):
         a = np.broadcast_to(np.asarray(phi, np.float64), record.x.shape)
         bad = np.flatnonzero(~np.isfinite(a))
@@ -268,9 +274,20 @@ def checked_basis(candidate, record, v) -> tuple:
                 candidate,
                 f"basis function {j} ({candidate.parameters[j]}) is not finite at "
                 f"{bad.size} of the record's {record.n_samples} samples (the first: sample "
-                f"{k}, x = {float(np.asarray(record.x)[k]):.6g} m, value {float(a[k])})",
+                f"{k}, x = {float(np.asarray(record.x)[k]):.6g} {m}, value {float(a[k])})",
                 "finite",
                 "bound it (e.g. x / (x² + ε²) for 1/x, jnp.log(jnp.abs(v) + ε)), or leave the "
                 "effect out",
+            )
+        if fitted and not np.any(a):
+            raise _refuse(
+                candidate,
+                f"basis function {j} ({candidate.parameters[j]}) is zero at every one of the "
+                f"training record's {record.n_samples} samples (x from "
+                f"{float(np.min(record.x)):.6g} to {float(np.max(record.x)):.6g} {m}), so "
+                f"{candidate.parameters[j]} cannot be fitted",
+                "fitted",
+                "record training data where the effect acts (a region the training record "
+                "visits, a force or speed it reaches), or leave the effect out",
             )
     return phis
