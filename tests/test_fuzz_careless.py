@@ -244,6 +244,13 @@ CANDIDATES = textwrap.dedent(
 
 
     PythonIf = one("python_if", ("c_if",), _if)
+    # implausible answering a bool (True would read as the reason "True")
+    BoolImplausible = one(
+        "bool_implausible",
+        ("c_bi",),
+        lambda self, x, v, F, t: (jnp.tanh(v / 1e-3),),
+        implausible=lambda self, phys, limits: phys["c_bi"] < 0,
+    )
     ZeroBasis = one("zero_basis", ("c_zero",), lambda self, x, v, F, t: (jnp.zeros_like(x),))
     # a force on a part of the rail the training record never reaches (x is a few mm here)
     Unvisited = one("unvisited", ("c_un",), lambda self, x, v, F, t: (jnp.where(x > 10.0, 1.0, 0.0),))
@@ -297,6 +304,7 @@ MISTAKES_ON_RECORD = {
     "Inverse": r"'inverse' \(Inverse\): basis function 0 \(c_inv\) is not finite at 3000 of",
     "ZeroBasis": r"'zero_basis' \(ZeroBasis\): basis function 0 \(c_zero\) is zero at every one of the training record's 3000 samples.*Rule \(docs/effects\.md\): Nonzero where it is fitted",
     "Unvisited": r"'unvisited' \(Unvisited\): basis function 0 \(c_un\) is zero at every one of the training record's 3000 samples \(x from .* m\), so c_un cannot be fitted",
+    "BoolImplausible": r"'bool_implausible' \(BoolImplausible\): implausible returned (True|False) \(a bool\), not a reason\. Rule \(docs/effects\.md\): Physics in implausible",
     "EmptyGrid": r"'empty_grid' \(EmptyGrid\): grid returned no Module to search.*Rule",
     "FloatGrid": r"'float_grid' \(FloatGrid\): grid returned a float \(0\.001\) among its 3 points, not a FloatGrid",
     "Raises": r"the candidate file .*bad_candidates\.py failed \(line \d+, in grid\): AttributeError",

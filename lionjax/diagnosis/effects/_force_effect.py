@@ -20,6 +20,7 @@ from the simulation's input.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from typing import ClassVar
 
@@ -32,7 +33,7 @@ from ..._models import AbstractEffect, Column
 from ..._record import Record
 from .._search import GoldenSection, GridSearch
 from ._base import AbstractCandidate, Limits
-from ._user_checks import check_definitions, checked_basis, checked_grid, traced
+from ._user_checks import check_definitions, checked_basis, checked_grid, checked_reason, traced
 
 #: Golden-section steps of a profile's refinement (each shrinks the bracket by 0.618: 16 leave
 #: 5·10⁻⁴ of the grid's spacing).
@@ -49,6 +50,20 @@ class ForceEffect(AbstractCandidate):
 
     parameters: ClassVar[tuple[str, ...]]
     nonlinear: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs):
+        """A user's own :meth:`implausible` is checked on every call: it returns a reason (a
+        str) or None, else the rule is quoted (:func:`checked_reason`)."""
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("implausible")
+        if own is None or cls.__module__.startswith("lionjax."):
+            return
+
+        @functools.wraps(own)
+        def implausible(self, phys, lim):
+            return checked_reason(self, own(self, phys, lim))
+
+        cls.implausible = implausible
 
     @property
     def n_params(self) -> int:  # type: ignore[override]

@@ -37,6 +37,9 @@ RULES = {
     "each parameter and nonlinear field",
     "names": "Names of one's own: a parameter name may not be one the diagnosis already "
     "reports, nor another candidate's",
+    "physics": "Physics in implausible: return why the fitted parameters are not physical, "
+    'as a str ("" or None when they are), and call super().implausible to keep the check '
+    "b > 0",
     "fitted": "Nonzero where it is fitted: each basis function is fitted on the training "
     "record, and one that is zero at every training sample leaves its parameter undetermined",
 }
@@ -245,6 +248,20 @@ def _probe(candidate, prefix: str = "diagnose: ") -> None:
         ) from None
     _values(candidate, out, (PROBE_WINDOWS,), "in the simulation", prefix)
     _PROBED.add(cls)
+
+
+def checked_reason(candidate, why):
+    """What a user's ``implausible`` returned, if a reason (a str, or None for none: ""), else
+    the InputError of the rule (a bool would read as a reason "True")."""
+    if why is None or isinstance(why, str):
+        return why or ""
+    raise _refuse(
+        candidate,
+        f"implausible returned {why!r} (a {type(why).__name__}), not a reason",
+        "physics",
+        'return a str saying what is not physical, e.g. "drag would push along the motion" '
+        'if not phys["c2"] > 0, and super().implausible(phys, limits) otherwise',
+    )
 
 
 def checked_basis(candidate, record, v, *, fitted: bool = False) -> tuple:
