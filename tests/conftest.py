@@ -121,8 +121,7 @@ _FAST_TIER_FLAG = "--xla_backend_optimization_level=0"
 def pytest_configure(config):
     """Level 0 for the README's test command, set before any backend starts: XLA reads
     XLA_FLAGS when the first computation starts its backend, and the pytest-xdist workers,
-    started after this hook, inherit it. (And the compile-bound notebooks' level.)"""
-    config.pluginmanager.register(_NotebookLevel(), "lionjax-notebook-level")
+    started after this hook, inherit it."""
     flags = os.environ.get("XLA_FLAGS", "")
     if (
         (config.option.markexpr or "").strip() == "not slow"
@@ -141,34 +140,6 @@ def _level_zero(env) -> str | None:
     return None
 
 
-#: The notebooks whose kernels are compile-bound at their small size: their kernels compile at
-#: level 0 (CPU seconds of a cold kernel on the 2-core machine, default → level 0: 01 30.6 →
-#: 24.5, 02 42.0 → 28.3, 03 30.1 → 27.6; 04, whose diagnoses are run-bound, 34.2 → 35.7, keeps
-#: the default).
-COMPILE_BOUND_NOTEBOOKS = ("01_paper.ipynb", "02_gain_pole_study.ipynb", "03_sim_to_real.ipynb")
-
-
-class _NotebookLevel:
-    """A plugin (registered in :func:`pytest_configure`: a hook of this file would only see
-    items under tests/): a compile-bound notebook's kernel, started in the call phase, inherits
-    level 0. This process's own backend is untouched (the notebook item computes nothing here,
-    and XLA reads its flags when the backend starts), and the flags are restored after."""
-
-    @pytest.hookimpl(hookwrapper=True)
-    def pytest_runtest_call(self, item):
-        name = pathlib.Path(str(item.path)).name
-        flags = _level_zero(os.environ) if name in COMPILE_BOUND_NOTEBOOKS else None
-        if flags is None:
-            yield
-            return
-        before = os.environ["XLA_FLAGS"]
-        os.environ["XLA_FLAGS"] = flags
-        try:
-            yield
-        finally:
-            os.environ["XLA_FLAGS"] = before
-
-
 @pytest.fixture
 def smoke_env() -> dict[str, str]:
     """The environment of a subprocess that runs lionjax at tiny sizes (a benchmark script's
@@ -177,7 +148,9 @@ def smoke_env() -> dict[str, str]:
     compile-bound like the README's test command: level 0 took throughput.py's smoke run from
     34.9 to 24.4 s of CPU on the 2-core machine. Its comparisons are of programs compiled alike
     (sharded against unsharded, Pallas against the XLA loop at its tolerance), not bit for bit
-    against the slow tier's own level."""
+    against the slow tier's own level. (Not the notebooks: their kernels share the compilation
+    cache that the slow tier's own tests fill at the default level, and at level 0 they ran
+    slower in .ci/run, 01_paper 23.6 → 33.0 s.)"""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     env["XLA_FLAGS"] = _level_zero(env) or env.get("XLA_FLAGS", "")
