@@ -118,19 +118,6 @@ pytest.approx = _approx
 _FAST_TIER_FLAG = "--xla_backend_optimization_level=0"
 
 
-def pytest_configure(config):
-    """Level 0 for the README's test command, set before any backend starts: XLA reads
-    XLA_FLAGS when the first computation starts its backend, and the pytest-xdist workers,
-    started after this hook, inherit it."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    if (
-        (config.option.markexpr or "").strip() == "not slow"
-        and _FLAG in flags
-        and "xla_backend_optimization_level" not in flags
-    ):
-        os.environ["XLA_FLAGS"] = f"{flags} {_FAST_TIER_FLAG}".strip()
-
-
 def _level_zero(env) -> str | None:
     """``env``'s XLA_FLAGS with LLVM at level 0, where the emitter flag above is set (a CPU run)
     and no level is; None otherwise."""
@@ -138,6 +125,15 @@ def _level_zero(env) -> str | None:
     if _FLAG in flags and "xla_backend_optimization_level" not in flags:
         return f"{flags} {_FAST_TIER_FLAG}"
     return None
+
+
+def pytest_configure(config):
+    """Level 0 for the README's test command, set before any backend starts: XLA reads
+    XLA_FLAGS when the first computation starts its backend, and the pytest-xdist workers,
+    started after this hook, inherit it."""
+    flags = _level_zero(os.environ)
+    if (config.option.markexpr or "").strip() == "not slow" and flags:
+        os.environ["XLA_FLAGS"] = flags
 
 
 @pytest.fixture
