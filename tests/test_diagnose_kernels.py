@@ -217,6 +217,15 @@ def test_feedback_share_reads_a_low_rate_open_loop_as_open():
         assert _feedback(*run(smooth, 100.0, 1.0))[0] > max(0.9, Criteria().feedback_share)
 
 
+def _ar1(e: np.ndarray, p: float) -> np.ndarray:
+    """The AR(1) series y[k] = p·y[k − 1] + e[k], y[0] = e[0]."""
+    out = np.empty_like(e)
+    out[0] = e[0]
+    for k in range(1, e.size):
+        out[k] = p * out[k - 1] + e[k]
+    return out
+
+
 def test_odd_input_dependence_level_and_power():
     """The odd-input test (:func:`~lionjax.diagnosis._where.odd_input_dependence`): on residuals
     independent of the input, autocorrelated (AR(1), pole 0.8) against a low-passed Gaussian
@@ -232,19 +241,11 @@ def test_odd_input_dependence_level_and_power():
     st = SimpleNamespace(filter_hz=1000.0 / (2 * np.pi), dt=1e-3)  # no decimation
     rng = np.random.default_rng(11)
     n = 1500
-
-    def ar(e, p):
-        out = np.empty_like(e)
-        out[0] = e[0]
-        for k in range(1, e.size):
-            out[k] = p * out[k - 1] + e[k]
-        return out
-
     null, linear, dead = 0, 0, 0
     draws = 300
     for _ in range(draws):
-        F = ar(rng.standard_normal(n), 0.7)
-        noise = ar(rng.standard_normal(n), 0.8)
+        F = _ar1(rng.standard_normal(n), 0.7)
+        noise = _ar1(rng.standard_normal(n), 0.8)
         null += odd_input_dependence(noise, F, st) > 1.0
         lin = noise + 0.3 * sum(np.roll(F, k) for k in range(4))
         linear += odd_input_dependence(lin, F, st) > 1.0
@@ -272,11 +273,7 @@ def test_whiteness_reads_lags_one_to_twenty():
     for _ in range(draws):
         e, F = rng.standard_normal(n), rng.standard_normal(n)
         white += structure(e, F, st)["whiteness"] <= 1.0
-        r = np.empty(n)
-        r[0] = e[0]
-        for k in range(1, n):
-            r[k] = 0.5 * r[k - 1] + e[k]
-        ar += structure(r, F, st)["whiteness"] > 1.0
+        ar += structure(_ar1(e, 0.5), F, st)["whiteness"] > 1.0
     assert white >= 0.7 * draws, white
     assert ar == draws, ar
 
