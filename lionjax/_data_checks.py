@@ -10,9 +10,11 @@ of the signal s (x or F) alone:
 - a **spike** is a run of at most :data:`SPIKE_RUN` samples s[k … k+m−1] that all depart, on the
   same side, from the mean of the two samples around the run, s̄ = (s[k−1] + s[k+m])/2, by at
   least h, while those two agree within h/4: the signal leaves its course and comes back (at the
-  first or last sample: it departs from its neighbour by h, the next two agree within h/4). A step
-  (an encoder count, a level of a random-step excitation, a saturated force) departs on one side
-  only: its outer samples differ by the whole step, and it never counts;
+  first or last sample: it departs from its neighbour by h, the next two agree within h/4; for
+  F it must also lie beyond the range of all other samples by h, since whether it comes back
+  cannot be seen and a force may step to a new level there). A step (an encoder count, a level
+  of a random-step excitation, a saturated force) departs on one side only: its outer samples
+  differ by the whole step, and it never counts;
 - a **jump** (x only) is one difference Δx[k] = x[k+1] − x[k] larger than :data:`X_RATIO` times
   both of its neighbours |Δx[k−1]|, |Δx[k+1]| and the local step scale below: a velocity that
   leaves its course for one sample and comes back, which a mass cannot do (the encoder lost or
@@ -123,9 +125,11 @@ def common_step(s: np.ndarray) -> float:
     return max(q, 16 * np.finfo(np.float64).eps * float(np.max(np.abs(s))))
 
 
-def _spikes(s: np.ndarray, bound: float) -> list[tuple]:
+def _spikes(s: np.ndarray, bound: float, ends_leave_range: bool = False) -> list[tuple]:
     """(index, length, departure / Q) of every spike of ``s`` departing by more than
-    ``bound`` (module docstring), the shortest run first."""
+    ``bound`` (module docstring), the shortest run first. ``ends_leave_range``: the first or last
+    sample counts only where it also lies beyond the range of the others by ``bound`` (a signal
+    that can step: whether an end sample comes back cannot be seen)."""
     T, Q = s.size, common_step(s)
     if Q == 0:
         return []
@@ -146,8 +150,10 @@ def _spikes(s: np.ndarray, bound: float) -> list[tuple]:
     if T >= 3:  # the first and last samples, against their two inner neighbours
         for k, n1, n2 in ((0, 1, 2), (T - 1, T - 2, T - 3)):
             h = abs(s[k] - s[n1])
+            rest = s[1:] if k == 0 else s[:-1]
+            out = max(s[k] - rest.max(), rest.min() - s[k], 0.0) if ends_leave_range else h
             if (
-                h > bound
+                min(h, out) > bound
                 and abs(s[n1] - s[n2]) <= AGREE * h
                 and not taken[min(k, n2) : max(k, n2) + 1].any()
             ):
@@ -178,7 +184,7 @@ def find_glitches(record: Record) -> list[Glitch]:
             if not q75 > q25:
                 continue
             bound = max(F_STEP_RATIO * common_step(s), F_SPREAD_RATIO * (q75 - q25) / 1.349)
-        spikes = _spikes(s, bound)
+        spikes = _spikes(s, bound, ends_leave_range=col == "F")
         for k, m, r in spikes:
             i, j = (k - 1, k + m) if 0 < k < s.size - 1 else ((1, 2) if k == 0 else (k - 2, k - 1))
             g = Glitch(

@@ -139,8 +139,8 @@ def test_glitches_named_by_the_estimators(files, capsys):
 
 def test_glitch_rule():
     """The rule on what it must catch and what it must leave: a quantised encoder, random force
-    steps, a clipped force, a PD's pulses at encoder counts, a stuck axis, EMPS (real, closed
-    loop) have none; a spike of 10 common steps in x, a persistent jump, a 3-sample burst in F
+    steps (one changing level at an end sample), a clipped force, a PD's pulses at encoder
+    counts, a stuck axis, EMPS (real, closed loop) have none; a spike of 10 common steps in x, a persistent jump, a 3-sample burst in F
     are found with their index and run length."""
     t, x, F = _pair(3)
     rng = np.random.default_rng(0)
@@ -172,6 +172,14 @@ def test_glitch_rule():
     FF[1200:1203] = 30.0
     (g,) = _data_checks.find_glitches(lj.Record(x, FF, DT))
     assert (g.column, g.kind, g.index, g.length) == ("F", "spike", 1200, 3)
+    # seven long force steps, mostly at two close levels (a spread of 0.015 N, no common step),
+    # whose level changes by 0.2 N at the last sample (or the first), within the force's range:
+    # a step, not a spike (whether it comes back cannot be seen)
+    held = np.repeat([1.25, 1.23, 1.25, -0.6, 1.23, 1.25, 1.25, 1.23], -(-T // 8))[:T]
+    for k, j in ((T - 1, T - 2), (0, 1)):
+        steps = held.copy()
+        steps[k] = steps[j] - 0.2
+        assert _data_checks.find_glitches(lj.Record(xq, steps, DT)) == [], k
     for k in (0, T - 1):  # the first and the last sample
         FF, xx = F.copy(), x.copy()
         FF[k], xx[k] = 1000.0, 1.0
