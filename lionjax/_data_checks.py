@@ -11,10 +11,10 @@ of the signal s (x or F) alone:
   same side, from the mean of the two samples around the run, s̄ = (s[k−1] + s[k+m])/2, by at
   least h, while those two agree within h/4: the signal leaves its course and comes back (at the
   first or last sample: it departs from its neighbour by h, the next two agree within h/4; for
-  F it must also lie beyond the range of all other samples by h, since whether it comes back
-  cannot be seen and a force may step to a new level there). A step (an encoder count, a level
-  of a random-step excitation, a saturated force) departs on one side only: its outer samples
-  differ by the whole step, and it never counts;
+  F its distance beyond the range of all other samples must also pass the size rule below,
+  since whether it comes back cannot be seen and a force may step to a new level there). A
+  step (an encoder count, a level of a random-step excitation, a saturated force) departs on
+  one side only: its outer samples differ by the whole step, and it never counts;
 - a **jump** (x only) is one difference Δx[k] = x[k+1] − x[k] larger than :data:`X_RATIO` times
   both of its neighbours |Δx[k−1]|, |Δx[k+1]| and the local step scale below: a velocity that
   leaves its course for one sample and comes back, which a mass cannot do (the encoder lost or

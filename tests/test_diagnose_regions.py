@@ -13,10 +13,11 @@ import _blind_sim as bs  # benchmarks/ (tests/conftest.py)
 import numpy as np
 import pytest
 from scipy.signal import bilinear, lfilter
-from scipy.stats import binom
+from scipy.stats import binom, genextreme
 
 import lionjax as lj
 from lionjax.diagnosis import Region, find_regions
+from lionjax.diagnosis._region_scan import _extreme_p
 
 
 def _ar(rng, n, phi):
@@ -61,10 +62,6 @@ def test_false_region_rate_on_autocorrelated_noise():
 def test_tail_law_against_scipy_genextreme(k):
     # the resampled maxima's tail (_extreme_p, L-moments) against the law the draws come from:
     # bounded (k > 0), Gumbel (0) and heavy (k < 0) tails; 20 000 draws, p within 15 % + 2e-4
-    from scipy.stats import genextreme
-
-    from lionjax.diagnosis._region_scan import _extreme_p
-
     law = genextreme(c=k, loc=10.0, scale=2.0)  # scipy's c is Hosking's k
     null = law.rvs(size=(20000, 1), random_state=np.random.default_rng(3))
     x = law.ppf([0.5, 0.9, 0.99, 0.999])

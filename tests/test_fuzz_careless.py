@@ -140,8 +140,8 @@ def test_glitches_named_by_the_estimators(files, capsys):
 def test_glitch_rule():
     """The rule on what it must catch and what it must leave: a quantised encoder, random force
     steps (one changing level at an end sample), a clipped force, a PD's pulses at encoder
-    counts, a stuck axis, EMPS (real, closed loop) have none; a spike of 10 common steps in x, a persistent jump, a 3-sample burst in F
-    are found with their index and run length."""
+    counts, a stuck axis, EMPS (real, closed loop) have none; a spike of 10 common steps in x,
+    a persistent jump, a 3-sample burst in F are found with their index and run length."""
     t, x, F = _pair(3)
     rng = np.random.default_rng(0)
     q = 10e-6
