@@ -10,7 +10,8 @@ core's one solver (:func:`lionjax._least_squares.gram_lstsq`).
 Compiled programs see bucketed shapes and traced settings only: designs of :data:`P_MAX`
 columns, a structure's unused ones unit vectors outside the record (orthogonal to the data,
 singular value 1: the fit, its Gram inverse and the used columns' condition unchanged), Grams
-solved in batches of :data:`GRID`: one program fits every structure at any record length.
+solved in batches of :data:`GRID_SMALL` or :data:`GRID`: a program per batch size fits every
+structure at any record length.
 """
 
 from __future__ import annotations
@@ -30,8 +31,11 @@ from ._streaming import as_source, grid_columns
 
 __all__ = ["TooWide"]
 
-#: Gram systems solved per call (:func:`solve_grams`; a batch is padded with identity systems).
+#: Gram systems solved per call (:func:`solve_grams`; a batch is padded with identity systems to
+#: the least of GRID_SMALL that holds it, else to a multiple of GRID: one program per size, and
+#: a search's few points are not solved as 32). Each system's numbers are the same in any batch.
 GRID = 32
+GRID_SMALL = (4, 8)
 #: Grid points (τ, F_max) whose F-dependent columns one pass over the record filters.
 GRID_PASS = 16
 
@@ -115,7 +119,8 @@ def solve_grams(G: np.ndarray, n_rows: int):
     small singular values)."""
     G = np.asarray(G, np.float64)
     n = G.shape[0]
-    eye = np.broadcast_to(np.eye(G.shape[-1]), (-n % GRID,) + G.shape[1:])
+    size = next((b for b in GRID_SMALL if b >= n), -(-n // GRID) * GRID)
+    eye = np.broadcast_to(np.eye(G.shape[-1]), (size - n,) + G.shape[1:])
     with jax.enable_x64(True):
         out = _gram_fits(np.concatenate([G, eye]), np.float64(n_rows))
         return tuple(np.asarray(o)[:n] for o in out)

@@ -402,14 +402,14 @@ class ModeProfileColumns(ColumnSource):
     mode (ω [rad/s], ζ) of ``modes``, (m, 4, ·), its columns ``keep`` taken (a record of one
     chunk: computed once for every ``keep``)."""
 
-    def __init__(self, modes, lam: float, dt: float, keep=slice(None)):
+    def __init__(self, modes, lam: float, dt: float, keep=slice(None), rows: int = 0):
         self.modes = np.asarray(modes, np.float64).reshape(-1, 2)
-        self.lam, self.dt, self.keep = float(lam), float(dt), keep
+        self.lam, self.dt, self.keep, self.rows = float(lam), float(dt), keep, rows
         self._full: dict = {}
 
     def select(self, keep) -> ModeProfileColumns:
         """The same modes' columns ``keep`` (sharing a record of one chunk's block)."""
-        out = ModeProfileColumns(self.modes, self.lam, self.dt, keep)
+        out = ModeProfileColumns(self.modes, self.lam, self.dt, keep, self.rows)
         out._full = self._full
         return out
 
@@ -425,11 +425,25 @@ class ModeProfileColumns(ColumnSource):
     def _blocks(self, regs: Regressors) -> Iterator[np.ndarray]:
         xF = {"x": (rows(regs.x), 1.0), "F": (rows(regs.F), 0.0)}
         filt = Filters(regs.dsc, regs.T, regs.chunk, xF, regs.outputs)
-        stages = ModeStages(self.modes, self.lam, regs.dt, regs.chunk)
+        key = ("stages", float(regs.dt), regs.chunk)  # the same sampled stages for both records
+        stages = ModeStages(self.modes, self.lam, regs.dt, regs.chunk, self._full.get(key))
+        self._full[key] = stages.groups
         for k0, k1 in regs.spans:
             out = filt.step(k0, k1)
             cx, cF = stages.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
             blk = np.empty((len(self.modes), 4, k1 - k0))
             blk[:, 0], blk[:, 1] = -cx, cF
-            blk[:, 2:] = mode_free_responses(self.modes, self.dt, k1, k0)
+            blk[:, 2:] = self._free(k0, k1) if regs.whole else self._free_rows(k0, k1)
             yield blk
+
+    def _free_rows(self, k0: int, k1: int) -> np.ndarray:
+        return mode_free_responses(self.modes, self.dt, k1, k0)
+
+    def _free(self, k0: int, k1: int) -> np.ndarray:
+        """The free responses' rows k0 … k1 − 1 of a record of one chunk: the first rows of
+        those of ``rows`` rows (each row depends on its time alone), computed once for both
+        records."""
+        kept = self._full.get("free")
+        if kept is None or kept.shape[-1] < k1:
+            kept = self._full["free"] = self._free_rows(0, max(k1, self.rows))
+        return kept[..., k0:k1]

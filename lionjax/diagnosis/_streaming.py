@@ -197,12 +197,12 @@ class ModeStages:
     long: :data:`MODE_SAMPLES`), the last padded to a bucket of :data:`MODE_BUCKETS` by
     repeating its last mode (one program per bucket)."""
 
-    def __init__(self, modes, lam: float, dt: float, chunk: int):
+    def __init__(self, modes, lam: float, dt: float, chunk: int, groups: list | None = None):
         modes = np.asarray(modes, np.float64).reshape(-1, 2)
         self.m, self.lam, self.chunk = len(modes), float(lam), chunk
-        self.groups = []  # (stages, ζ) of each group
+        self.groups = [] if groups is None else groups  # (stages, ζ) of each group
         top = batch_top(MODE_BUCKETS, MODE_SAMPLES, chunk)
-        for i in range(0, self.m, top):
+        for i in range(0, self.m, top) if groups is None else ():
             g = modes[i : i + top]
             full = np.concatenate([g, np.repeat(g[-1:], top - len(g), 0)])
             b = next(b for b in MODE_BUCKETS if b >= len(g))

@@ -206,10 +206,13 @@ class FlexibleModeCandidate(AbstractCandidate):
         st = objective.problem.st
         lam = 2 * math.pi * st.filter_hz
 
+        pb = objective.problem
+        rows = max(pb.train.n_samples, pb.valid.n_samples)  # the free responses of both records
+
         def rss_of(modes, variants, scaled=True) -> dict[bool, np.ndarray]:
             rss: dict[bool, list] = {v: [] for v in variants}
             for i in range(0, len(modes), 32):  # a pass per 32 modes
-                cols = ModeProfileColumns(modes[i : i + 32], lam, st.dt)
+                cols = ModeProfileColumns(modes[i : i + 32], lam, st.dt, rows=rows)
                 for v in variants:
                     sel = cols.select(slice(None) if v else [0, 2, 3])
                     c, _, n = objective.fit_with(sel)
