@@ -400,7 +400,8 @@ class _DesignPass:
 class ModeProfileColumns(ColumnSource):
     """A flexible mode's columns −(s²/Λ)[h_x], (1/Λ)[h_F] and its free response (2) for each
     mode (ω [rad/s], ζ) of ``modes``, (m, 4, ·), its columns ``keep`` taken (a record of one
-    chunk: computed once for every ``keep``)."""
+    chunk: computed once for every ``keep``). ``rows``: the longest record of one chunk it will
+    see, whose free responses serve every such record (0: each record's own length)."""
 
     def __init__(self, modes, lam: float, dt: float, keep=slice(None), rows: int = 0):
         self.modes = np.asarray(modes, np.float64).reshape(-1, 2)
@@ -433,17 +434,16 @@ class ModeProfileColumns(ColumnSource):
             cx, cF = stages.step(out["x"], out["F"], regs.x, regs.F, k0, k1)
             blk = np.empty((len(self.modes), 4, k1 - k0))
             blk[:, 0], blk[:, 1] = -cx, cF
-            blk[:, 2:] = self._free(k0, k1) if regs.whole else self._free_rows(k0, k1)
+            if regs.whole:
+                blk[:, 2:] = self._free(k1)
+            else:
+                blk[:, 2:] = mode_free_responses(self.modes, self.dt, k1, k0)
             yield blk
 
-    def _free_rows(self, k0: int, k1: int) -> np.ndarray:
-        return mode_free_responses(self.modes, self.dt, k1, k0)
-
-    def _free(self, k0: int, k1: int) -> np.ndarray:
-        """The free responses' rows k0 … k1 − 1 of a record of one chunk: the first rows of
-        those of ``rows`` rows (each row depends on its time alone), computed once for both
-        records."""
+    def _free(self, T: int) -> np.ndarray:
+        """The free responses of a record of one chunk, T rows: the first rows of those of
+        ``rows`` rows (each row depends on its time alone), computed once for both records."""
         kept = self._full.get("free")
-        if kept is None or kept.shape[-1] < k1:
-            kept = self._full["free"] = self._free_rows(0, max(k1, self.rows))
-        return kept[..., k0:k1]
+        if kept is None or kept.shape[-1] < T:
+            kept = self._full["free"] = mode_free_responses(self.modes, self.dt, max(T, self.rows))
+        return kept[..., :T]

@@ -200,15 +200,23 @@ class ModeStages:
     def __init__(self, modes, lam: float, dt: float, chunk: int, groups: list | None = None):
         modes = np.asarray(modes, np.float64).reshape(-1, 2)
         self.m, self.lam, self.chunk = len(modes), float(lam), chunk
-        self.groups = [] if groups is None else groups  # (stages, ζ) of each group
+        #: (stages, ζ) of each group: ``groups`` where given (another record's at the same dt
+        #: and chunk), else sampled here
+        self.groups = self.sampled(modes, lam, dt, chunk) if groups is None else groups
+        self.p: list | None = None  # each group's states (2b, 2)
+
+    @staticmethod
+    def sampled(modes: np.ndarray, lam: float, dt: float, chunk: int) -> list:
+        """The groups' sampled stages (stages, ζ) of ``modes`` (m, 2)."""
+        groups = []
         top = batch_top(MODE_BUCKETS, MODE_SAMPLES, chunk)
-        for i in range(0, self.m, top) if groups is None else ():
+        for i in range(0, len(modes), top):
             g = modes[i : i + top]
             full = np.concatenate([g, np.repeat(g[-1:], top - len(g), 0)])
             b = next(b for b in MODE_BUCKETS if b >= len(g))
             st = _mode_stages(full[:, 0], full[:, 1], _f(lam), _f(dt))
-            self.groups.append((tuple(np.asarray(a)[:b] for a in st), full[:b, 1]))
-        self.p: list | None = None  # each group's states (2b, 2)
+            groups.append((tuple(np.asarray(a)[:b] for a in st), full[:b, 1]))
+        return groups
 
     def step(self, Vx, Vf, x: np.ndarray, F: np.ndarray, k0: int, k1: int):
         """(x's columns (m, c), F's columns (m, c)) of rows [k0, k1), from the chunk's filtered

@@ -206,8 +206,8 @@ class FlexibleModeCandidate(AbstractCandidate):
         st = objective.problem.st
         lam = 2 * math.pi * st.filter_hz
 
-        pb = objective.problem
-        rows = max(pb.train.n_samples, pb.valid.n_samples)  # the free responses of both records
+        # the free responses of both records at once, where each is held in one chunk
+        rows = max((r.T for r in (objective.rtr, objective.rva) if r.whole), default=0)
 
         def rss_of(modes, variants, scaled=True) -> dict[bool, np.ndarray]:
             rss: dict[bool, list] = {v: [] for v in variants}
