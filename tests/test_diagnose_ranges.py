@@ -21,14 +21,6 @@ def _multisine(rng, n: int, dt: float, f_lo: float, f_hi: float, rms: float) -> 
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="the mode's search locates 299 Hz, ζ 0.031 and removes 94 % of the equation error, "
-    "but scores −26 counted from an estimated floor 11× the baseline's own equation error: F's "
-    "noise is estimated from its third differences (0.31 N), which here are the multisine's "
-    "own up to 400 Hz (F's spectrum above 600 Hz gives 1e-10 N); with a 60 or 80 Hz corner the "
-    "score is the same — the record is unexplained",
-)
 def test_a_resonance_above_the_filter_corner_band_is_found():
     """A flexible mode at 300 Hz on a record at 2 kHz excited up to 400 Hz: above 4× the filter
     corner (40 Hz), where the mode search used to stop, and inside the excited band, where it

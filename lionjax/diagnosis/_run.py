@@ -16,7 +16,7 @@ from ._lstsq import TooWide
 from ._problem import ROLES, Problem
 from ._result import EffectScore
 from ._settings import settings
-from ._statistics import _check_memory, _feedback, _position_noise, _robust_diff_std
+from ._statistics import _check_memory, _feedback, _position_noise, _white_noise
 from ._streaming import impulse_gains
 from .effects import AbstractCandidate, Design, Limits
 
@@ -278,10 +278,11 @@ def prepare(
     st = problem.st
     base = fit(problem, ())
     a, b = base.physical["a"], base.physical["b"]
-    # noise floor of ε₁ on the validation record (with the encoder's count: else a clean
-    # record's gap is taken for an effect)
+    # noise floor of ε₁ on the validation record (x's with the encoder's count: else a clean
+    # record's gap is taken for an effect); F's noise as the lesser of its two upper bounds: a
+    # multisine's third differences are its own, not noise, and a computed F has none
     sx = _position_noise(np.asarray(valid.x))
-    sF = _robust_diff_std(np.asarray(valid.F))
+    sF = _white_noise(np.asarray(valid.F))
     gx, gF = impulse_gains(st.bank(), st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     # the scale of ε₁'s input term b·F/Λ on validation, against which an effect's size counts

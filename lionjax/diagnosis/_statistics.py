@@ -130,9 +130,7 @@ def _start_states(
     zero-phase filter at 8, 4 or 2 × ``velocity_hz`` (below 0.3·f_s), else at ``velocity_hz``.
     v̂'s own band suits sgn ẋ, not the states: its filter (1 + (f/f_v)²)⁻³ keeps 1/8 of the
     motion at f_v, which lies at the excited band's edge at low sample rates."""
-    # the white noise's least upper bound, but never below the encoder's count: a slow axis's
-    # quantisation error is a staircase, not white, and hides from the top of the spectrum
-    sx = max(min(_robust_diff_std(x), _high_band_noise(x)), _lattice_step(x) / math.sqrt(12.0))
+    sx = _white_noise(x)
     limit = STATE_NOISE * float(np.sqrt(np.mean(np.asarray(v, np.float64) ** 2)))
     if sx * _noise_gain(dt, None) <= limit:
         return math.inf, x, _five_point(x, dt)
@@ -172,6 +170,15 @@ def _high_band_noise(x: np.ndarray) -> float:
     band = (k >= 0.3 * n) & (k < 0.5 * n)
     gain = 4.0 * np.sin(np.pi * k[band] / n) ** 2
     return float(np.sqrt(np.median(P[band] / gain) / math.log(2.0)))
+
+
+def _white_noise(u: np.ndarray) -> float:
+    """σ of a signal's white noise: the lesser of two upper bounds, the third differences
+    (:func:`_robust_diff_std`: a rough excitation counts as noise) and the top of the spectrum
+    (:func:`_high_band_noise`: motion at 0.3–0.5·f_s counts), but never below q/√12 of its
+    converter's count q (:func:`_lattice_step`): a slow signal's quantisation error is a
+    staircase, not white, and hides from the top of the spectrum."""
+    return max(min(_robust_diff_std(u), _high_band_noise(u)), _lattice_step(u) / math.sqrt(12.0))
 
 
 def _position_noise(x: np.ndarray) -> float:
