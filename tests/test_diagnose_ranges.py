@@ -22,9 +22,10 @@ def _multisine(rng, n: int, dt: float, f_lo: float, f_hi: float, rms: float) -> 
 
 @pytest.mark.slow
 def test_a_resonance_above_the_filter_corner_band_is_found():
-    """A flexible mode at 300 Hz on a record at 2 kHz excited up to 400 Hz: above 4× the filter
-    corner (40 Hz), where the mode search used to stop, and inside the excited band, where it
-    now reaches (1.25 × the band's top). Named, within 10 % of its frequency."""
+    """A flexible mode at 300 Hz on a record at 2 kHz excited up to 400 Hz: far above the filter
+    corner (40 Hz) and inside the excited band, which the mode search covers (to 1.25 × the
+    band's top); F is noise-free, so its noise comes from the top of its spectrum, not from
+    the multisine's third differences. Named, within 10 % of its frequency."""
     dt, n = 1 / 2000.0, 12000
     plant = twin.Plant(20.0, 2.0, (), [twin.EncoderQuantisation(1e-7)])
     plant = plant.with_effects(twin.FlexibleMode(0.15, 300.0, 0.03))

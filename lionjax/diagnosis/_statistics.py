@@ -155,11 +155,11 @@ def _five_point(x: np.ndarray, dt: float) -> np.ndarray:
 
 
 def _high_band_noise(x: np.ndarray) -> float:
-    """σ [m] of white position noise from the top of the spectrum: the median periodogram of
-    Δx (Hann window) over 0.3–0.5·f_s, divided by Δ's gain 4·sin²(πf/f_s) and by ln 2 (an
-    exponential's median over its mean). An upper bound (motion there counts as noise) that,
-    unlike the third differences, holds when the excitation reaches f_s/11 (Δ³ of a sine there
-    is 0.18× its amplitude)."""
+    """σ of a signal's white noise (x [m] or F [N]) from the top of the spectrum: the median
+    periodogram of Δx (Hann window) over 0.3–0.5·f_s, divided by Δ's gain 4·sin²(πf/f_s) and
+    by ln 2 (an exponential's median over its mean). An upper bound (motion there counts as
+    noise) that, unlike the third differences, holds when the excitation reaches f_s/11 (Δ³ of
+    a sine there is 0.18× its amplitude)."""
     d = np.diff(np.asarray(x, np.float64))
     n = d.size
     if n < 16:
