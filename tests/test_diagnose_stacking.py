@@ -228,7 +228,8 @@ def test_dead_zone_named_as_an_offset_is_unexplained():
     loss F − clip(F, ±d) acts like an offset, and `offset` was named at 0.90. The dead zone's
     look-alike on the baseline structure validates far better than the named offset (a ratio of
     its mean square to the stack's below 0.8; true offsets, springs and b(x) stay above 1.2),
-    so the record is `unexplained`. A saturation is not judged so (below)."""
+    so the record is `unexplained`. A saturation fitted at its clip is judged too and stands
+    (below)."""
     train, valid, info = blind.make_case("dead_zone", 16121017, source="scipy")
     assert info["closed_loop"]
     d = lj.diagnose(train, valid)
@@ -236,12 +237,17 @@ def test_dead_zone_named_as_an_offset_is_unexplained():
     assert d.final["dead_zone_lookalike_ratio"] < 0.8
     assert d.verdict == "unexplained"
 
-    # the look-alike's free columns F and clip(F, ±d) span a hard saturation: a hard clip
-    # (twin, open loop, 461 Hz) validated at 7× the look-alike's error and was `unexplained`;
-    # a stack with a saturation is not judged against it
+    # the look-alike's free columns F and clip(F, ±d) span a hard saturation at d = F_max: a
+    # hard clip at 1.70 N (twin, open loop, 461 Hz) below the grid's smallest clip (the 30 %
+    # quantile of the training |F|, 2.12 N) is found by the search widened downward, and the
+    # look-alike validates far worse than it
     train, valid, info = blind.make_case("saturation", 17060002, source="twin")
+    truth = info["effects"][0]["params"]["f_max"]
+    assert truth < 0.9 * np.quantile(np.abs(np.asarray(train.F)), 0.3)
     d = lj.diagnose(train, valid)
-    assert d.verdict == "saturation" and d.final["dead_zone_lookalike_ratio"] is None
+    assert d.verdict == "saturation" and d.final["params"]["soft"] == 0.0
+    assert d.final["params"]["Fmax"] == pytest.approx(truth, rel=5e-3)
+    assert d.final["dead_zone_lookalike_ratio"] > 1.2
 
 
 def test_drag_is_not_saturation():

@@ -16,6 +16,9 @@ from ._base import AbstractCandidate, Design
 
 #: Hard clips tried between the best one's neighbours on the quantile grid.
 CLIP_REFINE = 8
+#: Steps per octave, and octaves at most, by which a limit on the small end of its grid is
+#: searched further down.
+WIDEN_STEPS, WIDEN_OCTAVES = 4, 8
 
 
 class InputMapSearch(eqx.Module):
@@ -23,7 +26,9 @@ class InputMapSearch(eqx.Module):
     training RSS over the settings' grid (τ log-spaced; F_max the force's quantiles as hard
     clips, soft saturations as negative values; ``shape`` +1 or −1 keeps one, 0 both), a hard
     clip refined between its grid neighbours, then the vertex of the parabola through the best
-    and its neighbours (in ln τ; within one shape)."""
+    and its neighbours (in ln τ; within one shape). A limit best on the small end of its
+    shape's grid is searched further down first (:meth:`_widen`): the force's quantiles bound
+    the grid, not the device, and a search that ends on its edge has not found the minimum."""
 
     which: str
     shape: int = 0
@@ -40,6 +45,9 @@ class InputMapSearch(eqx.Module):
             return [(float(v), d.fmax) if tau else (d.tau, float(v)) for v in values]
 
         i, rss = GridSearch(tuple(grid), nan_wins=True).minimise(lambda pts: rss_of(inputs(pts)))
+        if not tau:
+            grid, rss = self._widen(rss_of, inputs, grid, rss, i)
+            i = int(np.argmin(rss))
         if not tau and grid[i] > 0:
             grid, rss = self._refine_clip(rss_of, inputs, grid, rss, i)
             i = int(np.argmin(rss))
@@ -51,7 +59,33 @@ class InputMapSearch(eqx.Module):
         return dataclasses.replace(d, **{"tau" if tau else "fmax": best})
 
     @staticmethod
-    def _refine_clip(rss_of, inputs, grid, rss, i):
+    def _ordered(g, r):
+        """(g, r) with the hard clips (g > 0) ascending, then the soft limits (g < 0) by
+        ascending |g|."""
+        pos = g > 0
+        o = np.concatenate(
+            [np.flatnonzero(pos)[np.argsort(g[pos])], np.flatnonzero(~pos)[np.argsort(-g[~pos])]]
+        )
+        return g[o], r[o]
+
+    @classmethod
+    def _widen(cls, rss_of, inputs, grid, rss, i):
+        """(grid, rss) extended below the smallest |F_max| of the best's shape, by
+        :data:`WIDEN_STEPS` per octave, while the best lies there (at most
+        :data:`WIDEN_OCTAVES` octaves)."""
+        grid, rss = np.asarray(grid, np.float64), np.asarray(rss, np.float64)
+        for _ in range(WIDEN_OCTAVES):
+            same = np.flatnonzero(np.sign(grid) == np.sign(grid[i]))
+            if i != same[np.argmin(np.abs(grid[same]))]:
+                break
+            new = grid[i] * 2.0 ** (-np.arange(1, WIDEN_STEPS + 1) / WIDEN_STEPS)
+            r = np.asarray(rss_of(inputs(new)), np.float64)
+            grid, rss = cls._ordered(np.concatenate([grid, new]), np.concatenate([rss, r]))
+            i = int(np.argmin(rss))
+        return grid, rss
+
+    @classmethod
+    def _refine_clip(cls, rss_of, inputs, grid, rss, i):
         """(grid, rss) with :data:`CLIP_REFINE` more hard clips between the best one's
         neighbours: a hard clip's RSS has a kink at the truth, and the quantiles thin out at the
         force's tail (a parabola through points far apart there can land beyond the largest
@@ -65,11 +99,9 @@ class InputMapSearch(eqx.Module):
         if fine.size == 0:
             return grid, rss
         r = rss_of(inputs(fine))
-        g, r = np.concatenate([grid, fine]), np.concatenate([np.asarray(rss), np.asarray(r)])
-        # the hard clips in ascending order, then the soft ones as they were
-        pos = g > 0
-        o = np.concatenate([np.flatnonzero(pos)[np.argsort(g[pos])], np.flatnonzero(~pos)])
-        return g[o], r[o]
+        return cls._ordered(
+            np.concatenate([grid, fine]), np.concatenate([np.asarray(rss), np.asarray(r)])
+        )
 
 
 class DelayCandidate(AbstractCandidate):

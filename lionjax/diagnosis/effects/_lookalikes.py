@@ -122,8 +122,9 @@ class DeadZoneLookalike(AbstractLookalike):
     free; d the quantile of the training |F| of least training RSS). It refuses a friction step
     it explains clearly better on the same structure (``Criteria.dead_zone_lookalike_gain``),
     and overrules a named stack where, on the baseline, it validates below
-    ``Criteria.dead_zone_lookalike_share`` of the stack's mean square (not a stack holding a
-    saturation: its free columns F and clip(F, ±d) span a hard saturation)."""
+    ``Criteria.dead_zone_lookalike_share`` of the stack's mean square. Its free columns F and
+    clip(F, ±d) span a hard saturation at d = F_max, so a stack holding a saturation fitted at
+    its clip validates as well as it and is not overruled."""
 
     name: ClassVar[str] = "dead_zone_lookalike"
     n_params: ClassVar[int] = 2
@@ -166,7 +167,7 @@ class DeadZoneLookalike(AbstractLookalike):
 
     def test(self, run, stk) -> LookalikeTest:
         cur = stk.fit
-        judged = bool(stk.cands) and math.isinf(cur.fmax)
+        judged = bool(stk.cands)
         ms = self.ms(run.problem, (), Design()) if judged else math.inf
         return LookalikeTest(
             ms,
