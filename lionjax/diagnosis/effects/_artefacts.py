@@ -118,13 +118,23 @@ class ForceSensorLine(ForceEffect):
             for f in np.linspace(m * (1 - MAINS_TOLERANCE), m * (1 + MAINS_TOLERANCE), MAINS_POINTS)
         ] or [self]
 
+    def mains(self, dt: float) -> np.ndarray:
+        """The frequencies [Hz] searched for the line: the mains frequency of :data:`MAINS_HZ`
+        nearest f₀, ±:data:`MAINS_TOLERANCE` on :data:`MAINS_POINTS` points, below 0.45/dt."""
+        m = min(MAINS_HZ, key=lambda h: abs(h - self.f_line))
+        f = np.linspace(m * (1 - MAINS_TOLERANCE), m * (1 + MAINS_TOLERANCE), MAINS_POINTS)
+        return f[f < 0.45 / dt]
+
     def detection_limit(self, problem, generic, phys):
         """A line is seen in two steps. Whether F holds one at all, F tells alone: its
-        projection ``line_in`` at f₀ against the same projection's mean square at
-        :data:`NULL_OFFSETS` beside it (the record's own level there), χ²-distributed with 2K
-        degrees of freedom (K harmonics) where F holds no line; present above the quantile of
-        false-alarm probability :data:`LINE_FALSE_ALARM`. Absent, the least line it would show
-        is the limit (over F's RMS, the line's size). Present, whether the device felt it only
+        projection ``line_in`` at the frequency of :meth:`mains` where it is largest (F's own
+        line: the profile's f₀ is chosen by x, which need not answer the line, and a projection
+        a tenth of a hertz off cancels over a record of ten seconds) against the same
+        projection's mean square at :data:`NULL_OFFSETS` beside it (the record's own level
+        there), χ²-distributed with 2K degrees of freedom (K harmonics) where F holds no line;
+        present above the quantile of false-alarm probability :data:`LINE_FALSE_ALARM` over
+        the frequencies searched (Bonferroni). Absent, the least line it would show is the
+        limit (over F's RMS, the line's size). Present, whether the device felt it only
         x tells, through the filter: the equation error sees the line's column at the gain the
         filter passes it with, ρ = (RMS of the filtered line / of the filtered F) / (RMS of the
         line / of F), so its limit is ``generic``/ρ (a 50 Hz line above a 10 Hz corner: ρ of a
@@ -137,18 +147,21 @@ class ForceSensorLine(ForceEffect):
         F = F - np.mean(F)
         dt = float(rec.dt)
         t = float(rec.t0) + dt * np.arange(F.size)
-        line = line_in(F, t, self.f_line, dt)
-        K = len(_harmonics(self.f_line, dt))
+        searched = self.mains(dt)
+        lines = [line_in(F, t, f, dt) for f in searched]
+        k = int(np.argmax([np.mean(x**2) for x in lines])) if lines else 0
+        f0 = float(searched[k]) if lines else self.f_line
+        line = lines[k] if lines else np.zeros_like(F)
+        K = len(_harmonics(f0, dt))
         beside = [
-            line_in(F, t, f, dt)
-            for f in (self.f_line * (1 + d) for d in NULL_OFFSETS)
-            if f < 0.45 / dt
+            line_in(F, t, f, dt) for f in (f0 * (1 + d) for d in NULL_OFFSETS) if f < 0.45 / dt
         ]
         F_rms = float(np.sqrt(np.mean(F**2)))
         if not K or not beside or not F_rms > 0:
             return None
         level = float(np.mean([np.mean(b**2) for b in beside]))
-        seen = level * _chi2_even_quantile(2 * K, LINE_FALSE_ALARM) / (2 * K)
+        p = LINE_FALSE_ALARM / len(searched)
+        seen = level * _chi2_even_quantile(2 * K, p) / (2 * K)
         line_ms = float(np.mean(line**2))
         least = float(np.sqrt(seen)) / F_rms
         if not line_ms > seen:
