@@ -53,6 +53,12 @@ def _chi2_even_quantile(dof: int, p: float) -> float:
     return hi
 
 
+def _around(mains: float) -> np.ndarray:
+    """The frequencies [Hz] a line at the mains frequency ``mains`` is searched at:
+    ±:data:`MAINS_TOLERANCE` on :data:`MAINS_POINTS` points."""
+    return np.linspace(mains * (1 - MAINS_TOLERANCE), mains * (1 + MAINS_TOLERANCE), MAINS_POINTS)
+
+
 def _harmonics(f0: float, dt: float) -> list[int]:
     """The harmonics k = 1 … :data:`MAX_HARMONIC` of f₀ below 0.45/dt."""
     return [k for k in range(1, MAX_HARMONIC + 1) if k * f0 < 0.45 / dt]
@@ -112,17 +118,13 @@ class ForceSensorLine(ForceEffect):
     def grid(self, limits: Limits):
         fs = 1.0 / limits.dt
         return [
-            ForceSensorLine(float(f))
-            for m in MAINS_HZ
-            if m < 0.45 * fs
-            for f in np.linspace(m * (1 - MAINS_TOLERANCE), m * (1 + MAINS_TOLERANCE), MAINS_POINTS)
+            ForceSensorLine(float(f)) for m in MAINS_HZ if m < 0.45 * fs for f in _around(m)
         ] or [self]
 
     def mains(self, dt: float) -> np.ndarray:
-        """The frequencies [Hz] searched for the line: the mains frequency of :data:`MAINS_HZ`
-        nearest f₀, ±:data:`MAINS_TOLERANCE` on :data:`MAINS_POINTS` points, below 0.45/dt."""
-        m = min(MAINS_HZ, key=lambda h: abs(h - self.f_line))
-        f = np.linspace(m * (1 - MAINS_TOLERANCE), m * (1 + MAINS_TOLERANCE), MAINS_POINTS)
+        """The frequencies [Hz] F's line is sought at: around the mains frequency of
+        :data:`MAINS_HZ` nearest f₀ (:func:`_around`), below 0.45/dt."""
+        f = _around(min(MAINS_HZ, key=lambda h: abs(h - self.f_line)))
         return f[f < 0.45 / dt]
 
     def detection_limit(self, problem, generic, phys):
