@@ -150,21 +150,27 @@ class ForceSensorLine(ForceEffect):
         dt = float(rec.dt)
         t = float(rec.t0) + dt * np.arange(F.size)
         searched = self.mains(dt)
-        lines = [line_in(F, t, f, dt) for f in searched]
-        k = int(np.argmax([np.mean(x**2) for x in lines])) if lines else 0
-        f0 = float(searched[k]) if lines else self.f_line
-        line = lines[k] if lines else np.zeros_like(F)
+        if not searched.size:  # the mains lie above 0.45/dt
+            return None
+        # the strongest line, one (T,) projection held at a time beside it
+        line_ms, f0, line = -1.0, float(searched[0]), None
+        for f in searched:
+            s = line_in(F, t, float(f), dt)
+            ms_f = float(np.mean(s**2))
+            if ms_f > line_ms:
+                line_ms, f0, line = ms_f, float(f), s
         K = len(_harmonics(f0, dt))
         beside = [
-            line_in(F, t, f, dt) for f in (f0 * (1 + d) for d in NULL_OFFSETS) if f < 0.45 / dt
+            float(np.mean(line_in(F, t, f, dt) ** 2))
+            for f in (f0 * (1 + d) for d in NULL_OFFSETS)
+            if f < 0.45 / dt
         ]
         F_rms = float(np.sqrt(np.mean(F**2)))
         if not K or not beside or not F_rms > 0:
             return None
-        level = float(np.mean([np.mean(b**2) for b in beside]))
+        level = float(np.mean(beside))
         p = LINE_FALSE_ALARM / len(searched)
         seen = level * _chi2_even_quantile(2 * K, p) / (2 * K)
-        line_ms = float(np.mean(line**2))
         least = float(np.sqrt(seen)) / F_rms
         if not line_ms > seen:
             return least

@@ -48,9 +48,9 @@ class InputMapSearch(eqx.Module):
         if not tau:
             grid, rss = self._widen(rss_of, inputs, grid, rss, i)
             i = int(np.argmin(rss))
-        if not tau and grid[i] > 0:
-            grid, rss = self._refine_clip(rss_of, inputs, grid, rss, i)
-            i = int(np.argmin(rss))
+            if grid[i] > 0:
+                grid, rss = self._refine_clip(rss_of, inputs, grid, rss, i)
+                i = int(np.argmin(rss))
         best = float(grid[i])
         if 0 < i < len(grid) - 1 and len({np.sign(g) for g in grid[i - 1 : i + 2]}) == 1:
             v = ParabolaStep(log=tau).vertex(grid, rss, i)  # soft: g < 0
