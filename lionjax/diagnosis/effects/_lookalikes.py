@@ -289,15 +289,17 @@ class PeriodicLookalike(AbstractLookalike):
         k_hi = min(PERIOD_CYCLES[1], R / max(PERIOD_OVER_NOISE * sx, 1e-300))
         out = (math.inf, math.nan, 0.0)
         if k_hi > PERIOD_CYCLES[0]:
+            masks = {id(rtr): _moving(problem, rtr, 0), id(rva): _moving(problem, rva, 1)}
 
             def columns(regs: Regressors, ks) -> FilteredColumns:  # (m, 2, T): sin, cos of κ
+                m = masks[id(regs)]
                 sc = lambda k: [
-                    (_sinusoid(regs, x_lo, R, k, f), 1.0, 0, 1.0) for f in (np.sin, np.cos)
+                    (_sinusoid(regs, x_lo, R, k, f, m), 1.0, 0, 1.0) for f in (np.sin, np.cos)
                 ]
                 return FilteredColumns([sc(float(k)) for k in ks])
 
             lam = 2 * math.pi * problem.st.filter_hz
-            peaks = _period_screen(rtr, model, x_lo, R, k_hi, problem.v_train, lam)
+            peaks = _period_screen(rtr, model, x_lo, R, k_hi, problem.v_train, lam, masks[id(rtr)])
             try:
                 if peaks.size:  # (none where every force is masked)
                     ks = (peaks[:, None] + np.array([-1.0, 0.0, 1.0]) / 16).ravel()
@@ -316,11 +318,24 @@ class PeriodicLookalike(AbstractLookalike):
         return out
 
 
-def _sinusoid(regs: Regressors, x_lo: float, R: float, k: float, f):
-    """The raw signal m·f(2πκξ), ξ = (x − x_lo)/R (m the force mask), per rows."""
+def _moving(problem, regs: Regressors, i: int) -> np.ndarray | None:
+    """(T,) the mask m ∈ {0, 1} of a force of position on record ``i`` (0 train, 1 valid): 0
+    where the axis sticks, whatever the structure's own force columns are. At rest static
+    friction balances every force on the axis, so a force of position is seen only where the
+    axis moves; fitted at rest it would describe where the axis stopped (each rest's static
+    friction), not a force. None where the axis never sticks and no force is masked."""
+    m = regs.force_mask
+    if problem.sticks:
+        moving = 1.0 - np.asarray(problem.stuck[i], np.float64)
+        m = moving if m is None else m * moving
+    return m
+
+
+def _sinusoid(regs: Regressors, x_lo: float, R: float, k: float, f, m):
+    """The raw signal m·f(2πκξ), ξ = (x − x_lo)/R (m the mask, :func:`_moving`), per rows."""
     x = regs.x
     raw = lambda k0, k1: f(2 * math.pi * k * ((x[k0:k1] - x_lo) / R))
-    return raw if regs.force_mask is None else scaled(regs.force_mask, raw)
+    return raw if m is None else scaled(m, raw)
 
 
 def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) -> np.ndarray:
@@ -349,7 +364,7 @@ def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) ->
 
 
 def _period_screen(
-    regs: Regressors, model, x_lo: float, R: float, k_hi: float, v_train, lam: float
+    regs: Regressors, model, x_lo: float, R: float, k_hi: float, v_train, lam: float, mask
 ) -> np.ndarray:
     """The :data:`PERIOD_PEAKS` cycle counts κ whose columns C = Λ[m·(cos, sin)(2πκξ)] (m the
     force mask) would reduce the training RSS of the structure W most, estimated for every κ at
@@ -361,7 +376,7 @@ def _period_screen(
     masked)."""
     T = regs.T
     n = regs.width(model)
-    m = np.ones(T) if regs.force_mask is None else regs.force_mask[:T]
+    m = np.ones(T) if mask is None else np.asarray(mask)[:T]
     h0 = float(np.sum(m * m))
     if h0 <= 0:
         return np.zeros(0)
