@@ -367,13 +367,13 @@ def _period_screen(
     regs: Regressors, model, x_lo: float, R: float, k_hi: float, v_train, lam: float, mask
 ) -> np.ndarray:
     """The :data:`PERIOD_PEAKS` cycle counts κ whose columns C = Λ[m·(cos, sin)(2πκξ)] (m the
-    force mask) would reduce the training RSS of the structure W most, estimated for every κ at
-    once: the reduction is bᵀ(C⊥ᵀC⊥)⁻¹b, b = Cᵀr (r the residual, ⊥ W), C⊥ᵀC⊥ = CᵀC −
-    CᵀW(WᵀW)⁻¹WᵀC. A product with a filtered column is one of the raw sinusoid with the filter's
-    adjoint of r and of W's columns, which their position histograms give for every κ by one
-    FFT each; CᵀC is the unfiltered sinusoids' Gram (the mask's histogram at 2κ) times the
-    filter's mean loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm². It only ranks κ (empty where every force is
-    masked)."""
+    ``mask`` of :func:`_moving`, ones where None) would reduce the training RSS of the
+    structure W most, estimated for every κ at once: the reduction is bᵀ(C⊥ᵀC⊥)⁻¹b, b = Cᵀr
+    (r the residual, ⊥ W), C⊥ᵀC⊥ = CᵀC − CᵀW(WᵀW)⁻¹WᵀC. A product with a filtered column is
+    one of the raw sinusoid with the filter's adjoint of r and of W's columns, which their
+    position histograms give for every κ by one FFT each; CᵀC is the unfiltered sinusoids'
+    Gram (the mask's histogram at 2κ) times the filter's mean loss Σₜm²|Λ(jκ·2π|v̂ₜ|/R)|²/Σₜm².
+    It only ranks κ (empty where every force is masked)."""
     T = regs.T
     n = regs.width(model)
     m = np.ones(T) if mask is None else np.asarray(mask)[:T]
