@@ -133,7 +133,53 @@ ENTRIES = (
           lambda: _silverbox("split_test_multisine")),
     Entry("silverbox_arrow", "spring", ("spring",), lambda: _silverbox("split_test_arrow_full")),
     Entry("emps", "coulomb_friction + offset", ("coulomb_friction", "asymmetric_friction"), _emps),
+    *(
+        Entry(f"siesta_{load}", "coulomb_friction", ("coulomb_friction", "asymmetric_friction"),
+              lambda load=load: load_npz_pair(f"siesta_{load}"))
+        for load in ("L0", "L1", "L2", "L4")
+    ),
 )  # fmt: skip
+
+#: The payload series' added inertias [kg·m²] (siesta_payload/PROVENANCE.md) and the data
+#: sheet's torque constant it is held to [N·m/mA] (siesta_payload/EXPECTED.md).
+PAYLOADS = {"siesta_L0": 0.0, "siesta_L1": 224.5440144e-6, "siesta_L2": 548.4378187e-6,
+            "siesta_L4": 772.98e-6}  # fmt: skip
+SHEET_K = 3.0 / 2300.0
+
+
+def payload_law(rows: list[dict]) -> dict | None:
+    """The payload series' law (siesta_payload/EXPECTED.md): 1/b = (J₀ + J_L)/K_τ from the final
+    models' b, fitted by least squares; ``pass`` where 1/b increases with J_L, each point lies
+    within 20 % of the four 1/b values' range from the line, K_τ = 1/slope is within a factor 2
+    of the data sheet's and J₀ > 0. None unless all four records were diagnosed."""
+    got = {r["record"]: (r.get("final_params") or {}).get("b") for r in rows}
+    if any(got.get(k) is None for k in PAYLOADS):
+        return None
+    J = np.array(list(PAYLOADS.values()))
+    inv = np.array([1.0 / got[k] for k in PAYLOADS])
+    slope, icpt = np.polyfit(J, inv, 1)
+    spread = float(np.ptp(inv))
+    worst = float(np.max(np.abs(inv - (icpt + slope * J)))) / spread if spread > 0 else math.inf
+    k_tau = 1.0 / slope if slope > 0 else math.nan
+    checks = {
+        "increasing": bool(np.all(np.diff(inv) > 0)),
+        "on_the_line": worst <= 0.2,
+        "k_tau_within_2x": bool(0.5 <= k_tau / SHEET_K <= 2.0),
+        "j0_positive": bool(slope > 0 and icpt > 0),
+    }
+    return {
+        "records": list(PAYLOADS),
+        "added_inertia": J.tolist(),
+        "inv_b": inv.tolist(),
+        "slope": float(slope),
+        "intercept": float(icpt),
+        "worst_off_line": worst,
+        "k_tau": k_tau,
+        "k_tau_sheet": SHEET_K,
+        "j0": float(icpt / slope) if slope > 0 else math.nan,
+        "checks": checks,
+        "outcome": "pass" if all(checks.values()) else "FAIL",
+    }
 
 
 def final_says(d) -> str:
@@ -242,6 +288,23 @@ def markdown(rows: list[dict], meta: dict) -> str:
             f"{r.get('final_says', '') or '—'} | {_fmt(r.get('runtime_s'), '.0f')} | "
             f"{r['outcome']} | {note.replace('|', '/') or '—'} |"
         )
+    law = meta.get("payload_law")
+    if law:
+        c = law["checks"]
+        pts = ", ".join(
+            f"{r.removeprefix('siesta_')} {v:.4g}"
+            for r, v in zip(law["records"], law["inv_b"], strict=True)
+        )
+        lines += [
+            "",
+            "## The payload law (siesta, `benchmarks/real/siesta_payload/EXPECTED.md`)",
+            "",
+            f"1/b [s²·mA/rad]: {pts}. Line 1/b = (J₀ + J_L)/K_τ: K_τ = {law['k_tau']:.4g} N·m/mA "
+            f"(data sheet {law['k_tau_sheet']:.4g}), J₀ = {law['j0']:.4g} kg·m², the farthest "
+            f"point {law['worst_off_line']:.1%} of the range off the line. Increasing: "
+            f"{c['increasing']}; on the line (≤ 20 %): {c['on_the_line']}; K_τ within 2×: "
+            f"{c['k_tau_within_2x']}; J₀ > 0: {c['j0_positive']}. **{law['outcome']}**.",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -273,6 +336,10 @@ def main(argv=None) -> int:
         ["git", "-C", str(HERE), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
     ).stdout.strip()
     meta = {"date": datetime.date.today().isoformat(), "commit": commit, "cpus": os.cpu_count()}
+    law = payload_law(rows)
+    if law is not None:
+        meta["payload_law"] = law
+        print(f"payload law: {law['outcome']} {law['checks']}", flush=True)
     a.out.mkdir(parents=True, exist_ok=True)
     stem = a.out / f"{meta['date']}_real_gallery"
     from lionjax._tables import jsonable

@@ -131,10 +131,57 @@ def quanser_flexcart(src: Path, out: Path) -> None:
         _save(out, "quanser_flexcart", split, t, x, d["u"], x_unit="m", F_unit="V", units="linear")
 
 
+#: siesta's step records per payload: (train, valid) file names (see siesta_payload/PROVENANCE.md)
+SIESTA = {
+    "L0": ("23-03-22--14-44-20_800Hz-L0-step.csv", "23-03-23--15-15-23_800Hz-L0-step.csv"),
+    "L1": ("23-03-22--14-43-27_800Hz-L1-step.csv", "23-03-23--15-14-43_800Hz-L1-step.csv"),
+    "L2": ("23-03-22--14-42-59_800Hz-L2-step.csv", "23-03-23--15-13-42_800Hz-L2-step.csv"),
+    "L4": ("23-03-22--14-41-10_800Hz-L4-step.csv", "23-03-23--15-12-14_800Hz-L4-step.csv"),
+}
+#: siesta's uniform bins [s]
+SIESTA_BIN = 2.5e-3
+
+
+def siesta(src: Path, out: Path) -> None:
+    """Dynamixel XM430-W210 under four payloads: each payload's step record of 2023-03-22 →
+    train, of 2023-03-23 → valid.
+
+    Columns: time [ms on 03-22, s on 03-23], setpoint [rad], position [rad], velocity [rad/s],
+    current [mA], three derived columns (unused). Logged at about 800 Hz with irregular
+    intervals (median 1.26 ms, at most 13 ms): position and current are averaged over uniform
+    2.5 ms bins from the first sample (t = bin centres); a bin without a sample (a logging gap)
+    takes the straight line between its neighbours, and the count of such bins is printed.
+    """
+    for load, files in SIESTA.items():
+        for split, fname in zip(("train", "valid"), files, strict=True):
+            path = src / fname
+            with open(path) as f:
+                ms = f.readline().split(",")[0].strip() == "time[ms]"
+            d = np.loadtxt(path, delimiter=",", skiprows=1)
+            t = d[:, 0] * (1e-3 if ms else 1.0)
+            t = t - t[0]
+            nb = int(t[-1] // SIESTA_BIN)
+            k = (t // SIESTA_BIN).astype(np.int64)
+            ok = k < nb
+            cnt = np.bincount(k[ok], minlength=nb)
+            tc = (np.arange(nb) + 0.5) * SIESTA_BIN
+            full = cnt > 0
+            sig = []
+            for col in (2, 4):
+                m = np.bincount(k[ok], d[ok, col], nb)[full] / cnt[full]
+                sig.append(np.interp(tc, tc[full], m))
+            print(f"siesta_{load}/{split}: {nb} bins, {int(np.sum(~full))} interpolated")
+            _save(
+                out, f"siesta_{load}", split, tc, sig[0], sig[1],
+                x_unit="rad", F_unit="mA", units="rotary",
+            )  # fmt: skip
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument(
-        "name", choices=["motorbench", "lorenz_friction", "odrive_cogging", "quanser_flexcart"]
+        "name",
+        choices=["motorbench", "lorenz_friction", "odrive_cogging", "quanser_flexcart", "siesta"],
     )
     p.add_argument("source", type=Path)
     p.add_argument("--out", type=Path, default=Path(__file__).parent)
@@ -146,6 +193,8 @@ def main() -> None:
         lorenz(a.source, a.out)
     elif a.name == "quanser_flexcart":
         quanser_flexcart(a.source, a.out)
+    elif a.name == "siesta":
+        siesta(a.source, a.out)
     else:
         odrive(a.source, a.out)
 
