@@ -256,6 +256,15 @@ def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) 
     )
 
 
+def _hidden(limit: float, size: float) -> float:
+    """The share, on a log scale, of the effect sizes from ``size`` to 1 (of the input's term
+    b·F) that lie below the detection ``limit``, ln(max(limit, size)/size) / ln(1/size): where an
+    effect at least ``size`` large could be there unseen (0 for a size of 1 or more)."""
+    if size >= 1.0:
+        return 0.0
+    return min(math.log(max(limit, size) / size) / math.log(1.0 / size), 1.0)
+
+
 def _unexplained(run: Run, effects: list[EffectScore], v: Verdict, hidden: float) -> float:
     """The confidence of ``unexplained``: 1 − the largest share of a candidate plausible or
     scoring above 0 (a fit that removes much of the gap leaves the question open), or a
@@ -266,7 +275,7 @@ def _unexplained(run: Run, effects: list[EffectScore], v: Verdict, hidden: float
     coverage = 1.0 - max(run.outside.values())
     against = max([1.0 - best_share, *(t.share for t in v.decided_by)])
     confidence = float(np.clip(min(against, coverage), 0.0, 1.0))
-    return confidence if v.decided_by else confidence * (1.0 - min(hidden, 1.0))
+    return confidence if v.decided_by else confidence * (1.0 - hidden)
 
 
 def weigh(
@@ -303,15 +312,17 @@ def weigh(
             ambiguous = sorted(near, key=lambda k: -weights[k])
     # "nothing named" is only as sure as the record is sensitive: the share (log scale) of the
     # sizes worth naming, min_size … 1, below the detection limit is where one could hide
-    hidden = math.log(max(detection_worst, crit.min_size) / crit.min_size) / math.log(
-        1.0 / crit.min_size
-    )
+    hidden = _hidden(detection_worst, crit.min_size)
     if verdict == "none":
-        confidence = weights["none"] * (1.0 - min(hidden, 1.0))
+        confidence = weights["none"] * (1.0 - hidden)
     elif verdict == "unexplained":
         confidence = _unexplained(run, effects, v, hidden)
     else:
+        # and a name claims the dominant effect: only as sure as no larger one could hide, the
+        # share of the sizes above the named effect's, its size … 1, below the detection limit
+        size = next((s.size for s in stk.steps if s.name == verdict), 0.0)
         confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
+        confidence *= 1.0 - _hidden(detection_worst, max(size, crit.min_size))
     if verdict != "unexplained":
         confidence *= doubt
     undecided = None
