@@ -1,11 +1,9 @@
-"""Errors of the force sensor that the records (x, F) reveal, each a
-:class:`~._force_effect.ForceEffect` with ``acts_on = "measurement"``: the measured force
-F_meas = F + s(t) carries a term s the device never felt, which enters ε₁ like a force and,
-without a candidate of its own, takes a mechanical name (a 50 Hz line passes the flexible mode's
-narrow band). A line at a fixed frequency that x does not answer (:class:`ForceSensorLine`) and
-a drift of the sensor's zero (:class:`ForceSensorDrift`) are revealed; a pure scale error, a
-constant zero error or a constant skew between the channels are not (docs/effects.md): each is a
-change of units or origin that no record of (x, F) tells from the device's own.
+"""Errors of the force sensor the records (x, F) reveal, each a
+:class:`~._force_effect.ForceEffect` with ``acts_on = "measurement"``: F_meas = F + s(t) carries
+a term s the device never felt (docs/method.md, "Force-sensor errors"). A line at a fixed
+frequency that x does not answer (:class:`ForceSensorLine`) and a drift of the sensor's zero
+(:class:`ForceSensorDrift`); a scale error, a constant zero error or a skew between the channels
+is a change of units or origin that no record of (x, F) tells from the device's own.
 """
 
 from __future__ import annotations
@@ -128,46 +126,36 @@ class ForceSensorLine(ForceEffect):
         return f[f < 0.45 / dt]
 
     def detection_limit(self, problem, generic, phys):
-        """A line is seen in two steps. Whether F holds one at all, F tells alone: its
-        projection ``line_in`` at the frequency of :meth:`mains` where it is largest (F's own
-        line: the profile's f₀ is chosen by x, which need not answer the line, and a projection
-        a tenth of a hertz off cancels over a record of ten seconds) against the same
-        projection's mean square at :data:`NULL_OFFSETS` beside it (the record's own level
-        there), χ²-distributed with 2K degrees of freedom (K harmonics) where F holds no line;
-        present above the quantile of false-alarm probability :data:`LINE_FALSE_ALARM` over
-        the frequencies searched (Bonferroni). Absent, the least line it would show is the
-        limit (over F's RMS, the line's size). Present, whether the device felt it only
-        x tells, through the filter: the equation error sees the line's column at the gain the
-        filter passes it with, ρ = (RMS of the filtered line / of the filtered F) / (RMS of the
-        line / of F), so its limit is ``generic``/ρ (a 50 Hz line above a 10 Hz corner: ρ of a
-        few thousandths, a limit above the input's term). And where its fit alone reads the
-        line neither as felt nor as unfelt (the share ``line_unfelt`` within
-        :data:`LINE_SHARE_TOL` of neither 0 nor 1: no physical reading), the record has not
-        resolved the line it shows, and a sensor line of the line's own size may be there."""
+        """The least size of a line seen (its RMS over F's, or its share of the input term), in
+        two steps. F alone tells whether it holds a line: the largest projection :func:`line_in`
+        over :meth:`mains` (a projection a tenth of a hertz off cancels over ten seconds), its
+        mean square against the same projection's at :data:`NULL_OFFSETS` beside it (no line
+        there: χ² with 2K degrees of freedom, K harmonics), present above the quantile of
+        false-alarm probability :data:`LINE_FALSE_ALARM` over the frequencies searched
+        (Bonferroni); absent, the least line it would show is the limit. Present, only x tells
+        whether the device felt it, through the filter, which passes the line's column at the
+        gain ρ = (RMS of the filtered line / of the filtered F) / (RMS of the line / of F): the
+        limit is ``generic``/ρ; and where the fit alone ``phys`` reads the share ``line_unfelt``
+        within :data:`LINE_SHARE_TOL` of neither 0 nor 1, at least the line's own size."""
         rec = problem.valid
         F = np.asarray(rec.F, np.float64)
         F = F - np.mean(F)
+        F_rms = float(np.sqrt(np.mean(F**2)))
         dt = float(rec.dt)
         t = float(rec.t0) + dt * np.arange(F.size)
         searched = self.mains(dt)
-        if not searched.size:  # the mains lie above 0.45/dt
+        if not searched.size or not F_rms > 0:  # the mains lie above 0.45/dt, or F is constant
             return None
-        # the strongest line, one (T,) projection held at a time beside it
-        line_ms, f0, line = -1.0, float(searched[0]), None
-        for f in searched:
-            s = line_in(F, t, float(f), dt)
-            ms_f = float(np.mean(s**2))
-            if ms_f > line_ms:
-                line_ms, f0, line = ms_f, float(f), s
-        K = len(_harmonics(f0, dt))
+        # the strongest line (max holds one (T,) projection beside the best)
+        projections = ((float(f), line_in(F, t, float(f), dt)) for f in searched)
+        f0, line = max(projections, key=lambda fs: float(np.mean(fs[1] ** 2)))
+        line_ms = float(np.mean(line**2))
+        K = len(_harmonics(f0, dt))  # ≥ 1, and a frequency beside f₀ lies below 0.45/dt too
         beside = [
             float(np.mean(line_in(F, t, f, dt) ** 2))
             for f in (f0 * (1 + d) for d in NULL_OFFSETS)
             if f < 0.45 / dt
         ]
-        F_rms = float(np.sqrt(np.mean(F**2)))
-        if not K or not beside or not F_rms > 0:
-            return None
         level = float(np.mean(beside))
         p = LINE_FALSE_ALARM / len(searched)
         seen = level * _chi2_even_quantile(2 * K, p) / (2 * K)

@@ -1,20 +1,12 @@
 """Effects written as forces: the open part of the diagnosis' library (docs/effects.md).
 
 A :class:`ForceEffect` is a force linear in its parameters p_j acting with the input,
-F_e(x, ẋ, F, t) = Σ_j p_j·φ_j(x, ẋ, F, t) [N], ẍ + aẋ = b·(F + F_e). One definition serves:
-
-- the **regressor**: one column −(1/Λ)[φ_j] per parameter (the sign of :class:`lionjax.Offset`),
-  φ_j of the recorded x, the zero-phase velocity v̂, the measured F and the sample times; its
-  coefficient is b·p_j, and p_j = coefficient / b is reported;
-- the **windowed simulation**: φ_j(x, v, u, t) of the simulated state at each step (the
-  simulator's ``extra`` term), so that the simulated gap judges the effect too;
-- **nonlinear parameters** (a period, a frequency): fields named in ``nonlinear``, profiled
-  once, on the effect alone, over :meth:`~ForceEffect.grid` by the training RSS.
-
-A *measurement* effect (``acts_on = "measurement"``) is an error of the force sensor,
-F_meas = F + s(t), the model ẍ + aẋ = b·(F_meas − s): its φ_j come from the whole record
-(:meth:`~ForceEffect.record_basis`: a line's phase estimated from F) and Σ p_j·φ_j is subtracted
-from the simulation's input.
+F_e(x, ẋ, F, t) = Σ_j p_j·φ_j(x, ẋ, F, t) [N], ẍ + aẋ = b·(F + F_e). Its φ_j give its columns
+−(1/Λ)[φ_j] (coefficients b·p_j; φ_j of the recorded x, the zero-phase v̂, F and t), its term in
+the windowed simulation (φ_j of the simulated state) and, over :meth:`~ForceEffect.grid`, the
+one-time profile of its ``nonlinear`` fields. A *measurement* effect (``acts_on =
+"measurement"``) is an error of the force sensor, F_meas = F + s(t): its φ_j come from the whole
+record (:meth:`~ForceEffect.record_basis`) and Σ p_j·φ_j is subtracted from the simulated input.
 """
 
 from __future__ import annotations

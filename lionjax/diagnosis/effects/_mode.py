@@ -1,11 +1,8 @@
 """A flexible mode: its columns (:class:`ModeColumns`) and its candidate
-(:class:`FlexibleModeCandidate`), profiled on the validation record and judged by its mass,
-damping, deflection and the sampling's hold error it could stand for.
+(:class:`FlexibleModeCandidate`); docs/method.md, "Flexible mode", derives both.
 
-The rigid mass M = 1/b split into M₁ (driven) and m₂ = μM on a spring–damper (ω, ζ): with
-D(s) = s² + 2ζωs + ω² and h = (s²/D)[·], collocated (x = x₁) ẍ + aẋ − μ·s²h[x] = b·u,
-non-collocated (x = x₂) ẍ + aẋ − μ·s²h[x] = b·(u − h[u]): columns −(s²/Λ)[h_x] and +(1/Λ)[h_F],
-parameters μ and β = κb (κ = 0 collocated, 1 non-collocated).
+With D(s) = s² + 2ζωs + ω² and h = (s²/D)[·], the model is ẍ + aẋ − μ·s²h[x] = b·(u − κh[u]):
+columns −(s²/Λ)[h_x] and +(1/Λ)[h_F], parameters μ and β = κb (κ = 0 collocated, 1 not).
 """
 
 from __future__ import annotations
@@ -26,8 +23,8 @@ from .._streaming import mode_filtered, mode_seed
 from ._base import AbstractCandidate
 
 #: Largest mass ratio of a mode the input passes through: friction's pre-sliding stiffness fits a
-#: collocated mode with μ ≈ 0.77 as well as a heavy load does. Up to MAX_HEAVY_MODE_MASS only
-#: collocated (|κ| ≤ HEAVY_MODE_KAPPA): a delay fits a heavy mode with κ ≈ 1.
+#: heavy collocated mode as well as a heavy load does. Up to MAX_HEAVY_MODE_MASS only collocated
+#: (|κ| ≤ HEAVY_MODE_KAPPA): a delay fits a heavy mode with κ ≈ 1.
 MAX_MODE_MASS = 0.6
 MAX_HEAVY_MODE_MASS = 0.95
 HEAVY_MODE_KAPPA = 0.1
@@ -132,12 +129,9 @@ class ModeColumns(AbstractEffect):
 
 class FlexibleModeCandidate(AbstractCandidate):
     """A lightly damped flexible mode (:class:`ModeColumns`): mass ratio μ, frequency f_mode
-    [Hz] and damping ζ profiled, and the share κ of the input through the mode (0 collocated,
-    1 non-collocated) fitted (``input``) or held at 0, the best validated plausible variant kept
-    (in closed loop a free κ also fits the position noise fed into F, and biases μ). Plausible
-    (:meth:`_refusals`) when 0 < μ ≤ :data:`MAX_MODE_MASS` (heavier only collocated),
-    ζ ≤ :data:`MAX_MODE_ZETA`, −0.5 ≤ κ ≤ 1.5, f_mode inside the searched band, μ above the
-    sampling's hold error and its deflection on validation above the position noise."""
+    [Hz] and damping ζ profiled, the input share κ fitted (``input``) or held at 0, the best
+    validated plausible variant kept (in closed loop a free κ also fits the position noise fed
+    into F). Plausible as :meth:`_refusals` tests (docs/method.md, "Flexible mode", 1–6)."""
 
     input: bool = True
     omega: float = 0.0
@@ -183,24 +177,12 @@ class FlexibleModeCandidate(AbstractCandidate):
         return False  # the windowed simulation is of the rigid body
 
     def profile(self, objective, limits):
-        """(ω, ζ): least *validation* RSS / (1 − μ)² of the mode alone fitted on the training
-        record, over the settings' frequencies × :data:`MODE_ZETAS`, then pattern searches in
-        (ln ω, ln ζ) from the best and from :func:`_seeds`. A search ending on the band's edge is
-        widened once by :data:`MODE_WIDEN` on that side (within 0.1 Hz … 0.45·f_s); ending on
-        an edge again, it located no resonance (``failed``).
-
-        Validation, since (s²/D)[x] passes the position noise through the resonance (and in
-        closed loop F carries it too): on one record least squares fits that record's noise
-        (errors in variables). Divided by (1 − μ)², since above the mode ẍ − μ·s²h[x] →
-        (1 − μ)ẍ: as μ → 1 the column cancels the acceleration that fixes the equation's scale,
-        and every coefficient and the residual go to 0; so the criterion stays in the rigid
-        equation's units, and only 0 < μ < 1 is a mode. That division locates the mode but
-        biases where it lies (μ varies along the valley): a located mode is then refined on the
-        plain validation RSS within :data:`MODE_REFINE` of its frequency, where the fit of a
-        true mode is least, among light fits (μ ≤ :data:`MAX_MODE_MASS`: a heavier fit is judged
-        in the rigid equation's units only, where μ → 1 would otherwise gain); a refinement that
-        ends on the edge of that neighbourhood left the located valley, and the located mode
-        stands."""
+        """(ω [rad/s], ζ): least *validation* RSS / (1 − μ)² of the mode alone fitted on the
+        training record (errors in variables; above the mode ẍ − μ·s²h[x] → (1 − μ)ẍ), over the
+        settings' frequencies × :data:`MODE_ZETAS`, then pattern searches in (ln ω, ln ζ) from
+        the best and from :func:`_seeds`, widened once by :data:`MODE_WIDEN` off the band's
+        edge (``failed``: on an edge again), then refined on the plain validation RSS within
+        :data:`MODE_REFINE` (docs/method.md, "Flexible mode")."""
         if self.omega > 0:
             return self
         st = objective.problem.st
@@ -230,10 +212,9 @@ class FlexibleModeCandidate(AbstractCandidate):
             memo["mode", "coarse"] = (grid, rss_of(grid, (True, False)))
         grid, coarse = memo["mode", "coarse"]
         i = int(np.argmin(coarse[self.input]))
-        starts = [(grid[i], float(coarse[self.input][i]))]
         fn = lambda todo: rss_of(todo, (self.input,))[self.input]  # noqa: E731
-        for q in _seeds(objective, st, lam, ws):
-            starts.append((q, float(fn([q])[0])))
+        seeds = _seeds(objective, st, lam, ws)
+        starts = [(grid[i], float(coarse[self.input][i]))] + [(q, float(fn([q])[0])) for q in seeds]
         (w, z), r = self._search(fn, starts, ws)
         band = (float(ws[0]), float(ws[-1]))
         side = _edge(w, z, band)

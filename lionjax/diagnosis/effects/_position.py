@@ -36,19 +36,6 @@ LOCAL_W_RANGE = (1 / 100, 1.0)
 RANGE_POINTS = 257
 
 
-def _position_raw(x, center, scale, lo, hi, held: bool, k: int, which: int):
-    """Per rows, :class:`HeldPosition`'s degree-``k`` raw signal ℓξ_cᵏ⁺¹/(k+1) + ℓξ_cᵏ(ξ − ξ_c)
-    (``which`` 0) or F's multiplier ξ_cᵏ (1); ξ_c = clip(ξ, lo, hi) where ``held``, else ξ."""
-
-    def raw(k0, k1):
-        xi = (x[k0:k1] - center) / scale
-        xic = np.clip(xi, lo, hi) if held else xi
-        gv, mv = position_values(xic, scale, k)
-        return mv if which else gv + scale * mv * (xi - xic)
-
-    return raw
-
-
 class HeldPosition(PolynomialPosition):
     """:class:`~lionjax.PolynomialPosition` with raw signals per rows, a(x), b(x) held at their
     values at ξ = ``lo``, ``hi`` beyond them where ``held`` (aₖξ_cᵏẋ = d/dt ℓ(ξ_cᵏ⁺¹/(k+1) +
@@ -63,16 +50,26 @@ class HeldPosition(PolynomialPosition):
         self.held, self.lo, self.hi = bool(held), float(lo), float(hi)
 
     def signals(self, rs) -> dict:
-        x = np.asarray(rs.x, np.float64)
-        F = np.asarray(rs.F, np.float64)
-        c, sc = float(self.center), float(self.scale)
+        x, F = np.asarray(rs.x, np.float64), np.asarray(rs.F, np.float64)
         out = {}
         for k in range(1, self.degree + 1):
             g, f, _ = position_terms(k)
-            m = _position_raw(x, c, sc, self.lo, self.hi, self.held, k, 1)
-            out[g] = (_position_raw(x, c, sc, self.lo, self.hi, self.held, k, 0), "foh")
-            out[f] = (scaled(m, rows(F)), "zoh")
+            out[g] = (self._raw(x, k, 0), "foh")
+            out[f] = (scaled(self._raw(x, k, 1), rows(F)), "zoh")
         return out
+
+    def _raw(self, x, k: int, which: int):
+        """Per rows, the degree-``k`` raw signal ℓξ_cᵏ⁺¹/(k+1) + ℓξ_cᵏ(ξ − ξ_c) (``which`` 0) or
+        F's multiplier ξ_cᵏ (1), of x [m] (T,); ξ_c = clip(ξ, lo, hi) where ``held``, else ξ."""
+        c, sc, lo, hi, held = float(self.center), float(self.scale), self.lo, self.hi, self.held
+
+        def raw(k0, k1):
+            xi = (x[k0:k1] - c) / sc
+            xic = np.clip(xi, lo, hi) if held else xi
+            gv, mv = position_values(xic, sc, k)
+            return mv if which else gv + sc * mv * (xi - xic)
+
+        return raw
 
 
 def _local_raw(x, F, c: float, w: float, j: int):
@@ -194,10 +191,8 @@ class PositionCandidate(AbstractCandidate):
 
     def implausible(self, phys, lim) -> str:
         """Besides b ≤ 0: b(x) ≤ 0 or a(x) < 0 at a position both records cover (``x_range``,
-        on a grid of :data:`RANGE_POINTS` and at x₀). A mass and a viscous damping vary along a
-        rail but stay positive: a fit whose input gain vanishes somewhere, or whose damping
-        turns into an energy source there, describes an input cut off or a residual's shape,
-        not a position dependence."""
+        on :data:`RANGE_POINTS` points and at x₀): a mass and a viscous damping vary along a rail
+        but stay positive (docs/method.md, "Position dependence")."""
         if why := super().implausible(phys, lim):
             return why
         lo, hi = lim.x_range

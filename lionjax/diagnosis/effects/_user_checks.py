@@ -1,10 +1,9 @@
 """Checks of an effect of one's own (a :class:`~._force_effect.ForceEffect`): a mistake in it is
 an :class:`~lionjax.InputError` naming the candidate, the rule of ``docs/effects.md`` it breaks
-and the fix, never an internal error of lionjax. They run when the library is loaded
-(:func:`check_definitions`: its class variables, and its basis traced once as the compiled
-simulation calls it), when its grid is first read (:func:`checked_grid`) and wherever its basis
-is evaluated on a record (:func:`checked_basis`: one real, finite array per parameter). The
-built-in candidates (modules under ``lionjax.``) are trusted: an error in them is lionjax's."""
+and the fix, never an internal error of lionjax: when the library is loaded
+(:func:`check_definitions`), when its grid is read (:func:`checked_grid`) and wherever its basis
+is evaluated on a record (:func:`checked_basis`). Built-in candidates (under ``lionjax.``) are
+trusted: an error in them is lionjax's."""
 
 from __future__ import annotations
 
@@ -99,7 +98,7 @@ def check_definitions(effects: Sequence, reserved: Sequence[str], base: type) ->
                 )
             seen[p] = type(c).__name__
         if is_users(c):
-            _probe(c, "")
+            _probe(c)
 
 
 def _check_variables(c, base: type) -> None:
@@ -183,7 +182,7 @@ def _values(candidate, phis, shape: tuple, where: str, prefix: str = "diagnose: 
     scalar (``where``: how it was evaluated, for the message)."""
     refuse = lambda what, fix: _refuse(candidate, what, "one_each", fix, prefix)
     pars, n = candidate.parameters, len(candidate.parameters)
-    if isinstance(phis, jax.Array | np.ndarray) or not isinstance(phis, tuple | list):
+    if not isinstance(phis, tuple | list):
         array = isinstance(phis, jax.Array | np.ndarray | jax.ShapeDtypeStruct)
         got = f"an array of shape {tuple(np.shape(phis))}" if array else f"a {type(phis).__name__}"
         names = ", ".join("phi_" + p for p in pars)
@@ -214,14 +213,14 @@ def _values(candidate, phis, shape: tuple, where: str, prefix: str = "diagnose: 
     return tuple(phis)
 
 
-def _probe(candidate, prefix: str = "diagnose: ") -> None:
+def _probe(candidate) -> None:
     """Trace ``candidate.basis`` as the compiled simulation calls it, once per class (no record
-    needed: when loaded)."""
+    needed: when loaded; the message starts with the candidate)."""
     cls = type(candidate)
     if cls in _PROBED or candidate.acts_on != "device":
         return
     arg = jax.ShapeDtypeStruct((PROBE_WINDOWS,), jnp.float64)
-    refuse = lambda what, fix: _refuse(candidate, what, "jnp", fix, prefix)
+    refuse = lambda what, fix: _refuse(candidate, what, "jnp", fix, "")
     try:
         out = eqx.filter_eval_shape(
             lambda e, x, v, F, t: e.basis(x, v, F, t), traced(candidate), arg, arg, arg, arg
@@ -246,7 +245,7 @@ def _probe(candidate, prefix: str = "diagnose: ") -> None:
             f"({PROBE_WINDOWS},)): {type(e).__name__}: {e}",
             "make basis work on jnp arrays of any length, elementwise",
         ) from None
-    _values(candidate, out, (PROBE_WINDOWS,), "in the simulation", prefix)
+    _values(candidate, out, (PROBE_WINDOWS,), "in the simulation", "")
     _PROBED.add(cls)
 
 
