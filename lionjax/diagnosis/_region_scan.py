@@ -2,25 +2,19 @@
 
 Points: ε₁ [m/s²] and the covariates averaged over blocks of m samples, at most ``n_points``.
 The record-wide columns C = L[1, F, v, sgn v, sgn F, t] and the three free responses of
-L = λ³/(s + λ)³ (ε₁'s own filter, whose initial state the diagnosis fits) absorb whatever acts
-on the whole record alike. A candidate region I, bins [lo, hi) of one variable's quantile bins,
-adds D_I = L[c·1_I], the columns gated to I *before* the filter: an effect confined to I reaches
-ε₁ through the filter, so its misfit trails I's samples. Its Lagrange-multiplier (Chow)
-statistic is
+L = λ³/(s + λ)³ (ε₁'s own filter, whose initial state the diagnosis fits) absorb what acts on
+the whole record alike. A candidate I, bins [lo, hi) of one variable's quantile bins, adds
+D_I = L[c·1_I], the columns gated to I *before* the filter (an effect confined to I reaches ε₁
+through it). Its Lagrange-multiplier (Chow) statistic, the misfit I's own correction removes in
+residual variances, is
 
     Λ_I = gᵀ(D_IᵀMD_I)⁻¹g / σ̂²,   g = D_Iᵀr₀,   r₀ = Mε₁,
 
-M the residual maker of C and σ̂² the mean square of r₀: the misfit I's own correction removes,
-in residual variances. D_I is the sum of its bins' columns, so every candidate costs a few
-prefix sums. Each variable's largest Λ is compared with its largest on resamples of ε₁, the
-covariates held: circular shifts against x, v and F (they keep both series' autocorrelation;
-under the null ε₁ is independent of the covariates), permutations of blocks for t (a shift
-moves a time profile whole). The tail of the resampled maxima is a generalised extreme-value law
-fitted by L-moments (:func:`_extreme_p`): small p-values from few resamples, as with the Gumbel
-law of Abrams, Kleinman & Kulldorff (2010), its shape 0 case, without assuming that shape (block
-permutations of a misfit confined to one stretch of time give a bounded tail); the six
-variables' p-values are combined by Šidák (their scans are positively dependent:
-conservative).
+M the residual maker of C, σ̂² the mean square of r₀; D_I is the sum of its bins' columns, so a
+candidate costs a few prefix sums. Each variable's largest Λ is compared with its largest on
+resamples of ε₁ (circular shifts against x, v, F; block permutations for t), their tail a
+generalised extreme-value law (:func:`_extreme_p`), the six p-values combined by Šidák:
+docs/diagnosis.md, "Where the gap lies", states why each.
 """
 
 from __future__ import annotations
@@ -58,9 +52,6 @@ class Settings(NamedTuple):
     bins: int  # quantile bins of each variable
     min_share: float  # the least share of the points on each side of a candidate
     n_points: int  # the most points
-
-
-# ------------------------------------------------------------------------------------- points
 
 
 def _block_means(a: np.ndarray, m: int) -> np.ndarray:
@@ -119,19 +110,9 @@ def points(sig: dict, filter_hz: float, n_points: int) -> Points:
     w = _kernel(lam, h)
     lt = lam * _block_means(t - t[0], m)
     free = np.stack([lt**j / math.factorial(j) * np.exp(-lt) for j in range(3)], 1)
-    return Points(
-        r=_block_means(sig["residual_base"], m),
-        raw=raw,
-        C=np.concatenate([_filtered(raw, w), free], 1),
-        z={name: _block_means(covariate(name, sig), m) for name in VARIABLES},
-        w=w,
-        h=h,
-        lam=lam,
-        lag=int(math.ceil(3.0 / lam / h)),
-    )
-
-
-# ------------------------------------------------------------------------------------ statistic
+    r, C = _block_means(sig["residual_base"], m), np.concatenate([_filtered(raw, w), free], 1)
+    z = {name: _block_means(covariate(name, sig), m) for name in VARIABLES}
+    return Points(r, raw, C, z, w, h, lam, lag=int(math.ceil(3.0 / lam / h)))
 
 
 class _Binned(NamedTuple):
@@ -167,8 +148,7 @@ def _sym_inv(M: np.ndarray) -> np.ndarray:
 
 def _schur_inverse(bn: _Binned, lo, hi, CtC: np.ndarray) -> np.ndarray:
     """(D_IᵀMD_I)⁻¹ for each candidate I = bins [lo, hi), (n_cand, k, k)."""
-    P2 = bn.P2
-    Q = P2[hi, hi] - P2[lo, hi] - P2[hi, lo] + P2[lo, lo]
+    Q = bn.P2[hi, hi] - bn.P2[lo, hi] - bn.P2[hi, lo] + bn.P2[lo, lo]
     E = bn.PE[hi] - bn.PE[lo]
     return _sym_inv(Q - E @ _sym_inv(CtC) @ np.swapaxes(E, -1, -2))
 
@@ -211,7 +191,9 @@ def _candidates(pts: Points, idx, name: str, bins: int, min_n: int, CtC) -> _Can
 
 
 def flipped(cand: _Candidates, c) -> np.ndarray:
-    """Whether candidate c is reported as its complement: a half-line holding the majority."""
+    """Whether candidate c is reported as its complement: a half-line holding the majority (the
+    record-wide fit follows the majority: a side holding a share π of the points departs
+    (1 − π)/π times as far as the other)."""
     half = (cand.lo[c] == 0) | (cand.hi[c] == cand.bn.edges.size + 1)
     return half & (cand.n[c] > cand.bn.b.size / 2)
 
@@ -226,18 +208,17 @@ def _excess_share(Y, cand: _Candidates, best: np.ndarray) -> np.ndarray:
     return np.where(flipped(cand, best), frac - inside, inside - frac)
 
 
-# ------------------------------------------------------------------------------------ the null
-
-
 def _shift_rows(rng, N: int, P: int) -> np.ndarray:
-    """P circular shifts of N points, by at least N/20 either way, (P, N)."""
+    """P circular shifts of N points, by at least N/20 either way, (P, N): the null of x, v and
+    F (ε₁ independent of the covariates), each series' autocorrelation kept."""
     lo = max(1, N // 20)
     sh = rng.integers(lo, N - lo + 1, P)
     return (np.arange(N)[None, :] + sh[:, None]) % N
 
 
 def _block_rows(rng, N: int, P: int, L: int) -> np.ndarray:
-    """P permutations of blocks of L points, each from a random circular offset, (P, N)."""
+    """P permutations of blocks of L points, each from a random circular offset, (P, N): the null
+    of t, which a shift cannot test (it moves a time profile whole)."""
     K = -(-N // L)
     out = np.empty((P, N), np.int64)
     for i in range(P):
@@ -247,11 +228,12 @@ def _block_rows(rng, N: int, P: int, L: int) -> np.ndarray:
 
 
 def _extreme_p(x: np.ndarray, null: np.ndarray) -> np.ndarray:
-    """P(M ≥ x) for the maximum M of a scan, from a generalised extreme-value law fitted by
-    L-moments (Hosking, Wallis & Wood 1985) to its resampled maxima ``null`` (P, V): Gumbel's
-    law where the tail is Gumbel's (shape k = 0), a bounded tail (k > 0) or a heavy one (k < 0)
-    where the resamples show one. Hosking's rational approximation of k is accurate within
-    9·10⁻⁴ for |k| ≤ 0.5, the range k is held to."""
+    """P(M ≥ x) for the maximum M of a scan (x (V,)), from a generalised extreme-value law
+    fitted by L-moments (Hosking, Wallis & Wood 1985) to its resampled maxima ``null`` (P, V),
+    so that p-values below 1/P come from P resamples: Gumbel's law (shape k = 0, Abrams,
+    Kleinman & Kulldorff 2010) where the tail is Gumbel's, a bounded tail (k > 0) or a heavy one
+    (k < 0) where the resamples show one. Hosking's rational approximation of k is accurate
+    within 9·10⁻⁴ for |k| ≤ 0.5, the range k is held to."""
     s = np.sort(null, 0)
     n = s.shape[0]
     i = np.arange(n)[:, None]
@@ -311,17 +293,14 @@ def step(pts: Points, active, rng, cfg: Settings, block: int) -> Found | None:
         g = _gains(Y0[rows], s2[rows], cand.bn, cand.lo, cand.hi, cand.Qinv)
         best = g.argmax(1)
         obs[i], null[:, i] = g[0, best[0]], g[1:][np.arange(P), best[1:]]
-        keep[name] = (
-            cand,
-            int(best[0]),
-            float(np.mean(_excess_share(Y[rows[1:]], cand, best[1:]))),
-        )
+        bias = float(np.mean(_excess_share(Y[rows[1:]], cand, best[1:])))
+        keep[name] = cand, int(best[0]), bias
     if not keep:
         return None
     p, on = np.ones(V), np.isfinite(obs)
     # beyond a bounded tail's end the law gives 0; the end is an estimate: 10⁻¹⁶, not 0
     p_one = np.clip(_extreme_p(obs[on], null[:, on]), 1e-16, 1.0 - 1e-16)
-    p[on] = -np.expm1(V * np.log1p(-p_one))  # Šidák
+    p[on] = -np.expm1(V * np.log1p(-p_one))  # Šidák: conservative, the scans positively dependent
     # of the significant variables, the region whose correction removes the most misfit
     sig = np.flatnonzero(p <= cfg.alpha)
     i = int(sig[np.argmax(obs[sig])]) if sig.size else int(np.argmin(p))

@@ -2,24 +2,11 @@
 family-wise error rate (:func:`find_regions`, :class:`Region`).
 
 A region is a half-line or an interval of one variable z ∈ {x, v, |v|, F, |F|, t} where the
-dynamics depart from the rest of the record. The search is model-based recursive partitioning
-(Zeileis, Hothorn & Hornik 2008, partykit's ``mob``): fit a correction of the baseline's filtered
-equation error ε₁ to the whole record, test whether it changes across a variable, split where it
-changes most. The statistic, the candidates and their null are :mod:`._region_scan`'s. Then:
-
-- Several regions: the iterative scan (Zhang, Assunção & Kulldorff 2010). The accepted region's
-  points, and the filter's lag after them, are set aside and the search runs again on the rest
-  with fresh resamples, until a step is not significant (p-values kept non-decreasing along the
-  steps) or its region explains less than ``min_explained`` of the first step's misfit Σr₀².
-  That least share is there because the search finds the measurement's structure too: encoder
-  quantisation puts speed-dependent misfit into ε₁, and a closed loop on a quantised position
-  limit-cycles at rest; such regions are significant and explain little.
-- A half-line is reported on its side with fewer samples: the record-wide fit follows the
-  majority (a side holding a share π of the points departs (1 − π)/π times as far as the
-  other), so the minority departs from it.
-- ``gap_share`` is the region's share of Σε₁² less the mean excess share (share − sample share)
-  of the regions the search selects on the resamples: the selection's own bias, so that the
-  worst slice is not overstated.
+dynamics depart from the rest of the record, found by model-based recursive partitioning of the
+baseline's ε₁ (Zeileis, Hothorn & Hornik 2008, partykit's ``mob``; the statistic and its null
+are :mod:`._region_scan`'s) and the iterative scan for several regions. docs/diagnosis.md,
+"Where the gap lies", states the method: why a half-line is reported on its minority side, why
+``gap_share`` is less the selection's bias, why a region must explain ``min_explained``.
 """
 
 from __future__ import annotations
@@ -115,8 +102,8 @@ def find_regions(
     n_points: int = 2048,
 ) -> list[Region]:
     """The regions of the validation record where the dynamics depart from the rest, strongest
-    first, each significant at the family-wise level ``alpha`` (the method: this module's and
-    :mod:`._region_scan`'s docstrings; docs/diagnosis.md).
+    first, each significant at the family-wise level ``alpha`` (docs/diagnosis.md, "Where the gap
+    lies").
 
     Arguments:
         signals: arrays of one length T: ``t`` [s], ``x`` [m], ``v`` [m/s], ``F`` [N] of the
@@ -221,7 +208,10 @@ def _validated(signals) -> dict[str, np.ndarray]:
 
 
 def _search(sig: dict, filter_hz: float, rng, cfg: Settings) -> list[Region]:
-    """The iterative search: a region per step while one is significant and large enough."""
+    """The iterative scan (Zhang, Assunção & Kulldorff 2010): a region per step, its points and
+    the filter's lag after them set aside for the next, until a step's p-value (kept
+    non-decreasing) exceeds alpha or its region explains less than ``min_explained`` of the first
+    step's misfit Σr₀²."""
     pts = points(sig, filter_hz, cfg.n_points)
     block = max(8, int(math.ceil(max(BLOCK_S, 20.0 / pts.lam) / pts.h)))
     active = np.ones(pts.r.size, bool)

@@ -25,16 +25,13 @@ ODD_LEVEL = 0.01
 
 
 def _bands(kind, labels, masks, r2, note="", weight=None):
-    """The findings of the bands ``masks`` of the squared residual ``r2``; ``fraction`` the
-    band's share of ``weight`` (default: of the samples)."""
-    total = float(np.sum(r2)) or 1.0
+    """The findings of the bands ``masks`` (bool, like ``r2``) of the squared residual ``r2``;
+    ``fraction`` the band's share of ``weight`` (default: of the samples)."""
+    total, weight = float(np.sum(r2)) or 1.0, np.ones(r2.size) if weight is None else weight
     out = []
     for lab, m in zip(labels, masks, strict=True):
         share = float(np.sum(r2[m])) / total
-        if weight is None:
-            frac = float(np.mean(m)) if m.size else 0.0
-        else:
-            frac = float(np.sum(weight[m])) / (float(np.sum(weight)) or 1.0)
+        frac = float(np.sum(weight[m])) / (float(np.sum(weight)) or 1.0)
         ratio = share / frac if frac > 0 else None
         out.append(dict(kind=kind, band=lab, share=share, fraction=frac, ratio=ratio, note=note))
     return out
@@ -54,7 +51,7 @@ def _xcorr_test(a: np.ndarray, b: np.ndarray, lags: int, first: int = 0) -> dict
     noise, 2.576/√n."""
     vals = _lagged(a, b, first, lags)
     bound = 2.576 / math.sqrt(a.size)
-    worst = float(np.max(np.abs(vals))) if vals.size else 0.0
+    worst = float(np.max(np.abs(vals)))
     return {"max_abs": worst, "bound_99": bound, "passed": bool(worst <= bound)}
 
 
@@ -71,17 +68,16 @@ def _resid_tests(r: np.ndarray, F: np.ndarray, st) -> tuple[dict, dict]:
 
 
 def odd_input_dependence(r: np.ndarray, F: np.ndarray, st) -> float:
-    """How far a residual ``r`` depends on the input F beyond linearly, relative to the
-    family-wise :data:`ODD_LEVEL` bound (> 1: significant).
+    """How far a residual ``r`` (n,) depends on the input ``F`` (its first n samples) beyond
+    linearly, by Billings and Voon's higher-order correlation test (docs/method.md, "The
+    verdict"): an odd function of the force (a dead zone, a saturation) leaves a least-squares
+    residual uncorrelated with F, but not with g = sign F or g = F³, each less its least-squares
+    part in (1, F). On r and F decimated to the filter's time constant,
 
-    A least-squares residual is uncorrelated with the regressors' linear terms in F, so an
-    effect that is an odd function of the force — a dead zone (F − d·sign F outside ±d),
-    a saturation — leaves a residual the input correlation test cannot see. Billings and
-    Voon's higher-order correlation tests read it: with r and F decimated to the filter's time
-    constant, for g = sign F and g = F³, each less its least-squares part in (1, F), the
-    statistic is max over lags 0…20 of |ρ(r, g)|·√(n/β), β = 1 + 2Σₖρ_r(k)ρ_g(k) (k = 1…50)
-    Bartlett's factor for two autocorrelated series, over the normal quantile of
-    1 − ODD_LEVEL/(2·2·21) (Bonferroni over both functions and all lags)."""
+        max over g and lags 0…20 of |ρ(r, g)|·√(n/β),  β = 1 + 2Σₖ ρ_r(k)ρ_g(k) (k = 1…50),
+
+    β Bartlett's factor for two autocorrelated series, over the normal quantile of
+    1 − ODD_LEVEL/(2·2·21) (Bonferroni over both g and all lags): > 1 is significant."""
     rd, Fd = _decimated(np.asarray(r, np.float64), np.asarray(F, np.float64)[: np.size(r)], st)
     n = rd.size
     if n < 2 * BARTLETT_LAGS or not np.std(rd) > 0 or not np.std(Fd) > 0:
@@ -105,9 +101,10 @@ def _spectrum(r: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def where_findings(series: dict[str, np.ndarray], st, floor: float) -> list[dict[str, Any]]:
-    """The "where" findings from the validation series of a diagnosis."""
-    r = np.asarray(series["residual_base"])
-    x, F, v = (np.asarray(series[k]) for k in ("x", "F", "v"))
+    """The "where" findings (this module's docstring) of the validation series, arrays (T,):
+    ``residual_base`` (the baseline's ε₁ [m/s²]), ``x`` [m], ``F`` [N], ``v`` [m/s]; ``st`` holds
+    ``dt`` [s] and ``filter_hz``, ``floor`` ε₁'s rms from noise alone [m/s²] (≤ 0: unknown)."""
+    r, x, F, v = (np.asarray(series[k]) for k in ("residual_base", "x", "F", "v"))
     r2 = r * r
     q = np.quantile(x, [1 / 3, 2 / 3])  # terciles of the validation positions
     v0 = 0.1 * float(np.median(np.abs(v)))  # near zero: reversals, stick
@@ -148,7 +145,7 @@ def where_findings(series: dict[str, np.ndarray], st, floor: float) -> list[dict
         [(f >= lo) & (f < hi) for lo, hi in edges],
         spec,
         "fraction = share of the input F's power in the band",
-        weight=np.abs(np.fft.rfft(F - F.mean())) ** 2,
+        weight=_spectrum(F, st.dt)[0],
     )
     peak = float(f[1:][np.argmax(spec[1:])]) if n > 2 else 0.0
     out.append({"kind": "frequency_peak", "band": f"{peak:.4g} Hz", "share": None})
@@ -166,16 +163,15 @@ def where_findings(series: dict[str, np.ndarray], st, floor: float) -> list[dict
 def structure(
     r: np.ndarray, F: np.ndarray, st, F_odd: np.ndarray | None = None
 ) -> dict[str, float]:
-    """How structured a validation residual is, relative to the 99 % bound of white noise:
+    """How structured a validation residual ``r`` (n,) is against the input ``F`` (its first n
+    samples), the tests over their 99 % bound of white noise (docs/method.md, "The verdict"):
 
-    - ``input_correlation``: max |ρ(r, F)| over lags 0…20 / bound — a residual that still
-      follows the input holds an unmodelled input-driven effect;
-    - ``input_odd``: :func:`odd_input_dependence` on ``F_odd`` (default F) — one that depends
-      on the input beyond linearly (a dead zone, a saturation) does too;
-    - ``whiteness``: max |ρ(r, r)| over lags 1…20 / bound (ε₁ is filtered, so this is > 1 even
-      for white noise on x; compare a structure before and after a candidate);
-    - ``peak``: the largest power of the residual's spectrum (smoothed over ±2 bins) in
-      0…4·f_filter over its median there — a narrow-band residual (a mode) has a high peak.
+    - ``input_correlation``: max |ρ(r, F)| over lags 0…20 — an unmodelled input-driven effect;
+    - ``input_odd``: :func:`odd_input_dependence` on ``F_odd`` (default F) — one odd in F;
+    - ``whiteness``: max |ρ(r, r)| over lags 1…20 (ε₁ is filtered, so > 1 even for white noise
+      on x: compare a structure before and after a candidate);
+    - ``peak``: the largest power of the spectrum (smoothed over ±2 bins) in 0…4·f_filter over
+      its median there, high for a narrow-band residual (a mode); ``peak_power`` that power / n.
     """
     r = np.asarray(r, np.float64)
     w, c = _resid_tests(r, np.asarray(F, np.float64)[: r.size], st)
