@@ -118,8 +118,9 @@ def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) ->
     ]
 
 
-def _detection(run: Run, fitted: dict[str, Fitted]) -> tuple[float, float]:
-    """(the record's detection limit, the largest of its candidates'): the least one-parameter
+def _detection(run: Run, fitted: dict[str, Fitted]) -> tuple[float, float, float]:
+    """(the record's detection limit, the largest of its candidates', the largest of its device
+    effects' — not the sensor's artefacts): the least one-parameter
     effect reaching the threshold, √((threshold + ln N_eff)·MS₀/N_eff) over the input's term;
     a candidate's own where it states one, given its fit alone in ``fitted``
     (``detection_limit``: a force-sensor line the filter barely passes, or one F shows and the
@@ -129,17 +130,18 @@ def _detection(run: Run, fitted: dict[str, Fitted]) -> tuple[float, float]:
     crit, base = run.crit, run.base
     n, ms0 = base.n_eff, base.ms_valid
     generic = math.sqrt((crit.threshold + math.log(n)) * ms0 / n) / run.force_rms
-    worst = generic
+    limits = {c.name: generic for c in run.by_name.values()}
     for c in run.by_name.values():
         alone = fitted.get(c.name)
         own = c.detection_limit(run.problem, generic, None if alone is None else alone.physical)
         if own is not None:
-            worst = max(worst, own)
+            limits[c.name] = max(limits[c.name], own)
         lo = run.floor_of([c])
         if lo**2 > ms0:
             grow = math.exp((crit.threshold + c.params() * math.log(n)) / n)
-            worst = max(worst, math.sqrt(lo**2 * grow - ms0) / run.force_rms)
-    return generic, worst
+            limits[c.name] = max(limits[c.name], math.sqrt(lo**2 * grow - ms0) / run.force_rms)
+    device = [v for k, v in limits.items() if not run.by_name[k].artefact()]
+    return generic, max([generic, *limits.values()]), max([generic, *device])
 
 
 def _explains(run: Run, stk: Stack, v: Verdict) -> float:
@@ -286,8 +288,9 @@ def weigh(
     crit = run.crit
     blind, also = uncounted(run, stk)
     weights = _weights(run, effects, stk)
-    detection, detection_worst = _detection(run, fitted)
-    detection_worst = max(detection_worst, unresolved(run, fitted, effects))
+    detection, detection_worst, device_worst = _detection(run, fitted)
+    hidden_fit = unresolved(run, fitted, effects)
+    detection_worst = max(detection_worst, hidden_fit)
     bar = run.bar(stk)
     rivals = _rivals(run, effects, stk, blind, bar)
     # the rivals' odds against the verdict's evidence (the look-alikes' against the stack's
@@ -318,11 +321,13 @@ def weigh(
     elif verdict == "unexplained":
         confidence = _unexplained(run, effects, v, hidden)
     else:
-        # and a name claims the dominant effect: only as sure as no larger one could hide, the
-        # share of the sizes above the named effect's, its size … 1, below the detection limit
+        # and a name claims the device's dominant effect: only as sure as no larger one could
+        # hide, the share of the sizes above the named effect's, its size … 1, below the device
+        # effects' detection limit (a sensor artefact's limit bounds no effect of the device)
         size = next((s.size for s in stk.steps if s.name == verdict), 0.0)
         confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
-        confidence *= 1.0 - _hidden(detection_worst, max(size, crit.min_size))
+        limit = max(device_worst, hidden_fit)
+        confidence *= 1.0 - _hidden(limit, max(size, crit.min_size))
     if verdict != "unexplained":
         confidence *= doubt
     undecided = None
