@@ -140,6 +140,10 @@ ENTRIES = (
     ),
 )  # fmt: skip
 
+#: Folders of documents a series of records shares (its EXPECTED.md and PROVENANCE.md), by the
+#: records they serve.
+FAMILIES = {"siesta_payload": ("siesta_L0", "siesta_L1", "siesta_L2", "siesta_L4")}
+
 #: The payload series' added inertias [kg·m²] (siesta_payload/PROVENANCE.md) and the data
 #: sheet's torque constant it is held to [N·m/mA] (siesta_payload/EXPECTED.md).
 PAYLOADS = {"siesta_L0": 0.0, "siesta_L1": 224.5440144e-6, "siesta_L2": 548.4378187e-6,

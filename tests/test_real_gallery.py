@@ -40,8 +40,12 @@ NAMES = [e.name for e in gallery.ENTRIES]
 
 def test_every_folder_is_a_gallery_entry():
     folders = sorted(p.name for p in REAL.iterdir() if p.is_dir() and not p.name.startswith("_"))
-    assert folders == sorted(NAMES)
+    assert folders == sorted([*NAMES, *gallery.FAMILIES])
     assert set(PACKAGED) <= set(NAMES)
+    for family, records in gallery.FAMILIES.items():  # a series' shared documents
+        assert set(records) <= set(NAMES)
+        assert re.search(r"\*\*Expected verdict", (REAL / family / "EXPECTED.md").read_text())
+        assert len((REAL / family / "PROVENANCE.md").read_text()) > 200
 
 
 @pytest.mark.parametrize("name", NAMES)
