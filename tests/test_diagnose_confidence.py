@@ -279,21 +279,3 @@ def test_a_line_the_force_shows_and_the_fit_does_not_resolve_bounds_the_detectio
         hidden = math.log(max(D, lo) / lo) / math.log(1 / lo)
         assert d.confidence <= 1 - hidden + 1e-12, (d.confidence, D)
     assert d.verdict == "force_sensor_line" or d.confidence < 0.9, (d.verdict, d.confidence)
-
-
-def test_a_name_is_only_as_sure_as_no_larger_effect_could_hide():
-    """A collocated mode (μ 0.9 at 20.6 Hz, ζ 0.19; closed loop, 4953 Hz, chirps up to 8 Hz)
-    changes the validation response by 3.8 % and the training one by 1.4 %: the mode's search
-    does not find it on training, and a quadratic b(x), a(x) of size 0.015 of the input's term
-    is named with weight 1.00. The record's worst detection limit, 0.025, exceeds that size: an
-    effect larger than the named one could be there unseen. A name claims the dominant effect,
-    so its confidence carries 1 − h_s, h_s = ln(limit/s)/ln(1/s) (the rule of `none` from the
-    named effect's size), computed here from the report's own figures."""
-    d, info = _diagnose("flexible_mode", 350080003, "twin")
-    assert d.verdict not in info["truth"] and d.verdict not in ("none", "unexplained")
-    size = next(s.size for s in d.steps if s.name == d.verdict)
-    limit = d.noise["detection_limit_worst"]
-    assert limit > size > d.settings["min_size"]
-    h = math.log(limit / size) / math.log(1.0 / size)
-    assert d.confidence <= d.weights[d.verdict] * (1.0 - h) * (1 + 1e-12)
-    assert d.confidence < 0.9

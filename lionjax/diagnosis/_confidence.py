@@ -118,9 +118,8 @@ def _readings(run: Run, effects: list[EffectScore], stk: Stack, verdict: str) ->
     ]
 
 
-def _detection(run: Run, fitted: dict[str, Fitted]) -> tuple[float, float, float]:
-    """(the record's detection limit, the largest of its candidates', the largest of its device
-    effects' — not the sensor's artefacts): the least one-parameter
+def _detection(run: Run, fitted: dict[str, Fitted]) -> tuple[float, float]:
+    """(the record's detection limit, the largest of its candidates'): the least one-parameter
     effect reaching the threshold, √((threshold + ln N_eff)·MS₀/N_eff) over the input's term;
     a candidate's own where it states one, given its fit alone in ``fitted``
     (``detection_limit``: a force-sensor line the filter barely passes, or one F shows and the
@@ -130,18 +129,17 @@ def _detection(run: Run, fitted: dict[str, Fitted]) -> tuple[float, float, float
     crit, base = run.crit, run.base
     n, ms0 = base.n_eff, base.ms_valid
     generic = math.sqrt((crit.threshold + math.log(n)) * ms0 / n) / run.force_rms
-    limits = {c.name: generic for c in run.by_name.values()}
+    worst = generic
     for c in run.by_name.values():
         alone = fitted.get(c.name)
         own = c.detection_limit(run.problem, generic, None if alone is None else alone.physical)
         if own is not None:
-            limits[c.name] = max(limits[c.name], own)
+            worst = max(worst, own)
         lo = run.floor_of([c])
         if lo**2 > ms0:
             grow = math.exp((crit.threshold + c.params() * math.log(n)) / n)
-            limits[c.name] = max(limits[c.name], math.sqrt(lo**2 * grow - ms0) / run.force_rms)
-    device = [v for k, v in limits.items() if not run.by_name[k].artefact()]
-    return generic, max([generic, *limits.values()]), max([generic, *device])
+            worst = max(worst, math.sqrt(lo**2 * grow - ms0) / run.force_rms)
+    return generic, worst
 
 
 def _explains(run: Run, stk: Stack, v: Verdict) -> float:
@@ -258,15 +256,6 @@ def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) 
     )
 
 
-def _hidden(limit: float, size: float) -> float:
-    """The share, on a log scale, of the effect sizes from ``size`` to 1 (of the input's term
-    b·F) that lie below the detection ``limit``, ln(max(limit, size)/size) / ln(1/size): where an
-    effect at least ``size`` large could be there unseen (0 for a size of 1 or more)."""
-    if size >= 1.0:
-        return 0.0
-    return min(math.log(max(limit, size) / size) / math.log(1.0 / size), 1.0)
-
-
 def _unexplained(run: Run, effects: list[EffectScore], v: Verdict, hidden: float) -> float:
     """The confidence of ``unexplained``: 1 − the largest share of a candidate plausible or
     scoring above 0 (a fit that removes much of the gap leaves the question open), or a
@@ -277,7 +266,7 @@ def _unexplained(run: Run, effects: list[EffectScore], v: Verdict, hidden: float
     coverage = 1.0 - max(run.outside.values())
     against = max([1.0 - best_share, *(t.share for t in v.decided_by)])
     confidence = float(np.clip(min(against, coverage), 0.0, 1.0))
-    return confidence if v.decided_by else confidence * (1.0 - hidden)
+    return confidence if v.decided_by else confidence * (1.0 - min(hidden, 1.0))
 
 
 def weigh(
@@ -288,9 +277,8 @@ def weigh(
     crit = run.crit
     blind, also = uncounted(run, stk)
     weights = _weights(run, effects, stk)
-    detection, detection_worst, device_worst = _detection(run, fitted)
-    hidden_fit = unresolved(run, fitted, effects)
-    detection_worst = max(detection_worst, hidden_fit)
+    detection, detection_worst = _detection(run, fitted)
+    detection_worst = max(detection_worst, unresolved(run, fitted, effects))
     bar = run.bar(stk)
     rivals = _rivals(run, effects, stk, blind, bar)
     # the rivals' odds against the verdict's evidence (the look-alikes' against the stack's
@@ -315,19 +303,15 @@ def weigh(
             ambiguous = sorted(near, key=lambda k: -weights[k])
     # "nothing named" is only as sure as the record is sensitive: the share (log scale) of the
     # sizes worth naming, min_size … 1, below the detection limit is where one could hide
-    hidden = _hidden(detection_worst, crit.min_size)
+    hidden = math.log(max(detection_worst, crit.min_size) / crit.min_size) / math.log(
+        1.0 / crit.min_size
+    )
     if verdict == "none":
-        confidence = weights["none"] * (1.0 - hidden)
+        confidence = weights["none"] * (1.0 - min(hidden, 1.0))
     elif verdict == "unexplained":
         confidence = _unexplained(run, effects, v, hidden)
     else:
-        # and a name claims the device's dominant effect: only as sure as no larger one could
-        # hide, the share of the sizes above the named effect's, its size … 1, below the device
-        # effects' detection limit (a sensor artefact's limit bounds no effect of the device)
-        size = next((s.size for s in stk.steps if s.name == verdict), 0.0)
         confidence = weights.get(verdict, 0.0) * _explains(run, stk, v)
-        limit = max(device_worst, hidden_fit)
-        confidence *= 1.0 - _hidden(limit, max(size, crit.min_size))
     if verdict != "unexplained":
         confidence *= doubt
     undecided = None
