@@ -117,6 +117,13 @@ def load_npz_pair(name: str):
     return out[0], out[1], units
 
 
+#: The payload series' records and their added inertias [kg·m²] (siesta_payload/PROVENANCE.md),
+#: and the data sheet's torque constant the series is held to [N·m/mA]
+#: (siesta_payload/EXPECTED.md).
+PAYLOADS = {"siesta_L0": 0.0, "siesta_L1": 224.5440144e-6, "siesta_L2": 548.4378187e-6,
+            "siesta_L4": 772.98e-6}  # fmt: skip
+SHEET_K = 3.0 / 2300.0
+
 ENTRIES = (
     Entry("motorbench_motor", "flexible_mode", ("flexible_mode",),
           lambda: load_npz_pair("motorbench_motor")),
@@ -134,21 +141,15 @@ ENTRIES = (
     Entry("silverbox_arrow", "spring", ("spring",), lambda: _silverbox("split_test_arrow_full")),
     Entry("emps", "coulomb_friction + offset", ("coulomb_friction", "asymmetric_friction"), _emps),
     *(
-        Entry(f"siesta_{load}", "coulomb_friction", ("coulomb_friction", "asymmetric_friction"),
-              lambda load=load: load_npz_pair(f"siesta_{load}"))
-        for load in ("L0", "L1", "L2", "L4")
+        Entry(name, "coulomb_friction", ("coulomb_friction", "asymmetric_friction"),
+              lambda name=name: load_npz_pair(name))
+        for name in PAYLOADS
     ),
 )  # fmt: skip
 
 #: Folders of documents a series of records shares (its EXPECTED.md and PROVENANCE.md), by the
 #: records they serve.
-FAMILIES = {"siesta_payload": ("siesta_L0", "siesta_L1", "siesta_L2", "siesta_L4")}
-
-#: The payload series' added inertias [kg·m²] (siesta_payload/PROVENANCE.md) and the data
-#: sheet's torque constant it is held to [N·m/mA] (siesta_payload/EXPECTED.md).
-PAYLOADS = {"siesta_L0": 0.0, "siesta_L1": 224.5440144e-6, "siesta_L2": 548.4378187e-6,
-            "siesta_L4": 772.98e-6}  # fmt: skip
-SHEET_K = 3.0 / 2300.0
+FAMILIES = {"siesta_payload": tuple(PAYLOADS)}
 
 
 def payload_law(rows: list[dict]) -> dict | None:

@@ -289,26 +289,25 @@ class PeriodicLookalike(AbstractLookalike):
         k_hi = min(PERIOD_CYCLES[1], R / max(PERIOD_OVER_NOISE * sx, 1e-300))
         out = (math.inf, math.nan, 0.0)
         if k_hi > PERIOD_CYCLES[0]:
-            masks = {id(rtr): _moving(problem, rtr, 0), id(rva): _moving(problem, rva, 1)}
+            m_tr, m_va = _moving(problem, rtr, 0), _moving(problem, rva, 1)
 
-            def columns(regs: Regressors, ks) -> FilteredColumns:  # (m, 2, T): sin, cos of κ
-                m = masks[id(regs)]
+            def columns(regs: Regressors, m, ks) -> FilteredColumns:  # (m, 2, T): sin, cos of κ
                 sc = lambda k: [
                     (_sinusoid(regs, x_lo, R, k, f, m), 1.0, 0, 1.0) for f in (np.sin, np.cos)
                 ]
                 return FilteredColumns([sc(float(k)) for k in ks])
 
             lam = 2 * math.pi * problem.st.filter_hz
-            peaks = _period_screen(rtr, model, x_lo, R, k_hi, problem.v_train, lam, masks[id(rtr)])
+            peaks = _period_screen(rtr, model, x_lo, R, k_hi, problem.v_train, lam, m_tr)
             try:
                 if peaks.size:  # (none where every force is masked)
                     ks = (peaks[:, None] + np.array([-1.0, 0.0, 1.0]) / 16).ravel()
-                    k0 = ks[int(np.argmin(rss_with_columns(rtr, model, columns(rtr, ks))))]
+                    k0 = ks[int(np.argmin(rss_with_columns(rtr, model, columns(rtr, m_tr, ks))))]
                     ks = k0 + np.arange(-4, 5) / 64
-                    coef, rss, _ = rss_with_columns(rtr, model, columns(rtr, ks), coef=True)
+                    coef, rss, _ = rss_with_columns(rtr, model, columns(rtr, m_tr, ks), coef=True)
                     i = int(np.argmin(rss))
                     r = rss_fixed_with_columns(
-                        rva, model, columns(rva, ks[i : i + 1]), coef[i : i + 1], 2
+                        rva, model, columns(rva, m_va, ks[i : i + 1]), coef[i : i + 1], 2
                     )
                     ms = float(r[0]) / problem.valid.n_samples
                     out = (ms, R / float(ks[i]), k_hi - PERIOD_CYCLES[0])
