@@ -45,6 +45,26 @@ def _hold_decimate(x, F, r: int):
     return np.asarray(x)[: n * r : r], np.asarray(F)[: n * r].reshape(n, r).mean(axis=1)
 
 
+def _binned(t, x, F, dt: float, nb: int):
+    """(t_k, x_k, F_k, empty) of ``nb`` uniform samples from an irregular log (t ≥ 0): x_k the
+    mean of x over [t_k − dt/2, t_k + dt/2), a point sample of a smooth position at the bin's
+    centre t_k = (k + ½)·dt; F_k the mean of F over [t_k, t_k + dt), the force held from t_k
+    to the next sample (the zero-order hold the method reads F with: a force averaged over the
+    same bin as x would reach the model half a sample late). A bin without a sample takes the
+    straight line between its neighbours; ``empty`` counts such bins."""
+    tc = (np.arange(nb) + 0.5) * dt
+    out, empty = [], 0
+    for sig, shift in ((x, 0.0), (F, 0.5)):
+        k = np.floor(t / dt - shift).astype(np.int64)
+        ok = (k >= 0) & (k < nb)
+        cnt = np.bincount(k[ok], minlength=nb)
+        full = cnt > 0
+        m = np.bincount(k[ok], np.asarray(sig, np.float64)[ok], nb)[full] / cnt[full]
+        out.append(np.interp(tc, tc[full], m))
+        empty = max(empty, int(np.sum(~full)))
+    return tc, out[0], out[1], empty
+
+
 def motorbench(src: Path, out: Path, side: str) -> None:
     """FdiTools motor bench: MultisineTypeA.mat → train, MultisineTypeB.mat → valid.
 
@@ -93,22 +113,19 @@ def odrive(src: Path, out: Path) -> None:
 
     Rows: host time [s] (polled, 1.7–4.7 ms apart), encoder.pos_estimate [counts, 8192 per
     revolution], Iq_measured [A]. Kept: 0.5 s ≤ t < 9.9 s (nocomp_1 starts with the previous
-    run's end position and a jump to zero); both signals averaged over uniform 5 ms bins
-    (t = bin centres); x in rad = counts·2π/8192.
+    run's end position and a jump to zero); binned by :func:`_binned` over 5 ms; x in rad =
+    counts·2π/8192.
     """
     for split, fname in (("train", "nocomp_0.npy"), ("valid", "nocomp_1.npy")):
         t, pos, iq = np.load(src / fname)
-        edges = np.arange(0.5, 9.9 + 1e-9, 5e-3)
-        k = np.digitize(t, edges) - 1
-        ok = (k >= 0) & (k < edges.size - 1)
-        nb = edges.size - 1
-        cnt = np.bincount(k[ok], minlength=nb)
-        if np.any(cnt == 0):
-            raise ValueError(f"odrive/{split}: an empty 5 ms bin")
-        x = np.bincount(k[ok], pos[ok], nb) / cnt * (2 * np.pi / 8192)
-        F = np.bincount(k[ok], iq[ok], nb) / cnt
-        tc = edges[:-1] + 2.5e-3
-        _save(out, "odrive_cogging", split, tc, x, F, x_unit="rad", F_unit="A", units="rotary")
+        nb = int(round((9.9 - 0.5) / 5e-3)) - 1
+        tc, x, F, empty = _binned(t - 0.5, pos, iq, 5e-3, nb)
+        if empty:
+            raise ValueError(f"odrive/{split}: {empty} empty 5 ms bins")
+        x = x * (2 * np.pi / 8192)
+        _save(
+            out, "odrive_cogging", split, tc + 0.5, x, F, x_unit="rad", F_unit="A", units="rotary"
+        )
 
 
 def quanser_flexcart(src: Path, out: Path) -> None:
@@ -148,9 +165,9 @@ def siesta(src: Path, out: Path) -> None:
 
     Columns: time [ms on 03-22, s on 03-23], setpoint [rad], position [rad], velocity [rad/s],
     current [mA], three derived columns (unused). Logged at about 800 Hz with irregular
-    intervals (median 1.26 ms, at most 13 ms): position and current are averaged over uniform
-    2.5 ms bins from the first sample (t = bin centres); a bin without a sample (a logging gap)
-    takes the straight line between its neighbours, and the count of such bins is printed.
+    intervals (median 1.26 ms, at most 13 ms): binned by :func:`_binned` over 2.5 ms from the
+    first sample; a bin without a sample (a logging gap) takes the straight line between its
+    neighbours, and the count of such bins is printed.
     """
     for load, files in SIESTA.items():
         for split, fname in zip(("train", "valid"), files, strict=True):
@@ -160,19 +177,11 @@ def siesta(src: Path, out: Path) -> None:
             d = np.loadtxt(path, delimiter=",", skiprows=1)
             t = d[:, 0] * (1e-3 if ms else 1.0)
             t = t - t[0]
-            nb = int(t[-1] // SIESTA_BIN)
-            k = (t // SIESTA_BIN).astype(np.int64)
-            ok = k < nb
-            cnt = np.bincount(k[ok], minlength=nb)
-            tc = (np.arange(nb) + 0.5) * SIESTA_BIN
-            full = cnt > 0
-            sig = []
-            for col in (2, 4):
-                m = np.bincount(k[ok], d[ok, col], nb)[full] / cnt[full]
-                sig.append(np.interp(tc, tc[full], m))
-            print(f"siesta_{load}/{split}: {nb} bins, {int(np.sum(~full))} interpolated")
+            nb = int(t[-1] // SIESTA_BIN) - 1
+            tc, x, F, empty = _binned(t, d[:, 2], d[:, 4], SIESTA_BIN, nb)
+            print(f"siesta_{load}/{split}: {nb} bins, {empty} interpolated")
             _save(
-                out, f"siesta_{load}", split, tc, sig[0], sig[1],
+                out, f"siesta_{load}", split, tc, x, F,
                 x_unit="rad", F_unit="mA", units="rotary",
             )  # fmt: skip
 

@@ -100,7 +100,7 @@ def fit(problem, structure: tuple) -> Fitted:
     theta = th[0]
     std = np.sqrt(np.maximum(np.diag(cov[0]), 0))
     phys = {k: float(v) for k, v in model.physical(np.asarray(theta, np.float64)).items()}
-    if d.tau > 0:
+    if d.tau:
         phys["tau"] = d.tau
     if math.isfinite(d.fmax):
         phys["Fmax"] = d.fmax

@@ -23,21 +23,24 @@ WIDEN_STEPS, WIDEN_OCTAVES = 4, 8
 
 class InputMapSearch(eqx.Module):
     """τ (``which = "tau"``) or F_max (``"fmax"``) of a structure's input map: the least
-    training RSS over the settings' grid (τ log-spaced; F_max the force's quantiles as hard
-    clips, soft saturations as negative values; ``shape`` +1 or −1 keeps one, 0 both), a hard
-    clip refined between its grid neighbours, then the vertex of the parabola through the best
-    and its neighbours (in ln τ; within one shape). A limit best on the small end of its
-    shape's grid is searched further down first (:meth:`_widen`): the force's quantiles bound
-    the grid, not the device, and a search that ends on its edge has not found the minimum."""
+    training RSS over the settings' grid (τ log-spaced, of the sign ``shape``; F_max the force's
+    quantiles as hard clips, soft saturations as negative values; ``shape`` +1 or −1 keeps one,
+    0 both), a hard clip refined between its grid neighbours, then the vertex of the parabola
+    through the best and its neighbours (in ln |τ|; within one shape). A limit best on the small
+    end of its shape's grid is searched further down first (:meth:`_widen`): the force's
+    quantiles bound the grid, not the device, and a search that ends on its edge has not found
+    the minimum."""
 
     which: str
-    shape: int = 0
+    shape: int = 0  # τ: 0 reads as +1
 
     def run(self, rss_of, d: Design, st) -> Design:
         """``d`` with its τ or F_max searched; ``rss_of(inputs)``: the structure's training RSS
         for each (τ, F_max) of ``inputs``."""
         tau = self.which == "tau"
         grid = np.asarray(st.tau_grid if tau else st.fmax_grid)
+        if tau and self.shape < 0:
+            grid = -grid
         if not tau and self.shape:
             grid = grid[np.sign(grid) == self.shape]
 
@@ -53,9 +56,10 @@ class InputMapSearch(eqx.Module):
                 i = int(np.argmin(rss))
         best = float(grid[i])
         if 0 < i < len(grid) - 1 and len({np.sign(g) for g in grid[i - 1 : i + 2]}) == 1:
-            v = ParabolaStep(log=tau).vertex(grid, rss, i)  # soft: g < 0
+            sign = -1.0 if grid[i] < 0 and tau else 1.0
+            v = ParabolaStep(log=tau).vertex(sign * grid, rss, i)  # soft: g < 0
             if v is not None:
-                best = v
+                best = sign * v
         return dataclasses.replace(d, **{"tau" if tau else "fmax": best})
 
     @staticmethod
@@ -105,23 +109,33 @@ class InputMapSearch(eqx.Module):
 
 
 class DelayCandidate(AbstractCandidate):
-    """Input delay τ [s]: u = F(t − τ). In closed loop at the noise floor (``Limits.loop_noise``)
+    """The recorded force out of step with the motion by τ [s]: u = F(t − τ), τ of the sign
+    ``shape``, both tried alone and on each stack. τ > 0: a force acting late (a drive's
+    latency); τ < 0: a recorded force lagging the force acting (a filtered current reading, a
+    channel sampled late). In closed loop at the noise floor (``Limits.loop_noise``)
     it must also remove :data:`LOOP_NOISE_SHRINK` of the simulated gap: F(t − τ) − F(t) ≈ −τḞ,
     and Ḟ carries the controller's answer to the position noise, which cancels the noise's path
     through x in ε₁ — a gain on noise only the simulation, driven by the measured F, tells from a
     delay."""
 
+    shape: int = 1
     name: ClassVar[str] = "delay"
     n_params: ClassVar[int] = 1
     units: ClassVar[dict[str, str]] = {"tau": "s"}
     LOOP_NOISE_SHRINK: ClassVar[float] = 0.1
 
     def search(self):
-        return InputMapSearch("tau")
+        return InputMapSearch("tau", self.shape)
+
+    def variants(self, limits, chosen):
+        return self.stack_variants()
+
+    def stack_variants(self):
+        return [DelayCandidate(k) for k in (1, -1)]
 
     def implausible(self, phys, lim):
-        if not phys.get("tau", 0) > 0:
-            return "no positive delay"
+        if not phys.get("tau", 0) != 0:
+            return "no delay"
         return super().implausible(phys, lim)
 
     def refusal(self, lim, gap_before: float, gap_after: float) -> str:
