@@ -194,7 +194,17 @@ def final_says(d) -> str:
     out = []
     if "k" in p and p.get("b") is not None and p["k"] is not None and p["b"] * p["k"] > 0:
         out.append(f"spring f_n = {math.sqrt(p['b'] * p['k']) / (2 * math.pi):.4g} Hz")
-    for k in ("f_mode", "zeta_mode", "mass_ratio", "Fc", "Fc_pos", "Fc_neg", "F0", "tau"):
+    for k in (
+        "f_mode",
+        "zeta_mode",
+        "mass_ratio",
+        "Fc",
+        "Fc_pos",
+        "Fc_neg",
+        "F0",
+        "tau",
+        "tau_samples",
+    ):
         if p.get(k) is not None:
             out.append(f"{k} = {p[k]:.4g} {u.get(k, '')}".rstrip())
     for w in d.where:

@@ -121,7 +121,7 @@ class DelayCandidate(AbstractCandidate):
     shape: int = 1
     name: ClassVar[str] = "delay"
     n_params: ClassVar[int] = 1
-    units: ClassVar[dict[str, str]] = {"tau": "s"}
+    units: ClassVar[dict[str, str]] = {"tau": "s", "tau_samples": ""}
     LOOP_NOISE_SHRINK: ClassVar[float] = 0.1
 
     def search(self):
@@ -132,6 +132,12 @@ class DelayCandidate(AbstractCandidate):
 
     def stack_variants(self):
         return [DelayCandidate(k) for k in (1, -1)]
+
+    def physical(self, phys, problem) -> dict:
+        """τ in sample intervals: −½ is a force sampled at instants and read as held over each
+        interval (the mean force over interval k is F at its middle, half a sample after the
+        sample F[k] stands for)."""
+        return {"tau_samples": phys.get("tau", 0.0) / problem.st.dt}
 
     def implausible(self, phys, lim):
         if not phys.get("tau", 0) != 0:
