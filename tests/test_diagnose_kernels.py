@@ -458,7 +458,8 @@ def test_mode_signals_and_input_maps_against_scipy_and_numpy():
     lsim (first-order hold of the hold-corrected samples: linear interpolation) and zero-order-
     hold discretisation, 1e-8; the soft input map against tanh; and the input map u =
     sat(F(t − τ)) of any rows (read per chunk) against the whole record's (numpy's
-    interpolation of the delayed force), 1e-12."""
+    interpolation of the delayed force), 1e-12, for τ of either sign; at τ = −dt/2 the held
+    reading of a force sampled at instants, the midpoints (F[k] + F[k+1])/2."""
     from scipy import signal
 
     dt, T = 1 / 997.3, 3000
@@ -485,10 +486,13 @@ def test_mode_signals_and_input_maps_against_scipy_and_numpy():
     np.testing.assert_allclose(input_map(F * 2.0, dt, 0.0, -1.5), 1.5 * np.tanh(F * 2.0 / 1.5))
     # per rows, as a chunk reads them: a fractional delay, hard and soft clips, no map
     Fr = np.sin(2 * np.pi * 2.3 * t) + 0.3 * np.random.default_rng(4).standard_normal(T)
-    for tau, fmax in ((0.0, math.inf), (3.37 * dt, math.inf), (0.0, 0.8), (1.6 * dt, -1.2)):
+    cases = [(0.0, math.inf), (3.37 * dt, math.inf), (0.0, 0.8), (1.6 * dt, -1.2)]
+    for tau, fmax in [*cases, (-0.5 * dt, math.inf), (-2.71 * dt, 0.8), (-0.3 * dt, -1.2)]:
         whole = _input_reference(Fr, dt, tau, fmax)
         got = np.concatenate([input_map(Fr, dt, tau, fmax, k0, k1) for k0, k1 in spans(T, 700)])
         _close(whole, got, 1e-12)
+    mid = np.concatenate([0.5 * (Fr[:-1] + Fr[1:]), Fr[-1:]])
+    _close(mid, input_map(Fr, dt, -0.5 * dt, math.inf), 1e-12)
 
 
 @pytest.mark.filterwarnings("ignore::scipy.signal.BadCoefficients")  # λ³sʲ⁺¹: trailing zeros

@@ -14,6 +14,24 @@ import lionjax as lj
 pytestmark = pytest.mark.slow
 
 
+def test_a_recorded_force_that_lags_is_a_negative_delay():
+    """A clean open-loop twin record (1.64 kHz) whose force column lags the motion by three
+    samples (row j pairs x(t_{j+3}) with F(t_j): a current read through a filter or sampled
+    late): the diagnosis names a delay τ < 0, within 5 % of −3·dt (the held force shifted by
+    whole samples is exact; the rest is the fit's), and nothing else."""
+    train, valid, info = blind.make_case("none", 9100000, source="twin")
+    assert not info["closed_loop"] and info["truth"] == []
+    n = 3
+
+    def lagged(r):
+        return lj.Record(np.asarray(r.x)[n:], np.asarray(r.F)[:-n], r.dt)
+
+    d = lj.diagnose(lagged(train), lagged(valid))
+    assert d.verdict == "delay" and d.stack == ["delay"]
+    assert d.final["params"]["tau"] == pytest.approx(-n * float(train.dt), rel=0.05)
+    assert d.final["params"]["tau_samples"] == pytest.approx(-n, rel=0.05)
+
+
 def test_second_effect_gains_below_the_first_ones_fit():
     """A closed-loop twin record (2.06 kHz, PD on the measured position) with a spring (3 %
     response change alone) and a delay (22 %): the delay alone leaves no excess over the fitted

@@ -32,7 +32,7 @@ PACKAGED = {
     "motorbench_motor": (12_500, "rad", "A", "rotary"),
     "motorbench_load": (12_500, "rad", "A", "rotary"),
     "lorenz_friction": (10_000, "rad", "N·m", "rotary"),
-    "odrive_cogging": (1_880, "rad", "A", "rotary"),
+    "odrive_cogging": (1_879, "rad", "A", "rotary"),
     "quanser_flexcart": (8_001, "m", "V", "linear"),
 }
 NAMES = [e.name for e in gallery.ENTRIES]
@@ -80,3 +80,27 @@ def test_packaged_record(name):
     train, valid, got = gallery.load_npz_pair(name)
     assert got == units and train.units == valid.units == units
     assert float(train.dt) == pytest.approx(float(valid.dt), rel=1e-9)
+
+
+def test_binned_holds_the_force_from_each_sample():
+    """package.py's binning of an irregular log, against closed forms on x = F = t: x_k is the
+    mean over the bin centred on t_k (= t_k), F_k the mean over [t_k, t_k + dt) (= t_k + dt/2,
+    the force held from sample k); a logging gap's empty bins are counted."""
+    import sys
+
+    sys.path.insert(0, str(REAL))
+    from package import _binned
+
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0.0, 1.0, 20_000))
+    t = t[(t < 0.3) | (t > 0.31)]  # a logging gap of 10 ms: bins 120–123 of x hold no sample
+    dt, nb = 2.5e-3, 398
+    tc, x, F, empty = _binned(t, t, t, dt, nb)
+    np.testing.assert_allclose(tc, (np.arange(nb) + 0.5) * dt, rtol=0, atol=1e-15)
+    assert empty == 4
+    # a bin's mean of ~50 uniform draws on a line is its centre, to the draws' scatter
+    # (σ ≈ 0.04·dt; 0.25·dt is 6σ and half the shift told apart); the bins the gap cuts are
+    # left out
+    whole = (tc + dt < 0.3) | (tc - dt > 0.31)
+    np.testing.assert_allclose(x[whole], tc[whole], rtol=0, atol=0.25 * dt)
+    np.testing.assert_allclose(F[whole], tc[whole] + dt / 2, rtol=0, atol=0.25 * dt)
