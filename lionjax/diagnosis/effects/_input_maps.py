@@ -1,4 +1,4 @@
-"""The input map u = sat_Fmax(F(t − τ)): an input delay τ (:class:`DelayCandidate`) and an
+"""The input map u = sat_Fmax(F(t − τ)): a delay τ of either sign (:class:`DelayCandidate`) and an
 actuator saturation F_max (:class:`SaturationCandidate`), each searched again in every structure
 it joins (:class:`InputMapSearch`): the map changes every column built from F."""
 
