@@ -14,22 +14,30 @@ import lionjax as lj
 pytestmark = pytest.mark.slow
 
 
-def test_a_recorded_force_that_lags_is_a_negative_delay():
+def test_a_recorded_force_that_lags_is_a_negative_delay(tmp_path, capsys):
     """A clean open-loop twin record (1.64 kHz) whose force column lags the motion by three
     samples (row j pairs x(t_{j+3}) with F(t_j): a current read through a filter or sampled
-    late): the diagnosis names a delay τ < 0, within 5 % of −3·dt (the held force shifted by
-    whole samples is exact; the rest is the fit's), and nothing else."""
+    late), diagnosed on the command line: it names a delay τ < 0, within 5 % of −3·dt (the held
+    force shifted by whole samples is exact; the rest is the fit's), and nothing else, and says
+    in words that the recorded force lags."""
+    import json
+
+    from lionjax.cli import main
+
     train, valid, info = blind.make_case("none", 9100000, source="twin")
     assert not info["closed_loop"] and info["truth"] == []
-    n = 3
-
-    def lagged(r):
-        return lj.Record(np.asarray(r.x)[n:], np.asarray(r.F)[:-n], r.dt)
-
-    d = lj.diagnose(lagged(train), lagged(valid))
-    assert d.verdict == "delay" and d.stack == ["delay"]
-    assert d.final["params"]["tau"] == pytest.approx(-n * float(train.dt), rel=0.05)
-    assert d.final["params"]["tau_samples"] == pytest.approx(-n, rel=0.05)
+    n, dt = 3, float(train.dt)
+    for nm, r in (("train", train), ("valid", valid)):
+        x, F = np.asarray(r.x)[n:], np.asarray(r.F)[:-n]
+        np.savez(tmp_path / f"{nm}.npz", t=np.arange(x.size) * dt, x=x, F=F)
+    out = tmp_path / "d.json"
+    args = ["diagnose", str(tmp_path / "train.npz"), "--validate", str(tmp_path / "valid.npz")]
+    assert main([*args, "--json", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert d["verdict"] == "delay" and d["stack"] == ["delay"]
+    assert d["final"]["params"]["tau"] == pytest.approx(-n * dt, rel=0.05)
+    assert d["final"]["params"]["tau_samples"] == pytest.approx(-n, rel=0.05)
+    assert "the recorded force lags the force acting" in capsys.readouterr().out
 
 
 def test_second_effect_gains_below_the_first_ones_fit():

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import warnings
 
 from .._errors import DataWarning, IdentificationError, InputError
@@ -315,6 +316,13 @@ def _run_one(args) -> int:
         )
         + f"; gap {number(fin['gap'])} {base['gap_units']}"
     )
+    tau = fin["params"].get("tau")
+    if tau is not None and tau < 0:
+        print(
+            f"  τ < 0: the recorded force lags the force acting by {number(-tau, '.3g')} s "
+            f"({number(-fin['params'].get('tau_samples', math.nan), '.2g')} samples): a filtered "
+            "or late force reading (half a sample: a force sampled at instants, read as held)"
+        )
     if args.json:
         write_json(args.json, out)
         print(f"wrote {args.json}")
