@@ -1293,6 +1293,10 @@ def _evidence(d) -> dict:
             for e in d.effects
         },
         "remaining_excess_share": final.get("remaining_excess_share"),
+        # the stacked model's parameters (a delay's τ is searched again, with its sign, per stack)
+        "final_params": {
+            k: (float(v) if v is not None else None) for k, v in final.get("params", {}).items()
+        },
         "structure_base": base.get("structure"),
         "structure_final": final.get("structure"),
         "periodic": final.get("periodic_lookalike"),
