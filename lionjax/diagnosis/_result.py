@@ -135,6 +135,6 @@ _UNITS = {"a": "1/s", "b": "1/kg", "F0": "N", "tau": "s", "Fmax": "N"}
 RESERVED = (
     *WINDOW_PARAMETERS,
     *_UNITS,
-    *"x0 x_lo x_hi Fc_pos Fc_neg presliding soft mass_ratio beta".split(),
+    *"x0 x_lo x_hi Fc_pos Fc_neg presliding soft mass_ratio beta tau_samples".split(),
     *"f_mode zeta_mode input_share deflection".split(),
 )
