@@ -267,9 +267,9 @@ class FreeRows:
 def input_map(F, dt: float, tau: float, fmax: float, k0: int = 0, k1: int | None = None):
     """Rows [k0, k1) (default all) of u = sat_Fmax(F(t − τ)) [N] for a force F held between
     samples: with τ = (n + φ)·dt the delayed force averaged over each interval is
-    F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0], after it = F[T − 1]:
-    τ < 0 reads ahead). F_max > 0 the hard
-    clip; F_max < 0 the soft saturation |F_max|·tanh(F/|F_max|) (one grid holds both)."""
+    F_d[k] = (1 − φ)F[k − n] + φF[k − n − 1] (F before the record = F[0], after it F[T − 1]:
+    τ < 0 reads ahead). F_max > 0 the hard clip; F_max < 0 the soft saturation
+    |F_max|·tanh(F/|F_max|) (one grid holds both)."""
     F = np.asarray(F, np.float64)
     T = F.shape[0]
     k1 = T if k1 is None else k1
@@ -277,8 +277,8 @@ def input_map(F, dt: float, tau: float, fmax: float, k0: int = 0, k1: int | None
     n = np.floor(s)
     phi = s - n
     k = np.arange(k0, k1)
-    i0 = np.clip(k - int(n), 0, T - 1)
-    i1 = np.clip(k - int(n) - 1, 0, T - 1)
+    j = k - int(n)
+    i0, i1 = np.clip(j, 0, T - 1), np.clip(j - 1, 0, T - 1)
     Fd = (1 - phi) * F[i0] + phi * F[i1]
     m = abs(fmax)
     if fmax < 0:

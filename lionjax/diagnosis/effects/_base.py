@@ -96,8 +96,8 @@ class AbstractCandidate(eqx.Module):
 
     def variants(self, limits: Limits, chosen: tuple[AbstractCandidate, ...]) -> list[Any]:
         """Its forms tried alone (``chosen``: the candidates resolved before it, whose shared
-        forms it takes)."""
-        return [self]
+        forms it takes); by default its forms tried on each stack."""
+        return self.stack_variants()
 
     def pick(self, tries: list[tuple[float, Any, Any]], limits: Limits) -> int:
         """The index of the form kept among ``tries`` [(score, fit, candidate)]: the best

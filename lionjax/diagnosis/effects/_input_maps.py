@@ -127,9 +127,6 @@ class DelayCandidate(AbstractCandidate):
     def search(self):
         return InputMapSearch("tau", self.shape)
 
-    def variants(self, limits, chosen):
-        return self.stack_variants()
-
     def stack_variants(self):
         return [DelayCandidate(k) for k in (1, -1)]
 
@@ -140,7 +137,7 @@ class DelayCandidate(AbstractCandidate):
         return {"tau_samples": phys.get("tau", 0.0) / problem.st.dt}
 
     def implausible(self, phys, lim):
-        if not phys.get("tau", 0) != 0:
+        if not phys.get("tau", 0):
             return "no delay"
         return super().implausible(phys, lim)
 
@@ -169,9 +166,6 @@ class SaturationCandidate(AbstractCandidate):
 
     def search(self):
         return InputMapSearch("fmax", self.shape)
-
-    def variants(self, limits, chosen):
-        return self.stack_variants()
 
     def stack_variants(self):
         return [SaturationCandidate(k) for k in (1, -1)]
