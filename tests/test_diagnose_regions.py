@@ -215,6 +215,9 @@ def test_bad_input():
         find_regions({k: v[:50] for k, v in s.items()})
     with pytest.raises(lj.InputError, match="alpha"):
         lj.diagnosis.Criteria(alpha=0.0)
+    # the confidence of "none" takes ln(min_size): 0 is refused by name, not a division by zero
+    with pytest.raises(lj.InputError, match=r"min_size must be in \(0, 1\).*got 0\.0"):
+        lj.diagnosis.Criteria(min_size=0.0)
 
 
 # ---------------------------------------------------------------- the benchmark's simulator

@@ -21,8 +21,8 @@ class Criteria(eqx.Module):
         min_share: least share of the excess gap (above the noise floor, in mean square) an
             effect removes to be named; ``min_share_deep`` on a stack of two or more, whose
             shapes' misfit no candidate removes.
-        min_size: least rms of ε₁ removed over the rms of the input's term b·F/Λ: with a
-            precise encoder, an effect of 10⁻⁵ of the force is significant and of no consequence.
+        min_size: least rms of ε₁ removed over the rms of the input's term b·F/Λ, in (0, 1): with
+            a precise encoder, an effect of 10⁻⁵ of the force is significant and of no consequence.
         max_worsening: largest relative growth of the simulated gap a simulated candidate may
             cause (the simulation's own bias stays well inside it).
         later_sim_share: least share of the stack's simulated gap a simulated effect after the
@@ -99,7 +99,12 @@ class Criteria(eqx.Module):
             "min_share": (lambda v: 0 <= v < 1, "in [0, 1)"),
             "min_share_deep": (lambda v: 0 <= v < 1, "in [0, 1)"),
             "later_sim_share": (lambda v: 0 <= v <= 1, "in [0, 1]"),
-            "min_size": (lambda v: 0 <= v < 1, "in [0, 1)"),
+            "min_size": (
+                lambda v: 0 < v < 1,
+                "in (0, 1) (the confidence of 'none' weighs the sizes from min_size to 1 that "
+                "could hide below the detection limit on a log scale, which 0 does not have; "
+                "to name effects of any size use a small value such as 1e-6)",
+            ),
             "floor_factor": (lambda v: v >= 1, "≥ 1"),
             "max_effects": (lambda v: isinstance(v, int) and v >= 1, "an int ≥ 1"),
             "pair_from": (lambda v: isinstance(v, int) and v >= 0, "an int ≥ 0"),
