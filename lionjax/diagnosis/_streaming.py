@@ -128,13 +128,6 @@ def _mode_chunk(stages, zeta, lam, Vx, wx, VF, F, p0, first):
     return mode_cascade_from(stages, zeta, lam, Vx, h, du, VF, F, p0)
 
 
-def _pad_rows(a: np.ndarray, n: int) -> np.ndarray:
-    """``a`` (…, c) padded with zeros to (…, n) along its last axis."""
-    if a.shape[-1] == n:
-        return a
-    return np.concatenate([a, np.zeros(a.shape[:-1] + (n - a.shape[-1],))], -1)
-
-
 class Filters:
     """Signals ``inputs`` {name: (raw, foh)} filtered chunk by chunk through one bank, their
     states carried (the first chunk from the steady state of its first held sample). ``kept``
@@ -228,8 +221,8 @@ class ModeStages:
             for p, (_, z) in zip(self.p, self.groups, strict=True):
                 p[len(z) :, 0] = F[k0]
         wx = window(rows(x), k0, x.size, C)
-        Vx, Vf = _pad_rows(Vx, C).T, _pad_rows(Vf, C).T
-        Fc = _pad_rows(np.asarray(F[k0:k1], np.float64), C)
+        Vx, Vf = (np.pad(V, ((0, 0), (0, C - c))).T for V in (Vx, Vf))
+        Fc = np.pad(np.asarray(F[k0:k1], np.float64), (0, C - c))
         out = [
             _mode_chunk(st, zeta, np.float64(self.lam), Vx, wx, Vf, Fc, p, np.bool_(first))
             for (st, zeta), p in zip(self.groups, self.p, strict=True)

@@ -18,9 +18,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..._model_effects import presliding_signal
 from ..._models import AbstractEffect, Column
 from .._search import GridSearch, ParabolaStep
-from .._streaming import _pad_rows, spans
+from .._streaming import spans
 from ._base import AbstractCandidate, Design, Limits
 
 #: Dahl's pre-sliding distances z [m]: PRESLIDING_PER_DECADE per decade from a tenth of the
@@ -63,14 +64,9 @@ def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
         zp = np.concatenate([part, np.repeat(part[-1:], b - part.size)])
         zeta = np.zeros(b)
         for k0, k1 in spans(v.size, chunk):
-            Z, zeta = _dahl_chunk(_pad_rows(d[k0:k1], chunk), zp, zeta)
+            Z, zeta = _dahl_chunk(np.pad(d[k0:k1], (0, chunk - (k1 - k0))), zp, zeta)
             out[i : i + part.size, k0:k1] = np.asarray(Z)[: part.size, : k1 - k0]
     return out
-
-
-def dahl_name(z: float) -> str:
-    """The raw signal name of Dahl's state at the distance ``z`` [m]."""
-    return f"dahl@{float(z):.9g}"
 
 
 class FrictionSign(AbstractEffect):
@@ -85,7 +81,7 @@ class FrictionSign(AbstractEffect):
         return ("bFc",)
 
     def columns(self) -> tuple[Column, ...]:
-        return (Column(dahl_name(self.z) if self.z > 0 else "sgn_v", 0, 1.0),)
+        return (Column(presliding_signal(self.z) if self.z > 0 else "sgn_v", 0, 1.0),)
 
     def signals(self, rs) -> dict:
         if not self.z > 0:
@@ -94,7 +90,7 @@ class FrictionSign(AbstractEffect):
         key = ("dahl", float(self.z))
         if key not in rs.memo:
             rs.memo[key] = dahl_chunked(rs.v, rs.dt, [self.z], rs.chunk)[0]
-        return {dahl_name(self.z): (rs.memo[key], "foh")}
+        return {presliding_signal(self.z): (rs.memo[key], "foh")}
 
     def physical(self, theta, b) -> dict:
         return {"Fc": theta[..., 0] / b}
@@ -170,7 +166,7 @@ class AbstractFriction(AbstractCandidate):
             try:
                 return np.array([objective(self._with(self.stick, True, z)) for z in grid])
             finally:
-                objective.drop([dahl_name(z) for z in grid])
+                objective.drop([presliding_signal(z) for z in grid])
                 for k in keys:
                     rs.memo.pop(k, None)
 
