@@ -204,6 +204,3 @@ def _pipeline(run, st) -> Diagnosis:
     confidence = weigh(run, effects, stk, verdict, fitted)
     st.stage("where the gap lies: the regions")
     return report(run, effects, stk, verdict, confidence).in_units(run.problem.train.units)
-
-
-__all__ = ["diagnose"]

@@ -39,18 +39,6 @@ class Fitted:
     n_eff_at_fit: float | None = None  # the residual's effective sample count (long records)
 
     @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(c.name for c in self.structure)
-
-    @property
-    def tau(self) -> float:
-        return self.design.tau
-
-    @property
-    def fmax(self) -> float:
-        return self.design.fmax
-
-    @property
     def residual(self) -> np.ndarray:
         """ε₁ on validation (T,)."""
         return (self.signals if isinstance(self.signals, tuple) else self.signals())[0]

@@ -29,8 +29,6 @@ from ._filtering import MIN_PADDED, P_MAX, _capacity, _f, _i, padded_length
 from ._regressors import Regressors, TooWide, columns_of
 from ._streaming import as_source, grid_columns
 
-__all__ = ["TooWide"]
-
 #: Gram systems solved per call (:func:`solve_grams`; a batch is padded with identity systems to
 #: the least of GRID_SMALL that holds it, else to a multiple of GRID: one program per size, and
 #: a search's few points are not solved as 32). Each system's numbers are the same in any batch.

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from ._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns
+from ._lstsq import fit_batch, residual, rss_with_columns
 from ._regressors import columns_of
 
 
@@ -19,23 +19,14 @@ class Objective:
 
     def __init__(self, problem, base: tuple = ()):
         self.problem, self.base = problem, tuple(base)
-        self.rtr, self.rva = problem.regressors_of(self.base)
+        self.rtr, self.rva = problem.regressors(self.base)
         self.model = problem.model(self.base)
-
-    @property
-    def train_signals(self):
-        return self.problem.signals("train")
-
-    @property
-    def force_mask(self):
-        """The base structure's force mask on the training record, or None."""
-        return self.rtr.force_mask
 
     def __call__(self, cand) -> float:
         """The training RSS of ``base + (cand,)``: its new columns on the base's Gram where they
         are columns of their own signals, else the whole structure fitted."""
         structure = (*self.base, cand)
-        rtr = self.problem.regressors_of(structure)[0]
+        rtr = self.problem.regressors(structure)[0]
         model = self.problem.model(structure)
         own = {c.signal for c in columns_of(model)} - {c.signal for c in columns_of(self.model)}
         try:
@@ -56,16 +47,3 @@ class Objective:
         """Forget the training record's signals ``names`` (a point's, once scored)."""
         for regs in self.problem.train_regressors():
             regs.drop(names)
-
-    def rss_with(self, cols) -> np.ndarray:
-        """Training RSS (m,) of the base with each of m sets of columns ``cols``."""
-        return rss_with_columns(self.rtr, self.model, cols)
-
-    def fit_with(self, cols):
-        """(coefficients (m, n + K), RSS (m,), n) of the base with each set of ``cols``."""
-        return rss_with_columns(self.rtr, self.model, cols, coef=True)
-
-    def validate_with(self, cols, coef, n_fixed: int) -> np.ndarray:
-        """Validation RSS (m,) of the base with ``cols``, the base's columns and the first
-        ``n_fixed`` new ones held at ``coef``."""
-        return rss_fixed_with_columns(self.rva, self.model, cols, coef, n_fixed)

@@ -128,10 +128,11 @@ class Problem:
             self.memo[key] = RecordSignals(rec, x, F, np.asarray(v), chunk, role=role)
         return self.memo[key]
 
-    def regressors(self, d: Design) -> tuple[Regressors, Regressors]:
-        """(train, valid) regressors of a design: force-masked where the axis sticks
-        (``d.stick``); with ``d.held`` (the position signals held beyond train's range) the
-        validation record's own, the signals' names being the same."""
+    def regressors(self, d: Design | tuple) -> tuple[Regressors, Regressors]:
+        """(train, valid) regressors of a design (or of a structure's): force-masked where the
+        axis sticks (``d.stick``); with ``d.held`` (the position signals held beyond train's
+        range) the validation record's own, the signals' names being the same."""
+        d = d if isinstance(d, Design) else design_of(d)
         lam = 2 * math.pi * self.st.filter_hz
         out = []
         for i, (role, key) in enumerate((("train", (d.stick,)), ("valid", (d.stick, d.held)))):
@@ -143,8 +144,7 @@ class Problem:
             out.append(self.memo[k])
         return out[0], out[1]
 
-    def regressors_of(self, structure) -> tuple[Regressors, Regressors]:
-        return self.regressors(design_of(structure))
+    regressors_of = regressors  # the tests' name
 
     def train_regressors(self) -> list[Regressors]:
         """Every training regressors made so far."""

@@ -112,10 +112,6 @@ class RecordSignals:
         return float(self.record.dt)
 
     @property
-    def t0(self) -> float:
-        return float(self.record.t0)
-
-    @property
     def n_samples(self) -> int:
         return int(self.x.size)
 
@@ -252,19 +248,16 @@ class Regressors:
         V = filtered(self.dsc, u, 1.0 if hold == "foh" else 0.0, self.chunk, (order,))[0]
         return float(np.sum(V**2)) / self.T
 
-    def design_pass(self, model, grid: bool = False) -> _DesignPass:
-        return _DesignPass(self, model, grid)
-
     def design_blocks(self, model, grid: bool = False) -> Iterator[np.ndarray]:
         """[W | ε₁'s x column] (c, P_MAX + 1) of each chunk, the unused slots 0: W the design
         with u = F, or with ``grid`` its fixed columns only (the F-dependent slots 0)."""
         if self.whole:
             key = ("design", model_key(model), grid)
             if key not in self.cache:
-                self.cache[key] = self.design_pass(model, grid).block(*self.spans[0])
+                self.cache[key] = DesignPass(self, model, grid).block(*self.spans[0])
             yield self.cache[key]
             return
-        d = self.design_pass(model, grid)
+        d = DesignPass(self, model, grid)
         for k0, k1 in self.spans:
             yield d.block(k0, k1)
 
@@ -326,7 +319,7 @@ class DesignColumns(ColumnSource):
             yield A[:, self.js].T[None]
 
 
-class _DesignPass:
+class DesignPass:
     """A structure's design chunk by chunk, its filters' and mode stages' states carried;
     :meth:`state` and :meth:`restore` let a pass revisit chunks."""
 

@@ -12,8 +12,8 @@ from .._errors import InputError
 from .._record import Record
 from ._criteria import Criteria
 from ._fit import Fitted, fit
-from ._lstsq import TooWide
 from ._problem import ROLES, Problem
+from ._regressors import TooWide
 from ._result import EffectScore
 from ._settings import settings
 from ._statistics import _check_memory, _feedback, _position_noise, _white_noise
@@ -167,12 +167,12 @@ class Run:
             size = max(size, math.sqrt(max(cur.gap**2 - new.gap**2, 0.0)) / x_std)
         # where the baseline is qualitatively wrong, or after a first effect whose misfit the
         # equation error keeps, the simulated gap's share may stand in for the equation error's
-        least = crit.min_share_deep if len(cur.names) >= 2 else crit.min_share
+        least = crit.min_share_deep if len(cur.structure) >= 2 else crit.min_share
         sim = sim_share(new.gap, cur.gap)
         shares = (
             share >= least
             or (by_sim and sim >= crit.dominant_sim_share)
-            or (bool(cur.names) and simulated and sim >= crit.later_sim_share)
+            or (bool(cur.structure) and simulated and sim >= crit.later_sim_share)
         )
         sig = sc > crit.threshold and shares and size >= crit.min_size and plausible and not worse
         if plausible:
@@ -287,7 +287,7 @@ def prepare(
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)
     # the scale of ε₁'s input term b·F/Λ on validation, against which an effect's size counts
     Fv = np.asarray(valid.F, np.float64)
-    hF = problem.regressors_of(())[1].mean_square(Fv - np.mean(Fv), "zoh", 0)
+    hF = problem.regressors(())[1].mean_square(Fv - np.mean(Fv), "zoh", 0)
     # in closed loop the controller feeds the position noise into F, so a regressor built from
     # F can cancel the noise's path through x in ε₁: at or below the estimated floor a candidate
     # may have to show more than its equation error (Limits.loop_noise)

@@ -106,7 +106,7 @@ def judge(run: Run, stk: Stack) -> Verdict:
 def exact_tolerance(stk: Stack) -> float | None:
     """The rest of the excess a true instance of a stack of exact candidates leaves, 1 − the
     least ``exact_share``; None where the stack is empty or holds an inexact candidate."""
-    exact = [c.exactness() for c in stk.cands]
+    exact = [c.exact_share for c in stk.cands]
     return None if not exact or None in exact else 1.0 - min(exact)
 
 
@@ -116,7 +116,7 @@ def _reverse(run: Run, stk: Stack) -> tuple[float, float, str] | None:
     share of the excess above the estimated floor it leaves, its score against that baseline,
     why a stacked candidate refuses that fit, ``other_way``, or ""). An exact model holds both
     ways, as the same effect. None for other stacks."""
-    if not any(c.exactness() is not None for c in stk.cands):
+    if not any(c.exact_share is not None for c in stk.cands):
         return None
     st = run.problem.st
     args = (run.candidates, run.lookalikes, run.crit, st.filter_hz, st.window_s, math.inf)

@@ -162,7 +162,7 @@ class ForceSensorLine(ForceEffect):
         least = float(np.sqrt(seen)) / F_rms
         if not line_ms > seen:
             return least
-        ms = problem.regressors_of(())[1].mean_square
+        ms = problem.regressors(())[1].mean_square
         passed = float(np.sqrt(ms(line, "zoh", 0) / max(ms(F, "zoh", 0), 1e-300)))
         size = float(np.sqrt(line_ms)) / F_rms
         limit = max(least, generic / max(passed / size, 1e-300))

@@ -145,10 +145,6 @@ class AbstractCandidate(eqx.Module):
         """Whether it is an error of a sensor, not an effect on the device."""
         return self.acts_on == "measurement"
 
-    def exactness(self) -> float | None:
-        """Its ``exact_share``."""
-        return self.exact_share
-
     def fits_noise(self) -> bool:
         """Whether its columns can cancel position noise (its gains then count above the
         estimated noise floor)."""

@@ -156,7 +156,7 @@ class AbstractFriction(AbstractCandidate):
         hi = PRESLIDING_RANGE[1]
         n = max(int(round(PRESLIDING_PER_DECADE * math.log10(hi / lo))), 1) + 1
         zs = [float(z) for z in np.geomspace(min(lo, hi / 10), hi, n)]
-        rs = objective.train_signals
+        rs = objective.problem.signals("train")
         per = int(min(32, max(1, 2e8 // (rs.chunk * 32))))  # (per, chunk, 4) float64 at once
 
         def rss_of(grid) -> np.ndarray:

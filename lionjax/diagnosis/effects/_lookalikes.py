@@ -17,7 +17,7 @@ import numpy as np
 
 from ..._models import AbstractEffect, Augmented, Column, MassDamper
 from .._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns, solve_grams
-from .._regressors import Regressors, TooWide
+from .._regressors import DesignPass, Regressors, TooWide
 from .._statistics import _position_noise
 from .._streaming import FilteredColumns, Filters, scaled
 from ._base import AbstractCandidate, Design
@@ -157,7 +157,7 @@ class DeadZoneLookalike(AbstractLookalike):
         crit = run.crit
         if not (score > crit.threshold and any(isinstance(k, AbstractFriction) for k in ks)):
             return ""
-        ms = self.ms(run.problem, cur.structure, cur.design, (cur.tau, cur.fmax))
+        ms = self.ms(run.problem, cur.structure, cur.design, (cur.design.tau, cur.design.fmax))
         if cur.ms_valid - ms > crit.dead_zone_lookalike_gain * (cur.ms_valid - new.ms_valid):
             return (
                 "the residual follows the sign of the force rather than of the velocity: a dead "
@@ -281,7 +281,7 @@ class PeriodicLookalike(AbstractLookalike):
         key = ("periodic", structure_key(structure))
         if key in problem.memo:
             return problem.memo[key]
-        rtr, rva = problem.regressors_of(structure)
+        rtr, rva = problem.regressors(structure)
         model = problem.model(structure)
         x_lo = min(float(np.min(problem.train.x)), float(np.min(problem.valid.x)))
         R = max(float(np.max(problem.train.x)), float(np.max(problem.valid.x))) - x_lo
@@ -343,7 +343,7 @@ def _adjoint_histograms(regs: Regressors, model, c, n: int, m, bins, nb: int) ->
     causal filter on the time-reversed signal, reversed back). The chunks are visited backwards,
     each one's design recomputed from the states a forward pass left at its start."""
     T = regs.T
-    d = regs.design_pass(model)
+    d = DesignPass(regs, model, False)
     states = []
     for k0, k1 in regs.spans:  # the filters' states at each chunk's start
         states.append(d.state())

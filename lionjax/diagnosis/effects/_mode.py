@@ -17,6 +17,7 @@ from jaxtyping import Array
 
 from ..._models import AbstractEffect, Column
 from .._filtering import mode_free_responses
+from .._lstsq import rss_fixed_with_columns, rss_with_columns
 from .._regressors import ModeProfileColumns
 from .._search import PatternSearch, best_so_far
 from .._streaming import mode_filtered, mode_seed
@@ -73,7 +74,7 @@ def _seeds(objective, st, lam: float, ws: np.ndarray) -> list[tuple[float, float
     training residual's spectral peak within ``ws`` at ζ 0.03."""
     memo = objective.problem.memo
     if ("mode", "seeds") not in memo:
-        rs = objective.train_signals
+        rs = objective.problem.signals("train")
         seeds = []
         seed = mode_seed(rs.x, rs.F, st.dt, lam, rs.chunk)
         lo, hi = MODE_ZETA_RANGE
@@ -197,8 +198,8 @@ class FlexibleModeCandidate(AbstractCandidate):
                 cols = ModeProfileColumns(modes[i : i + 32], lam, st.dt, rows=rows)
                 for v in variants:
                     sel = cols.select(slice(None) if v else [0, 2, 3])
-                    c, _, n = objective.fit_with(sel)
-                    r = objective.validate_with(sel, c, 2 if v else 1)
+                    c, _, n = rss_with_columns(objective.rtr, objective.model, sel, coef=True)
+                    r = rss_fixed_with_columns(objective.rva, objective.model, sel, c, 1 + v)
                     mu = c[:, n]
                     ok = (mu > 0) & (mu < (1 if scaled else MAX_MODE_MASS))
                     scale = np.where(ok, 1 - mu, 1.0) ** 2 if scaled else 1.0

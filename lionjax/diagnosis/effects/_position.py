@@ -17,6 +17,7 @@ from ..._model_effects import (
     position_terms,
     position_values,
 )
+from .._lstsq import rss_with_columns
 from .._search import GridSearch, PatternSearch
 from .._streaming import FilteredColumns, rows, scaled
 from ._base import AbstractCandidate, Design
@@ -145,11 +146,11 @@ class PositionCandidate(AbstractCandidate):
         centres (spaced by w: a narrow dip is invisible a few w away), then a pattern search."""
         if self.degree != 0 or self.local:
             return self
-        rs = objective.train_signals
+        rs, mask = objective.problem.signals("train"), objective.rtr.force_mask
         x = np.asarray(rs.x, np.float64)
         F = np.asarray(rs.F, np.float64)
-        if objective.force_mask is not None:
-            F = F * objective.force_mask
+        if mask is not None:
+            F = F * mask
         lo, hi = (float(q) for q in np.quantile(x, LOCAL_RANGE))
         R = hi - lo
         if not R > 0:  # the axis does not move: nothing to localise (the fit says so)
@@ -164,7 +165,8 @@ class PositionCandidate(AbstractCandidate):
                 (_local_raw(x, F, c, w, j), (1.0, 0.0)[j % 2], 1 - j % 2, signs[j])
                 for j in range(4)
             ]
-            return objective.rss_with(FilteredColumns([terms(c, w) for c, w in points]))
+            cols = FilteredColumns([terms(c, w) for c, w in points])
+            return rss_with_columns(objective.rtr, objective.model, cols)
 
         grid = []
         for f in LOCAL_WIDTHS:
