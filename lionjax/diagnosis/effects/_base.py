@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import equinox as eqx
 
-from ..._models import AbstractEffect
+from ..._models import AbstractEffect, Column
 
 if TYPE_CHECKING:
     from .._settings import Settings
@@ -56,6 +56,31 @@ class Design(eqx.Module):
     def maps_input(self) -> bool:
         """Whether the input passes through a map (a delay or a saturation)."""
         return self.tau != 0.0 or math.isfinite(self.fmax)
+
+
+class OneColumnEffect(AbstractEffect):
+    """An effect of one column ``sign``·(1/Λ)[``signal``], parameter ``param``, reported as
+    ``phys`` = θ/b (None: nothing reported); its raw signal ``raw(rs)`` on a record (an array,
+    or rows (k0, k1) → its samples), held ``hold``."""
+
+    param: ClassVar[str]
+    signal: ClassVar[str]
+    phys: ClassVar[str | None] = None
+    sign: ClassVar[float] = 1.0
+    hold: ClassVar[str] = "foh"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return (self.param,)
+
+    def columns(self) -> tuple[Column, ...]:
+        return (Column(self.signal, 0, self.sign),)
+
+    def signals(self, rs) -> dict:
+        return {self.signal: (self.raw(rs), self.hold)}
+
+    def physical(self, theta, b) -> dict:
+        return {} if self.phys is None else {self.phys: theta[..., 0] / b}
 
 
 class AbstractCandidate(eqx.Module):

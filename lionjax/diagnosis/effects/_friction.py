@@ -19,10 +19,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._model_effects import presliding_signal
-from ..._models import AbstractEffect, Column
 from .._search import GridSearch, ParabolaStep
 from .._streaming import spans
-from ._base import AbstractCandidate, Design, Limits
+from ._base import AbstractCandidate, Design, Limits, OneColumnEffect
 
 #: Dahl's pre-sliding distances z [m]: PRESLIDING_PER_DECADE per decade from a tenth of the
 #: position noise (at least PRESLIDING_RANGE[0]) to PRESLIDING_RANGE[1]. Metal contacts
@@ -69,53 +68,39 @@ def dahl_chunked(v, dt: float, zs, chunk: int) -> np.ndarray:
     return out
 
 
-class FrictionSign(AbstractEffect):
+class FrictionSign(OneColumnEffect):
     """Coulomb friction F_c·s [N]: column +(1/Λ)[s], parameter b·F_c; s the smoothed sign
     tanh(v̂/v_ε) (``z`` = 0) or Dahl's state ζ at the pre-sliding distance ``z`` [m]."""
 
+    param, phys = "bFc", "Fc"
     v_eps: float
     z: float = 0.0
 
     @property
-    def names(self) -> tuple[str, ...]:
-        return ("bFc",)
+    def signal(self) -> str:
+        return presliding_signal(self.z) if self.z > 0 else "sgn_v"
 
-    def columns(self) -> tuple[Column, ...]:
-        return (Column(presliding_signal(self.z) if self.z > 0 else "sgn_v", 0, 1.0),)
-
-    def signals(self, rs) -> dict:
+    def raw(self, rs):
         if not self.z > 0:
             v, e = rs.v, self.v_eps
-            return {"sgn_v": (lambda k0, k1: np.tanh(v[k0:k1] / e), "foh")}
+            return lambda k0, k1: np.tanh(v[k0:k1] / e)
         key = ("dahl", float(self.z))
         if key not in rs.memo:
             rs.memo[key] = dahl_chunked(rs.v, rs.dt, [self.z], rs.chunk)[0]
-        return {presliding_signal(self.z): (rs.memo[key], "foh")}
-
-    def physical(self, theta, b) -> dict:
-        return {"Fc": theta[..., 0] / b}
+        return rs.memo[key]
 
 
-class DirectionalFriction(AbstractEffect):
+class DirectionalFriction(OneColumnEffect):
     """The direction-dependent part of friction, −ΔF·|sgn ẋ| [N] (levels F⁺ for ẋ > 0, F⁻ for
     ẋ < 0: −F_c·sgn ẋ − ΔF·|sgn ẋ|, F_c = (F⁺ + F⁻)/2, ΔF = (F⁺ − F⁻)/2): column
     +(1/Λ)[|tanh(v̂/v_ε)|], parameter b·ΔF. (No viscous Δc·|ẋ|: it takes an offset's part.)"""
 
+    param, phys, signal = "bdF", "dF", "abs_sgn_v"
     v_eps: float
 
-    @property
-    def names(self) -> tuple[str, ...]:
-        return ("bdF",)
-
-    def columns(self) -> tuple[Column, ...]:
-        return (Column("abs_sgn_v", 0, 1.0),)
-
-    def signals(self, rs) -> dict:
+    def raw(self, rs):
         v, e = rs.v, self.v_eps
-        return {"abs_sgn_v": (lambda k0, k1: np.abs(np.tanh(v[k0:k1] / e)), "foh")}
-
-    def physical(self, theta, b) -> dict:
-        return {"dF": theta[..., 0] / b}
+        return lambda k0, k1: np.abs(np.tanh(v[k0:k1] / e))
 
 
 class AbstractFriction(AbstractCandidate):

@@ -15,12 +15,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..._models import AbstractEffect, Augmented, Column, MassDamper
+from ..._models import Augmented, MassDamper
 from .._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns, solve_grams
 from .._regressors import DesignPass, Regressors, TooWide
 from .._statistics import _position_noise
 from .._streaming import FilteredColumns, Filters, scaled
-from ._base import AbstractCandidate, Design
+from ._base import AbstractCandidate, Design, OneColumnEffect
 from ._friction import AbstractFriction
 
 #: Quantiles of the training |F| at which the dead-zone look-alike's width d is tried.
@@ -75,46 +75,29 @@ class AbstractLookalike(AbstractCandidate):
         raise NotImplementedError
 
 
-class ForceClip(AbstractEffect):
+class ForceClip(OneColumnEffect):
     """A dead zone's input u = F − clip(F, ±d) (d [N]): column −(1/Λ)[clip(F, ±d)] beside F's,
     its coefficient b for the dead zone exactly."""
 
+    param, sign, hold = "b_clip", -1.0, "zoh"
     d: float
 
     @property
     def signal(self) -> str:
         return f"clip_F@{self.d:.9g}"
 
-    @property
-    def names(self) -> tuple[str, ...]:
-        return ("b_clip",)
-
-    def columns(self) -> tuple[Column, ...]:
-        return (Column(self.signal, 0, -1.0),)
-
-    def signals(self, rs) -> dict:
-        return {self.signal: (np.clip(np.asarray(rs.F, np.float64), -self.d, self.d), "zoh")}
-
-    def physical(self, theta, b) -> dict:
-        return {}
+    def raw(self, rs):
+        return np.clip(np.asarray(rs.F, np.float64), -self.d, self.d)
 
 
-class VelocityDrag(AbstractEffect):
+class VelocityDrag(OneColumnEffect):
     """Fluid drag −c₂·v̂|v̂| [N]: column +(1/Λ)[v̂|v̂|], parameter b·c₂."""
 
-    @property
-    def names(self) -> tuple[str, ...]:
-        return ("b_c2",)
+    param, phys, signal = "b_c2", "c2", "v_abs_v"
 
-    def columns(self) -> tuple[Column, ...]:
-        return (Column("v_abs_v", 0, 1.0),)
-
-    def signals(self, rs) -> dict:
+    def raw(self, rs):
         v = rs.v
-        return {"v_abs_v": (lambda k0, k1: v[k0:k1] * np.abs(v[k0:k1]), "foh")}
-
-    def physical(self, theta, b) -> dict:
-        return {"c2": theta[..., 0] / b}
+        return lambda k0, k1: v[k0:k1] * np.abs(v[k0:k1])
 
 
 class DeadZoneLookalike(AbstractLookalike):
