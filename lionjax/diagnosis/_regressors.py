@@ -253,9 +253,7 @@ class Regressors:
         with u = F, or with ``grid`` its fixed columns only (the F-dependent slots 0)."""
         if self.whole:
             key = ("design", model_key(model), grid)
-            if key not in self.cache:
-                self.cache[key] = DesignPass(self, model, grid).block(*self.spans[0])
-            yield self.cache[key]
+            yield self._cached(key, lambda: DesignPass(self, model, grid).block(*self.spans[0]))
             return
         d = DesignPass(self, model, grid)
         for k0, k1 in self.spans:

@@ -222,9 +222,7 @@ def sim_share(gap: float, before: float) -> float:
     only ``before`` diverged, 0 where ``gap`` did)."""
     if not math.isfinite(gap):
         return 0.0
-    if not math.isfinite(before):
-        return 1.0
-    return 1.0 - gap / before if before > 0 else 0.0
+    return shrink(gap, before) if math.isfinite(before) else 1.0
 
 
 def shrink(gap: float, base_gap: float) -> float:

@@ -63,9 +63,11 @@ class InputMapSearch(eqx.Module):
         return dataclasses.replace(d, **{"tau" if tau else "fmax": best})
 
     @staticmethod
-    def _ordered(g, r):
-        """(g, r) with the hard clips (g > 0) ascending, then the soft limits (g < 0) by
-        ascending |g|."""
+    def _merged(rss_of, inputs, grid, rss, new):
+        """(grid, rss) with the points ``new`` scored and added: the hard clips (g > 0)
+        ascending, then the soft limits (g < 0) by ascending |g|."""
+        r = np.asarray(rss_of(inputs(new)), np.float64)
+        g, r = np.concatenate([grid, new]), np.concatenate([rss, r])
         pos = g > 0
         o = np.concatenate(
             [np.flatnonzero(pos)[np.argsort(g[pos])], np.flatnonzero(~pos)[np.argsort(-g[~pos])]]
@@ -83,8 +85,7 @@ class InputMapSearch(eqx.Module):
             if i != same[np.argmin(np.abs(grid[same]))]:
                 break
             new = grid[i] * 2.0 ** (-np.arange(1, WIDEN_STEPS + 1) / WIDEN_STEPS)
-            r = np.asarray(rss_of(inputs(new)), np.float64)
-            grid, rss = cls._ordered(np.concatenate([grid, new]), np.concatenate([rss, r]))
+            grid, rss = cls._merged(rss_of, inputs, grid, rss, new)
             i = int(np.argmin(rss))
         return grid, rss
 
@@ -102,10 +103,7 @@ class InputMapSearch(eqx.Module):
         fine = fine[~np.isin(fine, grid)]
         if fine.size == 0:
             return grid, rss
-        r = rss_of(inputs(fine))
-        return cls._ordered(
-            np.concatenate([grid, fine]), np.concatenate([np.asarray(rss), np.asarray(r)])
-        )
+        return cls._merged(rss_of, inputs, grid, rss, fine)
 
 
 class DelayCandidate(AbstractCandidate):
