@@ -403,7 +403,7 @@ def _one_length(n: int, rate: float, streamed: str = "auto") -> dict:
 
     jax.config.update("jax_enable_x64", True)
     import lionjax as lj
-    from lionjax.diagnosis._lstsq import memory_estimate, streamed_by_default
+    from lionjax.diagnosis._statistics import memory_estimate, streamed_by_default
 
     nv = max(n // 5, 4000)
     train, valid = (lj.Record(*_long_record(k, rate, seed)) for k, seed in ((n, 1), (nv, 2)))

@@ -40,17 +40,12 @@ from lionjax.diagnosis import (
 )
 from lionjax.diagnosis._filtering import P_MAX, Discrete, filter_from, padded_length
 from lionjax.diagnosis._lstsq import (
-    BYTES_PER_SAMPLE_STREAMED,
-    STREAM_FIXED,
     fit_batch,
-    longest_records,
-    memory_estimate,
     residual,
     rss_fixed_with_columns,
     rss_with_columns,
     simulate_windows,
     solve_grams,
-    streamed_by_default,
 )
 from lionjax.diagnosis._problem import Problem
 from lionjax.diagnosis._regressors import ModeProfileColumns, RecordSignals, Regressors
@@ -63,11 +58,16 @@ from lionjax.diagnosis._search import (
 )
 from lionjax.diagnosis._settings import settings
 from lionjax.diagnosis._statistics import (
+    BYTES_PER_SAMPLE_STREAMED,
+    STREAM_FIXED,
     _check_memory,
     _feedback,
     _lattice_step,
     _robust_diff_std,
     _start_states,
+    longest_records,
+    memory_estimate,
+    streamed_by_default,
 )
 from lionjax.diagnosis._streaming import (
     FilteredColumns,

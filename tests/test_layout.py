@@ -216,8 +216,8 @@ PRIVATE_IMPORTS = {
     ),
     ("test_diagnose_kernels.py", "diagnosis._lstsq"): (
         "the Gram solve, the profiles' added columns and the input-map grids against numpy's "
-        "lstsq on explicit designs at 1e-9, the windowed simulation in segments against one "
-        "pass, and the memory estimate's formulas"
+        "lstsq on explicit designs at 1e-9, and the windowed simulation in segments against one "
+        "pass"
     ),
     ("test_diagnose_kernels.py", "diagnosis._problem"): (
         "a diagnosis problem's regressors in chunks of 512 samples against one chunk at 1e-8 "
@@ -237,7 +237,7 @@ PRIVATE_IMPORTS = {
     ),
     ("test_diagnose_kernels.py", "diagnosis._statistics"): (
         "the record statistics (encoder lattice, loop feedback share, noise floor, start "
-        "states) against drawn or closed-form truths"
+        "states) against drawn or closed-form truths, and the memory estimate's formulas"
     ),
     ("test_diagnose_kernels.py", "diagnosis._streaming"): (
         "the filter bank, the hold correction's order and a flexible mode's signals against "

@@ -16,8 +16,6 @@ structure at any record length.
 
 from __future__ import annotations
 
-import os
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,8 +23,9 @@ import numpy as np
 from .._least_squares import gram_lstsq
 from .._models import AbstractModel
 from ..twin._windows import window_span, windowed_errors
-from ._filtering import MIN_PADDED, P_MAX, _capacity, _f, _i, padded_length
+from ._filtering import P_MAX, _f, _i, padded_length
 from ._regressors import Regressors, TooWide, columns_of
+from ._statistics import STREAM_ABOVE
 from ._streaming import as_source, grid_columns
 
 #: Gram systems solved per call (:func:`solve_grams`; a batch is padded with identity systems to
@@ -36,69 +35,6 @@ GRID = 32
 GRID_SMALL = (4, 8)
 #: Grid points (τ, F_max) whose F-dependent columns one pass over the record filters.
 GRID_PASS = 16
-
-# Host memory as measured (benchmarks/results/2026-11-28_diagnosis_lengths.md,
-# 2026-11-28_streamed_diagnosis.md), with 20–25 % over the heaviest record.
-#: In one chunk [bytes per padded sample of each record]: filtered signals and designs kept.
-BYTES_PER_SAMPLE_CACHED = 6_500
-#: Padded lengths above this are read in chunks by default: in one chunk 2¹⁸ samples peak at up
-#: to 2.7 GB; in chunks about 1.1 GB at any length, at up to twice the time.
-STREAM_ABOVE = 1 << 17
-#: In chunks [bytes per sample of each record]: the raw per-sample signals.
-BYTES_PER_SAMPLE_STREAMED = 160
-#: In chunks, at any length [bytes]: the process, its programs and a chunk's intermediates.
-STREAM_FIXED = 1_200_000_000
-
-
-def streamed_by_default(*n_samples: int) -> bool:
-    """Whether records of ``n_samples`` samples are read in chunks by default."""
-    return max(padded_length(int(n)) for n in n_samples) > STREAM_ABOVE
-
-
-def memory_estimate(*n_samples: int, streamed: bool | None = None) -> int:
-    """Peak host memory [bytes] of a diagnosis of records of ``n_samples`` samples, read in
-    chunks (``streamed``; default :func:`streamed_by_default`) or each in one."""
-    if streamed is None:
-        streamed = streamed_by_default(*n_samples)
-    if streamed:
-        return STREAM_FIXED + BYTES_PER_SAMPLE_STREAMED * sum(int(n) for n in n_samples)
-    return sum(BYTES_PER_SAMPLE_CACHED * padded_length(int(n)) for n in n_samples)
-
-
-def longest_records(budget: float, count: int = 2, streamed: bool | None = None) -> int:
-    """The most samples each of ``count`` records may have for :func:`memory_estimate` to stay
-    within ``budget`` [bytes] (it drops where records are read in chunks); 0 when none fit."""
-    fits = [
-        _capacity(Tp)
-        for Tp in (MIN_PADDED << k for k in range(29))
-        if memory_estimate(*[_capacity(Tp)] * count, streamed=streamed) <= budget
-    ]
-    if streamed is not False:
-        n = int((budget - STREAM_FIXED) // (BYTES_PER_SAMPLE_STREAMED * count))
-        if n > 0 and (streamed or streamed_by_default(n)):
-            fits.append(n)
-    return max(fits, default=0)
-
-
-def decimation_to_fit(budget: float, *n_samples: int, streamed: bool | None = None) -> int:
-    """The least factor r ≥ 1 for which the records decimated by r (⌊n/r⌋ samples each) fit
-    :func:`memory_estimate` within ``budget`` [bytes]; 0 when none does."""
-    r = 1
-    while True:
-        n = [int(k) // r for k in n_samples]
-        if memory_estimate(*n, streamed=streamed) <= budget:
-            return r
-        if max(n) <= _capacity(MIN_PADDED):  # already in the shortest bucket: none helps
-            return 0
-        r += 1
-
-
-def physical_memory() -> int | None:
-    """This machine's physical memory [bytes], or None where the OS does not say."""
-    try:
-        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (AttributeError, OSError, ValueError):
-        return None
 
 
 @jax.jit
