@@ -53,9 +53,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="write a one-page figure")
     g = p.add_argument_group("settings (defaults adapt to the record)")
     g.add_argument(
-        "--filter-hz", type=float, help="filter corner λ/2π in Hz (default min(fs/25, 40 Hz))"
+        "--filter-hz",
+        type=float,
+        help="filter corner λ/2π in Hz (default min(fs/25, 40 Hz), raised to a dominant "
+        "oscillation's frequency, at most fs/8, where the mass–damper fit is qualitatively wrong)",
     )
-    g.add_argument("--window", type=float, help="restart interval H [s] of the simulation gap")
+    g.add_argument(
+        "--window",
+        type=float,
+        help="restart interval H [s] of the simulation gap (default: from the slowest dynamics "
+        "the records show, docs/method.md)",
+    )
     g.add_argument(
         "--alpha",
         type=float,
