@@ -1285,6 +1285,11 @@ def _evidence(d) -> dict:
         "weights": dict(getattr(d, "weights", {})),
         "scores": {e.name: float(getattr(e, "score", math.nan)) for e in d.effects},
         "shares": {e.name: float(getattr(e, "share", math.nan)) for e in d.effects},
+        # each candidate alone: its size (share of the input's term) and the share of the
+        # windowed simulation's gap it removes, beside the baseline's simulated gap
+        "sizes": {e.name: float(getattr(e, "size", math.nan)) for e in d.effects},
+        "sim_shrinks": {e.name: float(getattr(e, "shrink", math.nan)) for e in d.effects},
+        "gap_relative": base.get("gap_relative"),
         "fits": {
             e.name: {
                 "reason": str(getattr(e, "reason", "")),
@@ -1303,6 +1308,7 @@ def _evidence(d) -> dict:
         "noise_ratio": (base["equation_gap"] / base["noise_floor"]) if base else None,
         "valid_outside_train": base.get("valid_outside_train"),
         "detection_limit": getattr(d, "noise", {}).get("detection_limit"),
+        "detection_limit_worst": getattr(d, "noise", {}).get("detection_limit_worst"),
         "n_effective": getattr(d, "noise", {}).get("n_effective"),
         "inconclusive": getattr(d, "inconclusive", None),
     }
