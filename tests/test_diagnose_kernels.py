@@ -776,7 +776,7 @@ def test_grams_fits_and_residuals_in_chunks(problems):
         DelayCandidate(),
     )
     with jax.enable_x64(True):
-        (rm, vm), (rs, vs) = (p.regressors_of(structure) for p in problems)
+        (rm, vm), (rs, vs) = (p.regressors(structure) for p in problems)
         assert rm.whole and not rs.whole and rs.force_mask is not None
         model_m, model_s = (p.model(structure) for p in problems)
         _close(rm.design_gram(model_m), rs.design_gram(model_s), 1e-10)
@@ -808,13 +808,13 @@ def test_profile_columns_in_chunks(problems):
                 for c, w in pts
             ]
         )
-        rss = [rss_with_columns(p.regressors_of(())[0], p.model(()), local) for p in problems]
+        rss = [rss_with_columns(p.regressors(())[0], p.model(()), local) for p in problems]
         _close(*rss, 1e-9)
         lam = 2 * math.pi * one.st.filter_hz
         modes = [(2 * math.pi * 17.0, 0.05), (2 * math.pi * 31.0, 0.2), (2 * math.pi * 9.0, 0.03)]
         out = []
         for p in problems:
-            (rtr, rva), base = p.regressors_of(()), p.model(())
+            (rtr, rva), base = p.regressors(()), p.model(())
             cols = ModeProfileColumns(modes, lam, p.st.dt)
             c, r, _ = rss_with_columns(rtr, base, cols, coef=True)
             out.append((c, r, rss_fixed_with_columns(rva, base, cols, c, 2)))
@@ -822,7 +822,7 @@ def test_profile_columns_in_chunks(problems):
             _close(a, b, 1e-8)
         # the mode as a structure's columns (the exact stages on the filter's outputs)
         mode = (FlexibleModeCandidate(True, *modes[0]),)
-        grams = [p.regressors_of(mode)[0].design_gram(p.model(mode)) for p in problems]
+        grams = [p.regressors(mode)[0].design_gram(p.model(mode)) for p in problems]
         _close(*grams, 1e-9)
 
 
@@ -834,7 +834,7 @@ def test_period_screen_and_mode_seed_in_chunks(problems):
     H = []
     with jax.enable_x64(True):
         for p in problems:
-            rtr, model = p.regressors_of(structure)[0], p.model(structure)
+            rtr, model = p.regressors(structure)[0], p.model(structure)
             n = rtr.width(model)
             c = np.linspace(-1.0, 1.0, 18) * 1e-3
             x = rtr.x

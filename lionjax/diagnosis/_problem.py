@@ -144,8 +144,6 @@ class Problem:
             out.append(self.memo[k])
         return out[0], out[1]
 
-    regressors_of = regressors  # the tests' name
-
     def train_regressors(self) -> list[Regressors]:
         """Every training regressors made so far."""
         return [v for k, v in self.memo.items() if k[:2] == ("regressors", "train")]

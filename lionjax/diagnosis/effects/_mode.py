@@ -199,7 +199,8 @@ class FlexibleModeCandidate(AbstractCandidate):
                 for v in variants:
                     sel = cols.select(slice(None) if v else [0, 2, 3])
                     c, _, n = rss_with_columns(objective.rtr, objective.model, sel, coef=True)
-                    r = rss_fixed_with_columns(objective.rva, objective.model, sel, c, 1 + v)
+                    n_fixed = 2 if v else 1
+                    r = rss_fixed_with_columns(objective.rva, objective.model, sel, c, n_fixed)
                     mu = c[:, n]
                     ok = (mu > 0) & (mu < (1 if scaled else MAX_MODE_MASS))
                     scale = np.where(ok, 1 - mu, 1.0) ** 2 if scaled else 1.0
