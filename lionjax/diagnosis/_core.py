@@ -193,7 +193,7 @@ def _pipeline(run, st) -> Diagnosis:
     st.stage("stacking")
     run, stk = stack_effects(run, alone)
     stk = parsimony(run, stk)
-    if stk.stands_for and stk.size < run.crit.max_effects:
+    if stk.stands_for:
         # a stand-in opens the stack to what the candidate it replaced excluded (asymmetric
         # friction excludes a spring, its stand-in Coulomb friction + offset does not)
         run, stk = stack_effects(run, alone, stk)

@@ -40,10 +40,22 @@ class Stack:
 
     @property
     def size(self) -> int:
-        """The effects held, against ``Criteria.max_effects``: a candidate another stacked one
-        contains (an offset beside a spring) adds no column and takes no place."""
-        inside = {n for k in self.cands for n in k.subsumes}
-        return sum(c.name not in inside for c in self.cands)
+        """The effects held (:func:`held`)."""
+        return held(self.cands)
+
+
+def held(cands) -> int:
+    """The effects ``cands`` hold, against ``Criteria.max_effects``: a candidate another of them
+    contains (an offset beside a spring) adds no column and takes no place."""
+    inside = {n for k in cands for n in k.subsumes}
+    return sum(c.name not in inside for c in cands)
+
+
+def fits_in(run: Run, stk: Stack, ks: tuple) -> bool:
+    """Whether the stack with ``ks`` added holds at most ``max_effects`` effects: one that
+    contains a stacked candidate (a spring beside an offset) takes its place, so it may join a
+    full stack."""
+    return held((*stk.cands, *ks)) <= run.crit.max_effects
 
 
 def _excludes(k: AbstractCandidate, c: AbstractCandidate) -> bool:
@@ -149,9 +161,7 @@ def _stand_in(run: Run, trials, pool, stk: Stack):
         for sc, _, c in trials
         if not sc.plausible and len(c.simpler) >= 2 and all(n in names for n in c.simpler)
     )
-    steps = (
-        step_of(run, stk, ks) for ks in stand_ins if stk.size + len(ks) <= run.crit.max_effects
-    )
+    steps = (step_of(run, stk, ks) for ks in stand_ins if fits_in(run, stk, ks))
     return next((s for s in steps if s is not None), None)
 
 
@@ -160,15 +170,16 @@ def _pair(run: Run, trials, stk: Stack):
     one step (effects that hide each other), or None: the n(n − 1)/2 compatible pairs of the
     highest summed scores of the 2n best (n = ``pair_from``); none once the stack removes
     ``explained_full`` of the baseline's excess."""
-    if stk.size + 2 > run.crit.max_effects:
-        return None
     ex0 = run.excess(run.base.ms_valid)
     if not ex0 > 0 or run.excess(stk.fit.ms_valid) <= (1 - run.crit.explained_full) * ex0:
         return None
     n = run.crit.pair_from
     top = [t for t in trials if t[0].plausible and t[0].share > 0][: 2 * n]
     pairs = [
-        (ti, tj) for i, ti in enumerate(top) for tj in top[i + 1 :] if compatible(ti[2], tj[2])
+        (ti, tj)
+        for i, ti in enumerate(top)
+        for tj in top[i + 1 :]
+        if compatible(ti[2], tj[2]) and fits_in(run, stk, (ti[2], tj[2]))
     ]
     # compatible pairs only: near-duplicates (an offset, a drifting offset, a spring) cannot
     # pair with each other and would fill the best n
@@ -186,8 +197,7 @@ def _hidden(run: Run, trials, stk: Stack):
     stack's excess is taken: hidden effects are a whole explanation together, an
     out-of-library effect fitted so leaves more."""
     crit = run.crit
-    room = crit.max_effects - stk.size
-    if not crit.pair_from or room < 2 or stk.fit.equation_gap <= crit.floor_factor * run.floor:
+    if not crit.pair_from or stk.fit.equation_gap <= crit.floor_factor * run.floor:
         return None
     # a candidate refused alone for what the record shows against it (a look-alike that
     # validates better, the loop's noise), not for its own fitted parameters, stays out
@@ -206,15 +216,20 @@ def _hidden(run: Run, trials, stk: Stack):
         steps = (step_of(run, stk, ks, f) for ks, f in fits)
         return [s for s in steps if s is not None and s[0].share >= crit.explained_full]
 
-    fits = fitted((a, b) for i, a in enumerate(pool) for b in pool[i + 1 :] if compatible(a, b))
+    fits = fitted(
+        (a, b)
+        for i, a in enumerate(pool)
+        for b in pool[i + 1 :]
+        if compatible(a, b) and fits_in(run, stk, (a, b))
+    )
     found = whole(fits)
-    if not found and room >= 3:
+    if not found:
         best = [ks for ks, _ in sorted(fits, key=lambda t: t[1].ms_valid)[: crit.pair_from]]
         order = {c.name: i for i, c in enumerate(pool)}
         thirds = {}
         for ks in best:
             for c in pool:
-                if all(compatible(c, k) for k in ks):
+                if all(compatible(c, k) for k in ks) and fits_in(run, stk, (*ks, c)):
                     trio = tuple(sorted((*ks, c), key=lambda k: order[k.name]))
                     thirds[tuple(k.name for k in trio)] = trio
         found = whole(fitted(thirds[n] for n in sorted(thirds)))
@@ -234,7 +249,7 @@ def stack_effects(
     gone = set(stk.stands_for.values())
     lib = [run.resolved.get(c.name, c) for c in run.candidates]
     pool = [c for c in lib if fits_with(c, stk.cands) and c.name not in gone]
-    while pool and stk.size < run.crit.max_effects:
+    while pool := [c for c in pool if fits_in(run, stk, (c,))]:
         fits = [(c, alone[c.name][1] if not stk.cands else fit_on(run, stk, (c,))) for c in pool]
         fits = [(c, f) for c, f in fits if f is not None]
         if not fits:
