@@ -519,3 +519,24 @@ def test_a_saturation_chooses_its_shape_again_on_the_stack(source, seed, shape):
     p = d.final["params"]
     assert p["soft"] == float(shape == "soft")
     assert p["Fmax"] == pytest.approx(sat["params"]["f_max"], rel=0.02)
+
+
+@pytest.mark.parametrize(
+    "source, seed, rest",
+    [
+        ("twin", 390160002, {"coulomb_friction", "delay"}),
+        ("scipy", 390161014, {"coulomb_friction"}),
+    ],
+)
+def test_a_spring_joins_a_full_stack_in_the_offsets_place(source, seed, rest):
+    """A spring beside friction that fills the stack, open loop. Twin, 351 Hz: Stribeck
+    friction, a spring and a 3.6 ms delay; the stand-in of asymmetric friction (Coulomb friction
+    + an offset) and the delay make three effects. Scipy, 837 Hz: LuGre friction, a spring and
+    an offset; Coulomb friction, an offset and a position dependence make three. The spring
+    contains the offset, so it takes the offset's place and joins the full stack (the position
+    dependence is then pruned). k against the simulator's within 10 %."""
+    train, valid, info = blind.make_case("triple", seed, source=source)
+    truth = {e["name"]: e["params"] for e in info["effects"]}
+    d = lj.diagnose(train, valid)
+    assert set(d.stack) - {"offset"} == {"spring", *rest}, d.stack
+    assert d.final["params"]["k"] == pytest.approx(truth["spring"]["k"], rel=0.1)
