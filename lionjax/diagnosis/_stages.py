@@ -38,11 +38,6 @@ class Stack:
     #: the stand-ins among those steps: candidates standing in for one, one law in several columns
     laws: tuple[tuple[str, ...], ...] = ()
 
-    @property
-    def size(self) -> int:
-        """The effects held (:func:`held`)."""
-        return held(self.cands)
-
 
 def held(cands) -> int:
     """The effects ``cands`` hold, against ``Criteria.max_effects``: a candidate another of them
