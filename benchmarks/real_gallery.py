@@ -277,6 +277,60 @@ def run_entry(e: Entry) -> dict:
     return row
 
 
+def _bare(r, s=slice(None), F=None):
+    """``r``'s x and F (or ``F``) over the rows ``s``, without its extra signals."""
+    import lionjax as lj
+
+    F = np.asarray(r.F if F is None else F)[s]
+    return lj.Record(np.asarray(r.x)[s], F, r.dt, 0.0, units=r.units)
+
+
+def _half(r, k: int):
+    T = int(r.n_samples)
+    return _bare(r, slice(0, T // 2) if k == 0 else slice(T // 2, T))
+
+
+def _late(r):
+    """The force read at the sample instants of a force held over each interval: the mean of
+    the two intervals beside it, (Fₖ₋₁ + Fₖ)/2, half a sample late."""
+    F = np.asarray(r.F, np.float64)
+    return _bare(r, F=0.5 * (F + np.concatenate([F[:1], F[:-1]])))
+
+
+#: What a similar record of the same bench might bring, each applied to both records: their
+#: roles swapped, decimated by 2 and 4 (F averaged, x kept at the new instants: Record.decimate),
+#: the first and the second half, and a force read half a sample late.
+PERTURBATIONS = {
+    "swapped": lambda tr, va: (va, tr),
+    "decimated ×2": lambda tr, va: (_bare(tr).decimate(2), _bare(va).decimate(2)),
+    "decimated ×4": lambda tr, va: (_bare(tr).decimate(4), _bare(va).decimate(4)),
+    "first half": lambda tr, va: (_half(tr, 0), _half(va, 0)),
+    "second half": lambda tr, va: (_half(tr, 1), _half(va, 1)),
+    "F half a sample late": lambda tr, va: (_late(tr), _late(va)),
+}
+
+
+def perturbed(e: Entry) -> dict:
+    """{perturbation: "verdict (confidence)", marked ✓ where the EXPECTED.md accepts it}."""
+    import lionjax as lj
+
+    try:
+        train, valid, _ = e.load()
+    except FileNotFoundError:
+        return {}
+    out = {}
+    for name, make in PERTURBATIONS.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                d = lj.diagnose(*make(train, valid))
+                ok = " ✓" if d.verdict in e.accepted else ""
+                out[name] = f"{d.verdict} ({d.confidence:.2f}){ok}"
+            except lj.InputError as err:
+                out[name] = f"refused: {str(err)[:80]}"
+    return out
+
+
 def _fmt(v, spec=".4g") -> str:
     return "—" if v is None else format(v, spec)
 
@@ -323,10 +377,51 @@ def markdown(rows: list[dict], meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _meta() -> dict:
+    import subprocess
+
+    commit = subprocess.run(
+        ["git", "-C", str(HERE), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    ).stdout.strip()
+    return {"date": datetime.date.today().isoformat(), "commit": commit, "cpus": os.cpu_count()}
+
+
+def _main_perturbed(entries: list[Entry], out: Path) -> int:
+    rows = {}
+    for e in entries:
+        rows[e.name] = perturbed(e)
+        print(f"{e.name}: {rows[e.name]}", flush=True)
+    meta = _meta()
+    heads = list(PERTURBATIONS)
+    lines = [
+        "# Real-data gallery, perturbed",
+        "",
+        f"{meta['date']}, commit {meta['commit']}, `lj.diagnose` with default settings. Each "
+        "record diagnosed under `PERTURBATIONS` (`benchmarks/real_gallery.py --perturb`); ✓: a "
+        "verdict its pre-registered EXPECTED.md accepts.",
+        "",
+        "| record | " + " | ".join(heads) + " |",
+        "|---|" + "---|" * len(heads),
+    ]
+    for name, r in rows.items():
+        lines.append(f"| {name} | " + " | ".join(r.get(h, "no data") for h in heads) + " |")
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"{meta['date']}_real_gallery_perturbed"
+    stem.with_suffix(".json").write_text(json.dumps({**meta, "rows": rows}, indent=1))
+    stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print(f"wrote {stem}.md and .json", file=sys.stderr)
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--only", help="comma-separated record names (default: all)")
     p.add_argument("--out", type=Path, default=HERE / "results")
+    p.add_argument(
+        "--perturb",
+        action="store_true",
+        help="diagnose each record under PERTURBATIONS instead (→ <date>_real_gallery_perturbed)",
+    )
     a = p.parse_args(argv)
     import jax
 
@@ -336,6 +431,8 @@ def main(argv=None) -> int:
     if names is not None and len(entries) != len(names):
         known = ", ".join(e.name for e in ENTRIES)
         p.error(f"--only: unknown record(s) {sorted(names - {e.name for e in entries})}; {known}")
+    if a.perturb:
+        return _main_perturbed(entries, a.out)
     rows = []
     for e in entries:
         row = run_entry(e)
@@ -345,12 +442,7 @@ def main(argv=None) -> int:
             f"({_fmt(row.get('confidence'), '.2f')}) {row['outcome']}",
             flush=True,
         )
-    import subprocess
-
-    commit = subprocess.run(
-        ["git", "-C", str(HERE), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
-    ).stdout.strip()
-    meta = {"date": datetime.date.today().isoformat(), "commit": commit, "cpus": os.cpu_count()}
+    meta = _meta()
     law = payload_law(rows)
     if law is not None:
         meta["payload_law"] = law
