@@ -235,7 +235,7 @@ def shrink(gap: float, base_gap: float) -> float:
 def _problem(train, valid, crit, filter_hz, window_s, max_memory_gb, streamed) -> Problem:
     """The records' problem: the settings adapted to ``train`` and the windowed simulation's
     restart interval spanning their slowest dynamics (:func:`dynamics`)."""
-    st = settings(train, filter_hz=filter_hz, window_s=window_s)
+    st = settings(train, filter_hz=filter_hz, window_s=window_s, feedback_share=crit.feedback_share)
     # 20 time constants 1/λ of the filter (s + λ)³, λ = 2π·filter_hz
     least = max(int(math.ceil(20 / (2 * math.pi * st.filter_hz * st.dt))), 200)
     for nm, rec in (("train", train), ("valid", valid)):
@@ -253,7 +253,7 @@ def _problem(train, valid, crit, filter_hz, window_s, max_memory_gb, streamed) -
         # ((f_c/f)³ of it), which biases its fitted frequency towards the corner: the corner
         # moves up to it (at most OSCILLATION_CORNER·f_s)
         fh = min(f_osc, OSCILLATION_CORNER / st.dt)
-        st = settings(train, filter_hz=fh, window_s=window_s)
+        st = settings(train, filter_hz=fh, window_s=window_s, feedback_share=crit.feedback_share)
         problem = Problem.of(train, valid, st, crit, streamed, chunk)
         scale, _ = dynamics(problem)
     return problem.with_window(scale)
@@ -300,6 +300,7 @@ def prepare(
         closed_loop=closed_loop,
         loop_noise=closed_loop and base.ms_valid <= floor**2,
         mode_band=(st.mode_grid[0], st.mode_grid[-1]),
+        excited=st.excited,
         x_range=_common_range(xt, np.asarray(valid.x)),
         train_range=(float(np.min(xt)), float(np.max(xt))),
         stuck_share=problem.stuck_share,

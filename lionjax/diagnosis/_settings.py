@@ -67,17 +67,25 @@ WINDOWS_LEAST = 8
 
 
 def settings(
-    train: Record, *, filter_hz: float | None = None, window_s: float | None = None
+    train: Record,
+    *,
+    filter_hz: float | None = None,
+    window_s: float | None = None,
+    feedback_share: float = 0.3,
 ) -> Settings:
     """Settings adapted to the training record; a record that cannot support one (no motion,
-    no force) gets an :class:`~lionjax.InputError` naming it."""
+    no force) gets an :class:`~lionjax.InputError` naming it. ``feedback_share``: the share of
+    the force's innovation the position explains from which F answers a controller
+    (:attr:`~lionjax.diagnosis.Criteria.feedback_share`)."""
     dt = float(train.dt)
     fs = 1.0 / dt
-    # the band the excitation covers: the force less a controller's answer to the position
-    # (in closed loop F also carries the position noise fed back, broadband)
+    # the band the excitation covers: in closed loop the force less the controller's answer to
+    # the position (F also carries the position noise fed back, broadband); in open loop F
+    # itself (there C∗x fits the plant's inverse, s²/b at high frequency, and would take the
+    # excitation's upper band out with it)
     x, F = np.asarray(train.x, np.float64), np.asarray(train.F, np.float64)
-    F_ref = _feedback(x, F)[1]
-    excited = excited_band(F_ref, dt)
+    share, F_ref = _feedback(x, F)
+    excited = excited_band(F_ref if share >= feedback_share else F, dt)
     fh = min(fs / 25.0, MAX_FILTER_HZ) if filter_hz is None else float(filter_hz)
     if not (0 < fh < fs / 2):
         raise InputError(

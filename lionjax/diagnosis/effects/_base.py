@@ -23,10 +23,12 @@ class Limits(eqx.Module):
     ``position_noise`` the validation record's [m] (the robust spread of its third differences,
     quantisation included); ``closed_loop``: F answers the position; ``loop_noise``: closed loop
     with the baseline's error at the noise floor; ``mode_band`` the flexible mode's searched band
-    [Hz]; ``x_range`` the positions both records cover [m]; ``train_range`` the training
-    positions [m], over which candidates are fitted (a grid in cycles of position steps finely
-    over it); ``stuck_share`` the share of validation samples where the axis sticks; ``sticks``:
-    it sticks on either record; ``outside``: validation leaves the training positions."""
+    [Hz]; ``excited`` the band the training input excites [Hz] (the default (0, 0): every
+    frequency lies above it); ``x_range`` the positions both records cover [m];
+    ``train_range`` the training positions [m], over which candidates are fitted (a grid in
+    cycles of position steps finely over it); ``stuck_share`` the share of validation samples
+    where the axis sticks; ``sticks``: it sticks on either record; ``outside``: validation
+    leaves the training positions."""
 
     F_abs_max: float
     dt: float
@@ -34,6 +36,7 @@ class Limits(eqx.Module):
     closed_loop: bool = False
     loop_noise: bool = False
     mode_band: tuple[float, float] = (0.0, math.inf)
+    excited: tuple[float, float] = (0.0, 0.0)
     x_range: tuple[float, float] = (-math.inf, math.inf)
     train_range: tuple[float, float] = (-math.inf, math.inf)
     stuck_share: float = 0.0

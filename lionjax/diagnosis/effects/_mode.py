@@ -321,11 +321,13 @@ class FlexibleModeCandidate(AbstractCandidate):
                 f"{MAX_HEAVY_MODE_MASS} collocated, |κ| ≤ {HEAVY_MODE_KAPPA})"
             )
             yield False, why
-        # x held first-order between samples leaves ≈ (h²/12)·x⁽⁴⁾ in ε₁, which a mode far above
-        # the excitation reproduces with μ/ω² = h²/12 and κ = 0: the sampling, not the device
+        # x held first-order between samples leaves ≈ (h²/12)·x⁽⁴⁾ in ε₁, which a mode above the
+        # excitation reproduces with μ/ω² = h²/12 and κ = 0: the sampling, not the device; a
+        # mode within the excited band answers it with its resonance, which that law lacks
         hold = (2 * math.pi * r.get("f_mode", 0.0) * lim.dt) ** 2 / 12
         through_input = abs(r.get("input_share", 0.0)) >= HOLD_KAPPA
-        if r["mass_ratio"] < MODE_OVER_HOLD * hold and not through_input:
+        above = r.get("f_mode", 0.0) > lim.excited[1]
+        if r["mass_ratio"] < MODE_OVER_HOLD * hold and above and not through_input:
             why = (
                 f"no flexible mode: mass ratio {r['mass_ratio']:.3g} within {MODE_OVER_HOLD:g}× "
                 f"the sampling's hold error at f_mode ({hold:.3g})"
