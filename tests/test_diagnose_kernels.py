@@ -296,25 +296,19 @@ def test_noise_floor_counts_sparse_noise():
     assert mad < 0.5 * rms
 
 
-def _multisine(n: int, dt: float, f_lo: float, f_hi: float, seed: int = 3) -> np.ndarray:
-    """A random-phase multisine over [f_lo, f_hi] of unit RMS."""
-    t = dt * np.arange(n)
-    fs = np.arange(f_lo, f_hi, 4.0 / (n * dt))
-    ph = np.random.default_rng(seed).uniform(0, 2 * np.pi, fs.size)
-    u = np.sum(np.cos(2 * np.pi * fs[:, None] * t[None] + ph[:, None]), 0)
-    return u / np.std(u)
-
-
 def test_excited_band_of_an_open_loop_multisine():
     """The excited band of an open-loop record (the twin's mass–damper driven by a flat
-    multisine over 1–200 Hz at 1 kHz) is the force's own: its top within 2 % of the closed form
-    1 + 0.99·199 Hz (99 % of a flat spectrum's power lies below it). A FIR of x fitted to F
-    here fits the plant's inverse and would take the upper band out with it."""
+    multisine, Schroeder phases, lines 0.5 Hz apart over 1–199.5 Hz at 1 kHz) is the force's
+    own: its top within 2 % of the closed form 1 + 0.99·198.5 Hz (99 % of a flat spectrum's
+    power lies below it). A FIR of x fitted to F here fits the plant's inverse and would take
+    the upper band out with it."""
     dt, n = 1e-3, 8000
-    F = 2.0 * _multisine(n, dt, 1.0, 200.0)
+    lines = np.arange(1.0, 200.0, 0.5)
+    amp = 2.0 * np.sqrt(2.0 / lines.size)  # 2 N rms
+    F = np.asarray(lj.twin.multisine(lines, amp, phases="schroeder")(dt * np.arange(n)))
     rec = lj.twin.simulate(lj.twin.Plant(20.0, 2.0, (), []), F, dt=dt)
     lo, hi = settings(rec).excited
-    assert hi == pytest.approx(1.0 + 0.99 * 199.0, rel=0.02)
+    assert hi == pytest.approx(1.0 + 0.99 * 198.5, rel=0.02)
     assert lo < 5.0
 
 

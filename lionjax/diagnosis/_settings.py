@@ -11,6 +11,7 @@ import numpy as np
 from .._errors import InputError
 from .._filters import FilterBank
 from .._record import Record
+from ._criteria import Criteria
 from ._statistics import _feedback
 from ._streaming import zero_phase
 
@@ -71,7 +72,7 @@ def settings(
     *,
     filter_hz: float | None = None,
     window_s: float | None = None,
-    feedback_share: float = 0.3,
+    feedback_share: float = Criteria.feedback_share,
 ) -> Settings:
     """Settings adapted to the training record; a record that cannot support one (no motion,
     no force) gets an :class:`~lionjax.InputError` naming it. ``feedback_share``: the share of
