@@ -63,6 +63,7 @@ from lionjax.diagnosis._statistics import (
     _check_memory,
     _feedback,
     _lattice_step,
+    _position_noise,
     _robust_diff_std,
     _start_states,
     longest_records,
@@ -158,6 +159,42 @@ def test_lattice_step_of_a_quantised_record(q, dtype):
     xq = (q * np.round(x / q)).astype(dtype)
     assert _lattice_step(xq) == pytest.approx(q, rel=1e-4)
     assert _lattice_step(xq + rng.normal(0, 0.3 * q, xq.shape).astype(dtype)) == 0.0
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("q", [1e-6, 2e-5])
+def test_lattice_step_behind_noise(q, dtype):
+    """A lattice blurred by noise of 0.05·q (the samples' coherence exp(−2π²·0.05²) = 0.95) is
+    found to 10⁻⁴ of q; at 0.1·q (coherence 0.82, the limit 0.8 less the sampling's spread) and
+    on a smooth signal none is."""
+    rng = np.random.default_rng(1)
+    t = np.arange(20000) / 3000.0
+    x = 0.05 * np.sin(2 * np.pi * 0.3 * t) + 0.01 * t + 0.003
+    xq = q * np.round(x / q)
+    blurred = (xq + rng.normal(0, 0.05 * q, x.shape)).astype(dtype)
+    assert _lattice_step(blurred) == pytest.approx(q, rel=1e-4)
+    assert _lattice_step((xq + rng.normal(0, 0.12 * q, x.shape)).astype(dtype)) == 0.0
+    assert _lattice_step((x + rng.normal(0, 1e-7, x.shape)).astype(dtype)) == 0.0
+
+
+def test_position_noise_where_the_excitation_reaches_the_top():
+    """White noise σ under a flat multisine to f_s/4: the third differences count the motion
+    (over 20× σ here) and the spectrum's flat top gives σ within 10 %; the same noise through a
+    low-pass (a filtered record: its top falls, not white) keeps the third-difference
+    estimate."""
+    rng = np.random.default_rng(2)
+    T, fs, sigma = 40000, 1000.0, 1e-6
+    t = np.arange(T) / fs
+    f = np.linspace(1.0, 250.0, 200)[:, None]
+    x = np.sum(1e-5 * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi, f.shape)), 0)
+    noisy = x + rng.normal(0, sigma, T)
+    assert _robust_diff_std(noisy) > 20 * sigma
+    assert _position_noise(noisy) == pytest.approx(sigma, rel=0.1)
+    n = rng.normal(0, sigma, T)
+    for _ in range(4):  # (0.3/(1 − 0.7z⁻¹))⁴: a gain of 10⁻³ at f_s/2
+        n = np.array([v := 0.0] + [v := 0.7 * v + 0.3 * e for e in n[1:]])
+    smooth = x + n
+    assert _position_noise(smooth) == _robust_diff_std(smooth)
 
 
 def test_feedback_share_tells_closed_from_open_loop():

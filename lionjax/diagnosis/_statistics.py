@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
 import numbers
 import os
@@ -164,6 +165,11 @@ def _long_runs(flag: np.ndarray, n: int) -> np.ndarray:
 
 #: Largest noise of the windowed simulation's start velocity, as a share of the rms of v̂.
 STATE_NOISE = 0.02
+#: The top of the spectrum stands for a position's noise where it lies this far below the third
+#: differences: beyond the two estimators' disagreement on a quantised record's uniform noise
+#: (≈ 15 %); and where it is white: its halves' levels within NOISE_FLAT of each other.
+NOISE_DISAGREE = 2.0
+NOISE_FLAT = 2.0
 
 
 def _noise_gain(dt: float, omega: float | None) -> float:
@@ -212,39 +218,50 @@ def _five_point(x: np.ndarray, dt: float) -> np.ndarray:
     return v
 
 
-def _high_band_noise(x: np.ndarray) -> float:
-    """σ of a signal's white noise (x [m] or F [N]) from the top of the spectrum: the median
-    periodogram of Δx (Hann window) over 0.3–0.5·f_s, divided by Δ's gain 4·sin²(πf/f_s) and
-    by ln 2 (an exponential's median over its mean). An upper bound (motion there counts as
-    noise) that, unlike the third differences, holds when the excitation reaches f_s/11 (Δ³ of
-    a sine there is 0.18× its amplitude)."""
+def _high_band(x: np.ndarray) -> tuple[float, float]:
+    """(σ, flatness) of a signal's white noise (x [m] or F [N]) from the top of the spectrum:
+    the median periodogram of Δx (Hann window) over 0.3–0.5·f_s, divided by Δ's gain
+    4·sin²(πf/f_s) and by ln 2 (an exponential's median over its mean). An upper bound (motion
+    there counts as noise) that, unlike the third differences, holds when the excitation
+    reaches f_s/11 (Δ³ of a sine there is 0.18× its amplitude). The flatness is the ratio of
+    the level over 0.4–0.5·f_s to that over 0.3–0.4·f_s: near 1 for white noise."""
     d = np.diff(np.asarray(x, np.float64))
     n = d.size
     if n < 16:
-        return math.inf
+        return math.inf, math.nan
     w = np.hanning(n)
     P = np.abs(np.fft.rfft((d - d.mean()) * w)) ** 2 / np.sum(w * w)
     k = np.arange(P.size)
     band = (k >= 0.3 * n) & (k < 0.5 * n)
-    gain = 4.0 * np.sin(np.pi * k[band] / n) ** 2
-    return float(np.sqrt(np.median(P[band] / gain) / math.log(2.0)))
+    Q = P[band] / (4.0 * np.sin(np.pi * k[band] / n) ** 2)
+    lower, upper = np.median(Q[: Q.size // 2]), np.median(Q[Q.size // 2 :])
+    flat = float(upper / lower) if lower > 0 else math.nan
+    return float(np.sqrt(np.median(Q) / math.log(2.0))), flat
 
 
 def _white_noise(u: np.ndarray) -> float:
     """σ of a signal's white noise: the lesser of two upper bounds, the third differences
     (:func:`_robust_diff_std`: a rough excitation counts as noise) and the top of the spectrum
-    (:func:`_high_band_noise`: motion at 0.3–0.5·f_s counts), but never below q/√12 of its
+    (:func:`_high_band`: motion at 0.3–0.5·f_s counts), but never below q/√12 of its
     converter's count q (:func:`_lattice_step`): a slow signal's quantisation error is a
     staircase, not white, and hides from the top of the spectrum."""
-    return max(min(_robust_diff_std(u), _high_band_noise(u)), _lattice_step(u) / math.sqrt(12.0))
+    return max(min(_robust_diff_std(u), _high_band(u)[0]), _lattice_step(u) / math.sqrt(12.0))
 
 
 def _position_noise(x: np.ndarray) -> float:
-    """σ [m] of a position record's noise: the larger of the third-difference estimate
-    (:func:`_robust_diff_std`) and q/√12 of its encoder's count q (:func:`_lattice_step`): a
-    quantised position's error is uniform over one count when the axis moves several counts per
-    sample, and the third differences then miss it."""
-    return max(_robust_diff_std(x), _lattice_step(x) / math.sqrt(12.0))
+    """σ [m] of a position record's noise: the third-difference estimate
+    (:func:`_robust_diff_std`), or the top of the spectrum (:func:`_high_band`) where that is
+    white (its two halves within :data:`NOISE_FLAT` of each other) and :data:`NOISE_DISAGREE`
+    below it: an excitation reaching f_s/5 puts its own Δ³ into the third differences, a
+    filtered record's noise is not white and falls off at the top. Never below q/√12 of its
+    encoder's count q (:func:`_lattice_step`): a quantised position's error is uniform over one
+    count when the axis moves several counts per sample, and the third differences then miss
+    it."""
+    d3 = _robust_diff_std(x)
+    top, flat = _high_band(x)
+    white = 1.0 / NOISE_FLAT <= flat <= NOISE_FLAT
+    sigma = top if white and d3 > NOISE_DISAGREE * top else d3
+    return max(sigma, _lattice_step(x) / math.sqrt(12.0))
 
 
 def _robust_diff_std(u: np.ndarray) -> float:
@@ -301,12 +318,39 @@ def _feedback(
     return float(share), F - sum(t * xl for t, xl in zip(th, lagged, strict=True))
 
 
+#: A lattice blurred by noise of σ keeps the coherence |mean exp(2πi·u/q)| = exp(−2π²σ²/q²):
+#: 0.8 at σ = 0.106·q, beyond which the quantisation error is dithered into white noise.
+LATTICE_COHERENCE = 0.8
+#: The finest lattice looked for behind noise, relative to the signal's magnitude: 16 float32
+#: ulps (a float32 record's own resolution is not an encoder's count).
+LATTICE_RESOLUTION = 2.0**-20
+
+
+#: Lattice steps found, by the signal's bytes: a diagnosis asks for each record's several times.
+_LATTICES: dict[tuple, float] = {}
+
+
 def _lattice_step(u: np.ndarray) -> float:
-    """The step q of the lattice a quantised signal's samples lie on (an encoder's count), or 0:
-    q₀ the 1 % quantile of the nonzero |Δu|, refined by least squares over every step as k
-    counts (q = Σ|Δu|·k/Σk²: a float32 record's q₀ is off by 10⁻⁴); on the lattice when 99 % of
-    the samples lie within 1 % of q of a multiple of it (offset by u₀)."""
-    u = np.asarray(u, np.float64)
+    """The step q of the lattice a quantised signal's samples lie on (an encoder's count), or 0.
+
+    Exact: q₀ the 1 % quantile of the nonzero |Δu|, refined by least squares over every step as
+    k counts (q = Σ|Δu|·k/Σk²: a float32 record's q₀ is off by 10⁻⁴); on the lattice when 99 %
+    of the samples lie within 1 % of q of a multiple of it (offset by u₀). Blurred by noise:
+    the steps of a few counts (q/2 ≤ |Δu| ≤ 8q) lie near multiples of q, so their comb
+    mean cos(2π|Δu|/q) peaks at q and its divisors; from the widest peak down, the first whose
+    refined q holds the samples' coherence ≥ :data:`LATTICE_COHERENCE` (multiples of q fail
+    it: the samples spread over both parities)."""
+    u = np.ascontiguousarray(u, np.float64)
+    key = (u.size, hashlib.blake2b(u.view(np.uint8), digest_size=16).digest())
+    if key not in _LATTICES:
+        if len(_LATTICES) >= 64:
+            _LATTICES.clear()
+        _LATTICES[key] = _lattice(u)
+    return _LATTICES[key]
+
+
+def _lattice(u: np.ndarray) -> float:
+    """:func:`_lattice_step` of ``u`` (T,) float64, not kept."""
     du = np.abs(np.diff(u))
     nz = du[du > 0]
     if nz.size < 20:
@@ -317,7 +361,42 @@ def _lattice_step(u: np.ndarray) -> float:
     k = np.round(nz / q)
     q = float(np.sum(nz * k) / np.sum(k * k))
     r = (u - u[0]) / q
-    return q if float(np.quantile(np.abs(r - np.round(r)), 0.99)) < 0.01 else 0.0
+    if float(np.quantile(np.abs(r - np.round(r)), 0.99)) < 0.01:
+        return q
+    return _blurred_lattice(u, nz)
+
+
+def _blurred_lattice(u: np.ndarray, nz: np.ndarray) -> float:
+    """q of a lattice blurred by noise (:func:`_lattice_step`), or 0; ``nz`` the nonzero |Δu|.
+    A candidate refined on the steps (±σ_q) is refined again on the samples' coherence, whose
+    peak is q/span wide (a span of many counts needs q to better than the steps give it)."""
+    s = nz[:: max(1, nz.size // 4000)]
+    lo, hi = np.quantile(s, [0.01, 0.99])
+    lo = max(lo, LATTICE_RESOLUTION * float(np.max(np.abs(u))))
+    if not hi > lo > 0:
+        return 0.0
+    grid = np.exp(np.arange(math.log(lo), math.log(hi), 0.01))  # a comb peak is ≥ 1/32 wide
+    near = (s >= 0.5 * grid[:, None]) & (s <= 8.0 * grid[:, None])
+    n = near.sum(1)
+    J = np.sum(np.cos(2.0 * np.pi * s / grid[:, None]) * near, 1) / np.maximum(n, 1)
+    J = np.where(n >= 20, J, -1.0)
+    peaks = [i for i in range(1, grid.size - 1) if J[i] >= max(J[i - 1], J[i + 1])]
+    v = u[:: max(1, u.size // 4000)] - u[0]
+    span = float(np.ptp(v))
+    for i in sorted((i for i in peaks if J[i] >= LATTICE_COHERENCE), key=lambda i: -grid[i]):
+        k = np.round(nz / grid[i])
+        m = k >= 1
+        if np.count_nonzero(m) < 20:
+            continue
+        q = float(np.sum(nz[m] * k[m]) / np.sum(k[m] ** 2))
+        sq = float(np.sqrt(np.sum((nz[m] - k[m] * q) ** 2) / np.sum(k[m] ** 2) / m.sum()))
+        step = 0.25 * q * q / max(span, q)  # a quarter of the coherence peak's width
+        half = min(200, int(6.0 * sq / step) + 1)
+        qs = q + step * np.arange(-half, half + 1)
+        C = np.abs(np.mean(np.exp(2j * np.pi * v[None, :] / qs[:, None]), 1))
+        if C.max() >= LATTICE_COHERENCE:
+            return float(qs[np.argmax(C)])
+    return 0.0
 
 
 def _n_eff(r: np.ndarray) -> float:
