@@ -62,8 +62,10 @@ from lionjax.diagnosis._statistics import (
     STREAM_FIXED,
     _check_memory,
     _feedback,
+    _high_band,
     _lattice_step,
     _position_noise,
+    _prediction_noise,
     _robust_diff_std,
     _start_states,
     longest_records,
@@ -180,8 +182,8 @@ def test_lattice_step_behind_noise(q, dtype):
 def test_position_noise_where_the_excitation_reaches_the_top():
     """White noise σ under a flat multisine to f_s/4: the third differences count the motion
     (over 20× σ here) and the spectrum's flat top gives σ within 10 %; the same noise through an
-    anti-aliasing low-pass (a filtered record: its top falls, not white) keeps the
-    third-difference estimate."""
+    anti-aliasing low-pass (a filtered record: its top falls 20× below σ, not white) is not
+    read from the top: its estimate stays above σ, at most the third differences'."""
     from scipy import signal
 
     rng = np.random.default_rng(2)
@@ -190,11 +192,42 @@ def test_position_noise_where_the_excitation_reaches_the_top():
     f = np.linspace(1.0, 250.0, 200)[:, None]
     x = np.sum(1e-5 * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi, f.shape)), 0)
     noisy = x + rng.normal(0, sigma, T)
+    F = np.zeros(T)  # a force that says nothing of the motion: no prediction from it
     assert _robust_diff_std(noisy) > 20 * sigma
-    assert _position_noise(noisy) == pytest.approx(sigma, rel=0.1)
+    assert _position_noise(noisy, F) == pytest.approx(sigma, rel=0.1)
     # an anti-aliasing front end: a 4th-order Butterworth low-pass at 0.3·f_s
     smooth = x + signal.lfilter(*signal.butter(4, 0.6), rng.normal(0, sigma, T))
-    assert _position_noise(smooth) == _robust_diff_std(smooth)
+    assert _high_band(smooth)[0] < sigma / 20
+    assert sigma < _position_noise(smooth, F) <= _robust_diff_std(smooth)
+
+
+@pytest.mark.parametrize("loop", ["open", "closed"])
+def test_position_noise_predicted_where_the_excitation_fills_the_spectrum(loop):
+    """A white force to f_s/2 drives x'' = −a x' + b F (scipy's exact zoh discretisation), in
+    closed loop through a P controller on the measured position itself (F reads xₖ at once):
+    its motion fills the third differences (over 100× σ) and the spectrum's top (not white),
+    and the one-step prediction from the past is an upper bound within 1.5× of σ: nₖ is
+    independent of every earlier sample of x and F."""
+    import scipy.signal as sg
+
+    fs, a, b, sigma, T = 1000.0, 50.0, 100.0, 1e-7, 20000
+    Ad, Bd, *_ = sg.cont2discrete(
+        (np.array([[0, 1], [0, -a]]), np.array([[0], [b]]), np.eye(2), np.zeros((2, 1))),
+        1 / fs,
+        "zoh",
+    )
+    rng = np.random.default_rng(3)
+    exc, n = rng.normal(0, 1.0, T), rng.normal(0, sigma, T)
+    s, x, F = np.zeros(2), np.empty(T), np.empty(T)
+    for k in range(T):
+        x[k] = s[0] + n[k]
+        F[k] = exc[k] - (400.0 * x[k] if loop == "closed" else 0.0)
+        s = Ad @ s + Bd[:, 0] * F[k]
+    assert _robust_diff_std(x) > 100 * sigma
+    top, flat = _high_band(x)
+    assert top > 20 * sigma and flat < 0.5
+    assert sigma < _prediction_noise(x, F) < 1.5 * sigma
+    assert _position_noise(x, F) == _prediction_noise(x, F)
 
 
 def test_feedback_share_tells_closed_from_open_loop():

@@ -36,6 +36,8 @@ class Problem:
         st: the settings adapted to the training record; ``crit`` the thresholds.
         x_start, v_start: the windowed simulation's start states at every validation sample
             [m], [m/s], estimated in the band ``state_hz`` (:func:`~._statistics._start_states`).
+        position_noise: (train, valid) σ of the positions' noise [m]
+            (:func:`~._statistics._position_noise`).
         stuck: (train, valid) (T,) True where the axis sticks (:func:`stuck_mask`).
         streamed: whether the records are read in chunks (of ``chunk`` samples where given).
         H: the windowed simulation's restart interval [samples].
@@ -52,6 +54,7 @@ class Problem:
     x_start: np.ndarray
     v_start: np.ndarray
     state_hz: float
+    position_noise: tuple[float, float]
     stuck: tuple[np.ndarray, np.ndarray]
     streamed: bool = False
     chunk: int | None = None
@@ -60,17 +63,21 @@ class Problem:
     memo: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
-    def of(cls, train, valid, st, crit, streamed=False, chunk=None) -> Problem:
-        """The problem of two records, its restart interval not yet set (:meth:`with_window`)."""
+    def of(cls, train, valid, st, crit, streamed=False, chunk=None, position_noise=None) -> Problem:
+        """The problem of two records, its restart interval not yet set (:meth:`with_window`);
+        ``position_noise`` their σ_x where known (it does not depend on the settings)."""
         dt, wv = st.dt, 2 * math.pi * st.velocity_hz
         v_valid = zero_phase(valid.x, dt, wv)[1]
         v_train = v_valid if train is valid else zero_phase(train.x, dt, wv)[1]
         state_hz, x_start, v_start = _start_states(
             np.asarray(valid.x, np.float64), dt, st.velocity_hz, v_valid
         )
-        stuck = tuple(stuck_mask(r, v, st) for r, v in ((train, v_train), (valid, v_valid)))
+        sx = position_noise or tuple(
+            _position_noise(np.asarray(r.x), np.asarray(r.F)) for r in (train, valid)
+        )
+        stuck = tuple(stuck_mask(v, s, st) for v, s in zip((v_train, v_valid), sx, strict=True))
         return cls(
-            train, valid, st, crit, v_train, v_valid, x_start, v_start, state_hz, stuck,
+            train, valid, st, crit, v_train, v_valid, x_start, v_start, state_hz, sx, stuck,
             streamed, chunk,
         )  # fmt: skip
 
@@ -161,10 +168,10 @@ class Problem:
         return Augmented(MassDamper(), tuple(out))
 
 
-def stuck_mask(rec: Record, v: np.ndarray, st: Settings) -> np.ndarray:
-    """(T,) True where the axis sticks: |v̂| within 3σ of its noise (the position noise
-    through the zero-phase derivative) for at least :data:`STICK_MIN_S` (and 3 samples)."""
-    sx = _position_noise(np.asarray(rec.x, np.float64))
+def stuck_mask(v: np.ndarray, sx: float, st: Settings) -> np.ndarray:
+    """(T,) True where the axis sticks: |v̂| (T,) within 3σ of its noise (the position noise
+    ``sx`` [m] through the zero-phase derivative) for at least :data:`STICK_MIN_S` (and 3
+    samples)."""
     va = np.abs(v)
     gain = _noise_gain(st.dt, 2 * math.pi * st.velocity_hz)
     thr = max(3.0 * sx * gain, 1e-4 * float(np.quantile(va, 0.99)))

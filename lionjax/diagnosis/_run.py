@@ -16,7 +16,7 @@ from ._problem import ROLES, Problem
 from ._regressors import TooWide
 from ._result import EffectScore
 from ._settings import settings
-from ._statistics import _check_memory, _feedback, _position_noise, _white_noise
+from ._statistics import _check_memory, _feedback, _white_noise
 from ._streaming import impulse_gains
 from .effects import AbstractCandidate, Design, Limits
 
@@ -254,7 +254,7 @@ def _problem(train, valid, crit, filter_hz, window_s, max_memory_gb, streamed) -
         # moves up to it (at most OSCILLATION_CORNER·f_s)
         fh = min(f_osc, OSCILLATION_CORNER / st.dt)
         st = settings(train, filter_hz=fh, window_s=window_s, feedback_share=crit.feedback_share)
-        problem = Problem.of(train, valid, st, crit, streamed, chunk)
+        problem = Problem.of(train, valid, st, crit, streamed, chunk, problem.position_noise)
         scale, _ = dynamics(problem)
     return problem.with_window(scale)
 
@@ -279,7 +279,7 @@ def prepare(
     # noise floor of ε₁ on the validation record (x's with the encoder's count: else a clean
     # record's gap is taken for an effect); F's noise as the lesser of its two upper bounds: a
     # multisine's third differences are its own, not noise, and a computed F has none
-    sx = _position_noise(np.asarray(valid.x))
+    sx = problem.position_noise[1]
     sF = _white_noise(np.asarray(valid.F))
     gx, gF = impulse_gains(st.bank(), st.dt, a)
     floor = math.sqrt(sx**2 * gx + (b * sF) ** 2 * gF)

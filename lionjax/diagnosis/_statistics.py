@@ -165,11 +165,19 @@ def _long_runs(flag: np.ndarray, n: int) -> np.ndarray:
 
 #: Largest noise of the windowed simulation's start velocity, as a share of the rms of v̂.
 STATE_NOISE = 0.02
-#: The top of the spectrum stands for a position's noise where it lies this far below the third
-#: differences: beyond the two estimators' disagreement on a quantised record's uniform noise
-#: (≈ 15 %); and where it is white: its halves' levels within NOISE_FLAT of each other.
+#: The top of the spectrum or the one-step prediction stands for a position's noise where it
+#: lies this far below the third differences: beyond the estimators' disagreement on a
+#: quantised record's uniform noise (≈ 15 %); the top only where it is white: its halves'
+#: levels within NOISE_FLAT of each other.
 NOISE_DISAGREE = 2.0
 NOISE_FLAT = 2.0
+#: The one-step predictor of a position (:func:`_prediction_noise`): from PREDICT_X past
+#: positions (a rigid axis' two states, a mode's two, and room for a filter's) and up to
+#: PREDICT_F past forces (the plant's memory, at most 1/32 of the record), fitted over at most
+#: PREDICT_SAMPLES samples from the record's middle.
+PREDICT_X = 8
+PREDICT_F = 128
+PREDICT_SAMPLES = 1 << 15
 
 
 def _noise_gain(dt: float, omega: float | None) -> float:
@@ -248,20 +256,67 @@ def _white_noise(u: np.ndarray) -> float:
     return max(min(_robust_diff_std(u), _high_band(u)[0]), _lattice_step(u) / math.sqrt(12.0))
 
 
-def _position_noise(x: np.ndarray) -> float:
-    """σ [m] of a position record's noise: the third-difference estimate
+def _position_noise(x: np.ndarray, F: np.ndarray) -> float:
+    """σ [m] of a position record's noise (x [m], F [N] (T,) each): the third-difference estimate
     (:func:`_robust_diff_std`), or the top of the spectrum (:func:`_high_band`) where that is
     white (its two halves within :data:`NOISE_FLAT` of each other) and :data:`NOISE_DISAGREE`
     below it: an excitation reaching f_s/5 puts its own Δ³ into the third differences, a
-    filtered record's noise is not white and falls off at the top. Never below q/√12 of its
-    encoder's count q (:func:`_lattice_step`): a quantised position's error is uniform over one
-    count when the axis moves several counts per sample, and the third differences then miss
-    it."""
+    filtered record's noise is not white and falls off at the top. Where an excitation fills
+    the top as well, the one-step prediction from the past (:func:`_prediction_noise`) where it
+    lies :data:`NOISE_DISAGREE` below: the force predicts the motion it drives. Never below q/√12
+    of its encoder's count q (:func:`_lattice_step`): a quantised position's error is uniform
+    over one count when the axis moves several counts per sample, and the third differences
+    then miss it."""
     d3 = _robust_diff_std(x)
     top, flat = _high_band(x)
     white = 1.0 / NOISE_FLAT <= flat <= NOISE_FLAT
     sigma = top if white and d3 > NOISE_DISAGREE * top else d3
+    predicted = _prediction_noise(x, F)
+    if sigma > NOISE_DISAGREE * predicted:
+        sigma = predicted
     return max(sigma, _lattice_step(x) / math.sqrt(12.0))
+
+
+def _prediction_noise(x: np.ndarray, F: np.ndarray) -> float:
+    """An upper bound of σ [m], a position's white noise nₖ: the rms error of x's least-squares
+    one-step predictor from :data:`PREDICT_X` past positions and up to :data:`PREDICT_F` past
+    forces (and a constant), its degrees of freedom taken out; ∞ on a record too short for it.
+
+    nₖ is independent of every earlier sample, of x and of F (in closed loop the controller
+    feeds it into F only from the next sample on), so no predictor from the past errs by less
+    than σ: xₖ = sₖ + nₖ leaves E(xₖ − P)² = σ² + E(sₖ − P)². The bound is tight where the past
+    forces predict the motion they drive (σ √(1 + Σaᵢ²) where the past positions carry it, aᵢ
+    their weights), and holds where an excitation fills the spectrum up to f_s/2, where the third
+    differences and the spectrum's top count the motion. The positions enter as Δⁱxₖ₋₁
+    (i < PREDICT_X), the same span as xₖ₋₁ … xₖ₋ₚ and well conditioned, and the target is Δᵖxₖ
+    (xₖ less a combination of them)."""
+    x, F = np.asarray(x, np.float64), np.asarray(F, np.float64)
+    p, m = PREDICT_X, min(PREDICT_F, x.size // 32)
+    lag = max(p, m)
+    k0 = max((x.size - lag - PREDICT_SAMPLES) // 2, 0)
+    x, F = x[k0 : k0 + lag + PREDICT_SAMPLES], F[k0 : k0 + lag + PREDICT_SAMPLES]
+    N, cols = x.size - lag, p + m + 1
+    if N < 16 * cols:
+        return math.inf
+    A = np.empty((N, cols))
+    d = x - np.mean(x)
+    for i in range(p):
+        A[:, i] = d[lag - 1 - i : lag - 1 - i + N]  # Δⁱx at k − 1 (d shrinks from the front)
+        d = np.diff(d)
+    y = d[lag - p : lag - p + N]  # Δᵖx at k
+    Fc = F - np.mean(F)
+    for j in range(1, m + 1):
+        A[:, p + j - 1] = Fc[lag - j : lag - j + N]
+    A[:, -1] = 1.0
+    A /= np.maximum(np.sqrt(np.mean(A * A, 0)), 1e-300)
+    w, V = np.linalg.eigh(A.T @ A)
+    keep = w > 1e-14 * w[-1]
+    solve = lambda g: V[:, keep] @ ((V[:, keep].T @ g) / w[keep])  # noqa: E731
+    c = solve(A.T @ y)
+    r = y - A @ c
+    c = c + solve(A.T @ r)  # one step of refinement
+    r = y - A @ c
+    return math.sqrt(float(r @ r) / (N - cols))
 
 
 def _robust_diff_std(u: np.ndarray) -> float:

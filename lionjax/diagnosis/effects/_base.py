@@ -21,7 +21,8 @@ class Limits(eqx.Module):
     """What plausibility is judged against: ``F_abs_max`` the smaller of the two records'
     largest |F| [N] (an input map must act on the validation record too); ``dt`` [s];
     ``position_noise`` the validation record's [m] (:func:`~.._statistics._position_noise`:
-    its third differences or its spectrum's white top, quantisation included);
+    its third differences, its spectrum's white top or its one-step prediction, quantisation
+    included);
     ``closed_loop``: F answers the position; ``loop_noise``: closed loop with the baseline's
     error at the noise floor; ``mode_band`` the flexible mode's searched band
     [Hz]; ``excited`` the band the training input excites [Hz] (the default (0, 0): every

@@ -18,7 +18,6 @@ import numpy as np
 from ..._models import Augmented, MassDamper
 from .._lstsq import fit_batch, residual, rss_fixed_with_columns, rss_with_columns, solve_grams
 from .._regressors import DesignPass, Regressors, TooWide
-from .._statistics import _position_noise
 from .._streaming import FilteredColumns, Filters, scaled
 from ._base import AbstractCandidate, Design, OneColumnEffect
 from ._friction import AbstractFriction
@@ -268,7 +267,7 @@ class PeriodicLookalike(AbstractLookalike):
         model = problem.model(structure)
         x_lo = min(float(np.min(problem.train.x)), float(np.min(problem.valid.x)))
         R = max(float(np.max(problem.train.x)), float(np.max(problem.valid.x))) - x_lo
-        sx = _position_noise(np.asarray(problem.valid.x))
+        sx = problem.position_noise[1]
         k_hi = min(PERIOD_CYCLES[1], R / max(PERIOD_OVER_NOISE * sx, 1e-300))
         out = (math.inf, math.nan, 0.0)
         if k_hi > PERIOD_CYCLES[0]:
