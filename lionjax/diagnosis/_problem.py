@@ -72,13 +72,20 @@ class Problem:
         state_hz, x_start, v_start = _start_states(
             np.asarray(valid.x, np.float64), dt, st.velocity_hz, v_valid
         )
-        sx = position_noise or tuple(
-            _position_noise(np.asarray(r.x), np.asarray(r.F)) for r in (train, valid)
+        if position_noise is None:
+            s_valid = _position_noise(np.asarray(valid.x), np.asarray(valid.F))
+            s_train = (
+                s_valid
+                if train is valid
+                else _position_noise(np.asarray(train.x), np.asarray(train.F))
+            )
+            position_noise = (s_train, s_valid)
+        stuck = tuple(
+            stuck_mask(v, s, st) for v, s in zip((v_train, v_valid), position_noise, strict=True)
         )
-        stuck = tuple(stuck_mask(v, s, st) for v, s in zip((v_train, v_valid), sx, strict=True))
         return cls(
-            train, valid, st, crit, v_train, v_valid, x_start, v_start, state_hz, sx, stuck,
-            streamed, chunk,
+            train, valid, st, crit, v_train, v_valid, x_start, v_start, state_hz, position_noise,
+            stuck, streamed, chunk,
         )  # fmt: skip
 
     def with_window(self, scale: float) -> Problem:
