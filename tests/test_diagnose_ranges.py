@@ -58,6 +58,41 @@ def test_a_resonance_at_an_eighth_of_the_sample_rate_inside_the_excited_band(f_m
     assert d.final["params"]["f_mode"] == pytest.approx(f_mode, rel=0.05)
 
 
+@pytest.mark.parametrize("path", ["one way", "back and forth"])
+def test_a_spring_on_an_axis_moving_one_way_is_inconclusive(path):
+    """A spring (k = 20 N/m) driven by a ramp of force, the axis moving one way at 0.05 m/s with
+    a small multisine on top that never moves it back: x is a monotone
+    function of time, so the spring's column is one of time too, and a drifting force fits it
+    (on a ramp at constant speed, exactly). Neither is named: ``inconclusive``, the reason the
+    share of positions passed twice, the advice to move back and forth. The same axis driven
+    back and forth over its range names the spring."""
+    dt, n = 1e-3, 6000
+    t = dt * np.arange(n)
+    plant = twin.Plant(5.0, 1.0, (), [twin.EncoderQuantisation(1e-6)])
+    plant = plant.with_effects(twin.LinearSpring(20.0))
+    recs = []
+    for seed in (1, 2):
+        wiggle = _multisine(np.random.default_rng(seed), n, dt, 5.0, 50.0, 0.1)
+        if path == "one way":  # F = k·v₀·t + a·v₀/b holds x = v₀·t against the spring
+            drive = 20.0 * 0.05 * t + 5.0 * 0.05
+        else:
+            drive = 4.0 * np.sin(2 * math.pi * 0.25 * t + seed)
+        recs.append(twin.simulate(plant, drive + wiggle, dt=dt))
+    d = lj.diagnose(*recs)
+    spring = next(e for e in d.effects if e.name == "spring")
+    if path == "one way":
+        assert all(np.all(np.diff(np.asarray(r.x)) >= 0) for r in recs)
+        assert d.verdict == "inconclusive", (d.verdict, d.stack)
+        assert "positions twice" in spring.reason and not spring.significant
+        assert "positions twice" in d.to_json()["inconclusive"]["reason"]
+        assert "back and forth" in d.to_json()["inconclusive"]["advice"]
+        assert d.noise["passed_twice"] == 0.0
+    else:
+        assert d.verdict == "spring", (d.verdict, d.stack)
+        assert spring.params["k"] == pytest.approx(20.0, rel=0.05)
+        assert d.noise["passed_twice"] > 0.9
+
+
 def test_a_record_that_cannot_decide_is_inconclusive():
     """A slow record whose validation residual holds few effective samples (a sine of 0.3 Hz
     over 5 s, one effect hidden in it): too few to tell an effect from none — ``inconclusive``,

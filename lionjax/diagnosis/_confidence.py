@@ -15,6 +15,7 @@ from ._run import Run
 from ._stages import Stack
 from ._verdict import Verdict, exact_tolerance
 from .effects import AbstractCandidate
+from .effects._base import PASSED_TWICE_LEAST
 
 
 def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, float]:
@@ -52,7 +53,7 @@ def uncounted(run: Run, stk: Stack) -> tuple[dict[str, float], list[str]]:
         if not c.fits_noise() or c.name in held:
             continue
         for form, alone in run.variant_fits.get(c.name, []):
-            if form.search_failed():
+            if form.no_evidence(run.limits):
                 continue
             sc = run.score_ms(run.base, alone.ms_valid, form.params(), 0.0)
             if not (math.isfinite(alone.ms_valid) and sc > bar):
@@ -90,7 +91,7 @@ def _rivals(
         if not s.plausible
         and s.size >= run.crit.min_size
         and s.score > bar
-        and not by_name[s.name].search_failed()
+        and not by_name[s.name].no_evidence(run.limits)
         and not (run.closed_loop and by_name[s.name].fits_noise())
         and not set(by_name[s.name].imitates(s.params)) & held
         and not _holds_stand_in(held, by_name[s.name])
@@ -190,10 +191,16 @@ REVERSALS_LEAST = 10
 
 
 def inconclusive(
-    run: Run, detection: float, worst: float, decided: bool, absent: bool, seen: bool
+    run: Run,
+    detection: float,
+    worst: float,
+    decided: bool,
+    absent: bool,
+    seen: bool,
+    confounded: bool = False,
 ) -> dict | None:
     """Why the records cannot decide whether an effect is there, and what to record instead; or
-    None. Two reasons, unless a look-alike explains the gap (``decided``: the record shows that
+    None. Three reasons, unless a look-alike explains the gap (``decided``: the record shows that
     effect): the validation residual's effective sample count below :data:`N_EFF_LEAST` (its
     evidence too coarse: nothing named is then no evidence of no effect, and a residual with
     structure no evidence of one outside the library), unless even so an effect of ``min_size``
@@ -201,15 +208,24 @@ def inconclusive(
     small decides) or a candidate is significant at that sample count all the same (``seen``:
     the record has resolved structure, which a library fit describes or not); or, where the
     verdict would claim no effect (``absent``: "none"), the detection limit (``worst``, the size
-    an effect needs to be seen) at or above :data:`DETECTION_MOST` of the input's term. A
-    significant gap no candidate removes ("unexplained") is decided however large the limit: a
-    large unmodelled residual itself raises it."""
+    an effect needs to be seen) at or above :data:`DETECTION_MOST` of the input's term; or
+    ``confounded``: a candidate scores above the threshold but the records, moving one way,
+    cannot tell its force of position or of time from the other
+    (:class:`~.effects.AbstractPositionOrTime`). A significant gap no candidate removes
+    ("unexplained") is decided however large the limit: a large unmodelled residual itself
+    raises it."""
     n = run.base.n_eff
     few = n < N_EFF_LEAST and detection >= run.crit.min_size and not seen
     blind = absent and worst >= DETECTION_MOST
-    if decided or not (few or blind):
+    if decided or not (few or blind or confounded):
         return None
     reasons, advice = [], []
+    if confounded:
+        reasons.append(
+            f"the records pass {run.limits.passed_twice:.0%} of their positions twice: moving "
+            "one way, a force of position (a spring) cannot be told from one of time (a drift)"
+        )
+        advice.append("move the axis back and forth over the positions it is to hold")
     if few:
         reasons.append(
             f"the validation residual holds {n:.0f} effective samples (at least {N_EFF_LEAST} "
@@ -249,7 +265,7 @@ def unresolved(run: Run, fitted: dict[str, Fitted], effects: list[EffectScore]) 
             for e in effects
             if not e.plausible
             and e.score > run.crit.threshold
-            and not run.by_name[e.name].search_failed()
+            and not run.by_name[e.name].no_evidence(run.limits)
             and run.by_name[e.name].unresolved(fitted[e.name].physical, run.limits)
         ),
         default=0.0,
@@ -261,7 +277,7 @@ def _unexplained(run: Run, effects: list[EffectScore], v: Verdict, hidden: float
     scoring above 0 (a fit that removes much of the gap leaves the question open), or a
     deciding look-alike's share where larger; at most the share of validation inside train's
     ranges; and, unless a look-alike decided, × (1 − ``hidden``) as ``none``."""
-    evidence = [s for s in effects if not run.by_name[s.name].search_failed()]
+    evidence = [s for s in effects if not run.by_name[s.name].no_evidence(run.limits)]
     best_share = max([s.share for s in evidence if s.score > 0 or s.plausible], default=0.0)
     coverage = 1.0 - max(run.outside.values())
     against = max([1.0 - best_share, *(t.share for t in v.decided_by)])
@@ -317,10 +333,21 @@ def weigh(
     undecided = None
     if not stk.cands:
         seen = any(
-            s.score > crit.threshold and not run.by_name[s.name].search_failed() for s in effects
+            s.score > crit.threshold and not run.by_name[s.name].no_evidence(run.limits)
+            for s in effects
+        )
+        confounded = run.limits.passed_twice < PASSED_TWICE_LEAST and any(
+            s.score > crit.threshold and run.by_name[s.name].no_evidence(run.limits)
+            for s in effects
         )
         undecided = inconclusive(
-            run, detection, detection_worst, bool(v.decided_by), verdict == "none", seen
+            run,
+            detection,
+            detection_worst,
+            bool(v.decided_by),
+            verdict == "none",
+            seen,
+            confounded,
         )
     if undecided is not None:
         # nothing named on a record that cannot decide: an abstention, which claims nothing

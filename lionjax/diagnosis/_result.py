@@ -63,8 +63,9 @@ class Diagnosis:
             no more parameters: evidence against the verdict, whose confidence they discount.
         series: validation signals for plotting (not in the JSON).
         inconclusive: where the records cannot decide whether an effect is there (too few
-            effective samples, or nothing significant left under a detection limit of half the
-            input's term), ``{"reason", "advice"}``: why, and what to record instead; else None.
+            effective samples, nothing significant left under a detection limit of half the
+            input's term, or records moving one way on which a force of position fits as one
+            of time), ``{"reason", "advice"}``: why, and what to record instead; else None.
         units: the records' unit system, ``"linear"`` (x [m], F [N]) or ``"rotary"`` (x [rad],
             F [N·m]), which every figure and text states (:meth:`in_units`).
         regions: where the gap lies, searched: the regions of the validation record where the

@@ -16,7 +16,7 @@ from ._problem import ROLES, Problem
 from ._regressors import TooWide
 from ._result import EffectScore
 from ._settings import settings
-from ._statistics import _check_memory, _feedback, _white_noise
+from ._statistics import _check_memory, _feedback, _passed_twice, _white_noise
 from ._streaming import impulse_gains
 from .effects import AbstractCandidate, Design, Limits
 
@@ -306,6 +306,10 @@ def prepare(
         stuck_share=problem.stuck_share,
         sticks=problem.sticks,
         outside=outside["position"] > 0,
+        passed_twice=max(
+            _passed_twice(np.asarray(rec.x), s)
+            for rec, s in zip((train, valid), problem.position_noise, strict=True)
+        ),
     )
     return Run(
         problem=dataclasses.replace(problem, limits=limits),

@@ -163,6 +163,53 @@ def _long_runs(flag: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+#: A reversal counts once the axis moves back by this many times the position noise: noise
+#: alone does not move x by ±5σ, so it never reverses the axis.
+REVERSAL_NOISE = 10.0
+#: Bins over a record's range in which the passes are counted.
+PASS_BINS = 1024
+
+
+def _passed_twice(x: np.ndarray, sx: float) -> float:
+    """The share of the range of x (T,) that the axis passes at least twice: the path cut at its
+    reversals (a move back by more than :data:`REVERSAL_NOISE`·``sx`` [m]) into one-way passes,
+    each covering the positions between its ends. 0 for an axis moving one way, about 1 for one
+    moving back and forth over its range."""
+    x = np.asarray(x, np.float64)
+    lo, span = float(np.min(x)), float(np.ptp(x))
+    h = max(REVERSAL_NOISE * sx, 1e-12 * max(span, abs(lo)))
+    if not span > h:
+        return 0.0
+    # the path at its crossings of levels h/2 apart, then its local extrema: every reversal by
+    # more than h is between two of them
+    lvl = np.floor((x - lo) / (h / 2))
+    keep = np.concatenate([[0], np.flatnonzero(np.diff(lvl)) + 1, [x.size - 1]])
+    y = x[keep]
+    d = np.sign(np.diff(y))
+    ext = np.concatenate([[0], np.flatnonzero(d[1:] * d[:-1] < 0) + 1, [y.size - 1]])
+    turns, up, hi, low = [], 0, y[0], y[0]
+    for v in y[ext]:
+        if up == 0:  # the first move by more than h sets the direction
+            hi, low = max(hi, v), min(low, v)
+            if hi - low > h:
+                up = 1 if v == hi else -1
+                turns.append(low if up == 1 else hi)
+                ext_v = v
+        elif (v - ext_v) * up > 0:
+            ext_v = v
+        elif (ext_v - v) * up > h:
+            turns.append(ext_v)
+            up, ext_v = -up, v
+    if not turns:
+        return 0.0
+    turns.append(ext_v)
+    edges = np.clip(((np.asarray(turns) - lo) / span * PASS_BINS).astype(np.int64), 0, PASS_BINS)
+    cover = np.zeros(PASS_BINS + 1)
+    np.add.at(cover, np.minimum(edges[:-1], edges[1:]), 1.0)
+    np.add.at(cover, np.maximum(edges[:-1], edges[1:]), -1.0)
+    return float(np.mean(np.cumsum(cover)[:PASS_BINS] >= 2))
+
+
 #: Largest noise of the windowed simulation's start velocity, as a share of the rms of v̂.
 STATE_NOISE = 0.02
 #: The top of the spectrum or the one-step prediction stands for a position's noise where it

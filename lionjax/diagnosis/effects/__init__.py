@@ -6,6 +6,7 @@ for one's own, :class:`ForceEffect`)."""
 from ._artefacts import ForceSensorDrift as ForceSensorDrift, ForceSensorLine as ForceSensorLine
 from ._base import (
     AbstractCandidate as AbstractCandidate,
+    AbstractPositionOrTime as AbstractPositionOrTime,
     Design as Design,
     Limits as Limits,
     design_of as design_of,

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..._model_effects import Offset
 from ..._record import Record
-from ._base import Limits
+from ._base import AbstractPositionOrTime, Limits
 from ._force_effect import ForceEffect
 
 #: Mains frequencies [Hz] a line is searched at, ±MAINS_TOLERANCE on MAINS_POINTS grid points
@@ -183,7 +183,7 @@ class ForceSensorLine(ForceEffect):
         return super().implausible(phys, lim)
 
 
-class ForceSensorDrift(ForceEffect):
+class ForceSensorDrift(AbstractPositionOrTime, ForceEffect):
     """A drift of the force sensor's zero at r [N/s] over each record: columns t − t_mid (the
     ramp) and the offset's (the zero at t_mid, a constant force F₀ the data cannot tell from one
     on the device). Containing the offset, a constant force alone is never a drift, while a

@@ -30,7 +30,9 @@ class Limits(eqx.Module):
     ``train_range`` the training positions [m], over which candidates are fitted (a grid in
     cycles of position steps finely over it); ``stuck_share`` the share of validation samples
     where the axis sticks; ``sticks``: it sticks on either record; ``outside``: validation
-    leaves the training positions."""
+    leaves the training positions; ``passed_twice`` the larger of the two records' shares of
+    their position range that the axis passes at least twice
+    (:func:`~.._statistics._passed_twice`: 0 where both move one way)."""
 
     F_abs_max: float
     dt: float
@@ -44,6 +46,7 @@ class Limits(eqx.Module):
     stuck_share: float = 0.0
     sticks: bool = False
     outside: bool = False
+    passed_twice: float = 1.0
 
 
 class Design(eqx.Module):
@@ -206,8 +209,9 @@ class AbstractCandidate(eqx.Module):
         describe the device, whatever its parameters ("" where it may)."""
         return ""
 
-    def search_failed(self) -> bool:
-        """Whether its search ended on its edge: its fit is then no evidence, for or against."""
+    def no_evidence(self, lim: Limits) -> bool:
+        """Whether its fit is no evidence, for or against: its search ended on its edge, or the
+        records cannot tell it from another force."""
         return False
 
     def unresolved(self, phys: dict[str, float], lim: Limits) -> bool:
@@ -229,6 +233,31 @@ class AbstractCandidate(eqx.Module):
         """Names of candidates an implausible fit with these ``params`` is a known look-alike
         of (no evidence against them)."""
         return ()
+
+
+#: The least share of its range a record passes twice (:attr:`Limits.passed_twice`) for a
+#: force of position to be told from one of time.
+PASSED_TWICE_LEAST = 0.5
+
+
+class AbstractPositionOrTime(AbstractCandidate):
+    """A candidate whose terms are functions of the position alone (a spring, a
+    position-dependent damping or gain) or of time alone (a drifting force sensor). Where the
+    axis passes each position once, x is a monotone function of time, so every function of x is
+    one of time and back: a spring, a drift and any slow trend fit each other's columns. Where
+    neither record passes :data:`PASSED_TWICE_LEAST` of its range twice, the records cannot tell
+    it from the others: it is refused, and its fit is no evidence."""
+
+    def refusal(self, lim: Limits, gap_before: float, gap_after: float) -> str:
+        if not self.no_evidence(lim):
+            return ""
+        return (
+            f"the records pass {lim.passed_twice:.0%} of their positions twice (least "
+            f"{PASSED_TWICE_LEAST:.0%}): moving one way, forces of position and of time are one"
+        )
+
+    def no_evidence(self, lim: Limits) -> bool:
+        return lim.passed_twice < PASSED_TWICE_LEAST
 
 
 def design_of(structure) -> Design:

@@ -258,7 +258,7 @@ class FlexibleModeCandidate(AbstractCandidate):
         seen: dict = {}  # successive rings (and bounds) share points
         return best_so_far([search.minimise(fn, q, r, steps, move, seen) for q, r in starts])
 
-    def search_failed(self) -> bool:
+    def no_evidence(self, lim) -> bool:
         return self.failed
 
     def physical(self, phys, problem) -> dict:

@@ -20,7 +20,7 @@ from ..._model_effects import (
 from .._lstsq import rss_with_columns
 from .._search import GridSearch, PatternSearch
 from .._streaming import FilteredColumns, rows, scaled
-from ._base import AbstractCandidate, Design
+from ._base import AbstractPositionOrTime, Design
 
 #: The localized position's parameters (four amplitudes, x₀, w), and its (x₀, w) grid: widths
 #: w = R·LOCAL_WIDTHS (R the span of the training positions' LOCAL_RANGE quantiles), centres
@@ -80,7 +80,7 @@ def _local_raw(x, F, c: float, w: float, j: int):
     return scaled(raw, rows(F)) if j % 2 else raw
 
 
-class PositionCandidate(AbstractCandidate):
+class PositionCandidate(AbstractPositionOrTime):
     """a(x), b(x) polynomial in position of degree 1 … 3 (two parameters per degree), held or
     not beyond the training positions (``held``), or a step and a bump around x₀ of width w
     (``degree`` 0, :class:`~lionjax.LocalizedPosition`, x₀ and w profiled); the best validated

@@ -7,7 +7,7 @@ import math
 from typing import ClassVar
 
 from ..._model_effects import Offset, Spring
-from ._base import AbstractCandidate
+from ._base import AbstractCandidate, AbstractPositionOrTime
 
 
 class OffsetCandidate(AbstractCandidate):
@@ -21,7 +21,7 @@ class OffsetCandidate(AbstractCandidate):
         return (Offset(),)
 
 
-class SpringCandidate(AbstractCandidate):
+class SpringCandidate(AbstractPositionOrTime):
     """Spring −k(x − x₀) [N]: columns +(1/Λ)[x] and the offset column (the equilibrium's
     constant force k·x₀); contains the offset, which stands in for it unless k is significant."""
 
