@@ -61,11 +61,11 @@ def test_a_resonance_at_an_eighth_of_the_sample_rate_inside_the_excited_band(f_m
 @pytest.mark.parametrize("path", ["one way", "back and forth"])
 def test_a_spring_on_an_axis_moving_one_way_is_inconclusive(path):
     """A spring (k = 20 N/m) driven by a ramp of force, the axis moving one way at 0.05 m/s with
-    a small multisine on top that never moves it back: x is a monotone
-    function of time, so the spring's column is one of time too, and a drifting force fits it
-    (on a ramp at constant speed, exactly). Neither is named: ``inconclusive``, the reason the
-    share of positions passed twice, the advice to move back and forth. The same axis driven
-    back and forth over its range names the spring."""
+    a small multisine on top that never moves it back: x is a monotone function of time, so the
+    spring's column is one of time too, and a drifting force fits it (on a ramp at constant
+    speed, exactly). Neither is named: ``inconclusive``, the reason the share of samples where
+    the axis passes twice, the advice to move back and forth. The same axis driven back and
+    forth over its range names the spring."""
     dt, n = 1e-3, 6000
     t = dt * np.arange(n)
     plant = twin.Plant(5.0, 1.0, (), [twin.EncoderQuantisation(1e-6)])
@@ -83,8 +83,8 @@ def test_a_spring_on_an_axis_moving_one_way_is_inconclusive(path):
     if path == "one way":
         assert all(np.all(np.diff(np.asarray(r.x)) >= 0) for r in recs)
         assert d.verdict == "inconclusive", (d.verdict, d.stack)
-        assert "positions twice" in spring.reason and not spring.significant
-        assert "positions twice" in d.to_json()["inconclusive"]["reason"]
+        assert "passes twice" in spring.reason and not spring.significant
+        assert "passes twice" in d.to_json()["inconclusive"]["reason"]
         assert "back and forth" in d.to_json()["inconclusive"]["advice"]
         assert d.noise["passed_twice"] == 0.0
     else:

@@ -222,8 +222,9 @@ def inconclusive(
     reasons, advice = [], []
     if confounded:
         reasons.append(
-            f"the records pass {run.limits.passed_twice:.0%} of their positions twice: moving "
-            "one way, a force of position (a spring) cannot be told from one of time (a drift)"
+            f"{run.limits.passed_twice:.0%} of the samples lie where the axis passes twice: "
+            "moving one way, a force of position (a spring) cannot be told from one of time (a "
+            "drift)"
         )
         advice.append("move the axis back and forth over the positions it is to hold")
     if few:

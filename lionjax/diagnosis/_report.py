@@ -172,7 +172,7 @@ def report(
             # the share of each record's samples where the axis sticks
             "stuck_share": {"train": float(np.mean(stuck[0])), "valid": float(np.mean(stuck[1]))},
             "closed_loop": bool(run.closed_loop),
-            # the larger of the records' shares of their range passed twice (Limits)
+            # the larger of the records' shares of samples at positions passed twice (Limits)
             "passed_twice": run.limits.passed_twice,
         },
         settings=_settings_json(run),

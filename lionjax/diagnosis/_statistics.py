@@ -171,10 +171,11 @@ PASS_BINS = 1024
 
 
 def _passed_twice(x: np.ndarray, sx: float) -> float:
-    """The share of the range of x (T,) that the axis passes at least twice: the path cut at its
-    reversals (a move back by more than :data:`REVERSAL_NOISE`·``sx`` [m]) into one-way passes,
-    each covering the positions between its ends. 0 for an axis moving one way, about 1 for one
-    moving back and forth over its range."""
+    """The share of the samples of x (T,) at positions the axis passes at least twice: the path
+    cut at its reversals (a move back by more than :data:`REVERSAL_NOISE`·``sx`` [m]) into one-way
+    passes, each covering the positions between its ends. 0 for an axis moving one way, about 1
+    for one moving back and forth (a start far from where it then moves counts only for the
+    samples of that start)."""
     x = np.asarray(x, np.float64)
     lo, span = float(np.min(x)), float(np.ptp(x))
     h = max(REVERSAL_NOISE * sx, 1e-12 * max(span, abs(lo)))
@@ -203,11 +204,16 @@ def _passed_twice(x: np.ndarray, sx: float) -> float:
     if not turns:
         return 0.0
     turns.append(ext_v)
-    edges = np.clip(((np.asarray(turns) - lo) / span * PASS_BINS).astype(np.int64), 0, PASS_BINS)
+
+    def bin_of(v):
+        return np.clip(((np.asarray(v) - lo) / span * PASS_BINS).astype(np.int64), 0, PASS_BINS - 1)
+
+    edges = bin_of(turns)  # a pass covers the bins from one end's to the other's, both included
     cover = np.zeros(PASS_BINS + 1)
     np.add.at(cover, np.minimum(edges[:-1], edges[1:]), 1.0)
-    np.add.at(cover, np.maximum(edges[:-1], edges[1:]), -1.0)
-    return float(np.mean(np.cumsum(cover)[:PASS_BINS] >= 2))
+    np.add.at(cover, np.maximum(edges[:-1], edges[1:]) + 1, -1.0)
+    twice = np.cumsum(cover)[:PASS_BINS] >= 2
+    return float(np.mean(twice[bin_of(x)]))
 
 
 #: Largest noise of the windowed simulation's start velocity, as a share of the rms of v̂.

@@ -31,7 +31,7 @@ class Limits(eqx.Module):
     cycles of position steps finely over it); ``stuck_share`` the share of validation samples
     where the axis sticks; ``sticks``: it sticks on either record; ``outside``: validation
     leaves the training positions; ``passed_twice`` the larger of the two records' shares of
-    their position range that the axis passes at least twice
+    samples at positions that the axis passes at least twice
     (:func:`~.._statistics._passed_twice`: 0 where both move one way)."""
 
     F_abs_max: float
@@ -252,7 +252,7 @@ class AbstractPositionOrTime(AbstractCandidate):
         if not self.no_evidence(lim):
             return ""
         return (
-            f"the records pass {lim.passed_twice:.0%} of their positions twice (least "
+            f"{lim.passed_twice:.0%} of the samples lie where the axis passes twice (least "
             f"{PASSED_TWICE_LEAST:.0%}): moving one way, forces of position and of time are one"
         )
 
