@@ -62,10 +62,11 @@ def test_a_resonance_at_an_eighth_of_the_sample_rate_inside_the_excited_band(f_m
 def test_a_spring_on_an_axis_moving_one_way_is_inconclusive(path):
     """A spring (k = 20 N/m) driven by a ramp of force, the axis moving one way at 0.05 m/s with
     a small multisine on top that never moves it back: x is a monotone function of time, so the
-    spring's column is one of time too, and a drifting force fits it (on a ramp at constant
-    speed, exactly). Neither is named: ``inconclusive``, the reason the share of samples where
-    the axis passes twice, the advice to move back and forth. The same axis driven back and
-    forth over its range names the spring."""
+    spring's column is one of time too (a force of time shaped as x(t) fits it exactly; a
+    drift's ramp fits all but the start's transient and the multisine's small share of x).
+    Nothing is named: ``inconclusive``, the reason the share of samples where the axis passes
+    twice, the advice to move back and forth. The same axis driven back and forth over its range
+    names the spring."""
     dt, n = 1e-3, 6000
     t = dt * np.arange(n)
     plant = twin.Plant(5.0, 1.0, (), [twin.EncoderQuantisation(1e-6)])

@@ -15,7 +15,6 @@ from ._run import Run
 from ._stages import Stack
 from ._verdict import Verdict, exact_tolerance
 from .effects import AbstractCandidate
-from .effects._base import PASSED_TWICE_LEAST
 
 
 def _weights(run: Run, effects: list[EffectScore], stk: Stack) -> dict[str, float]:
@@ -337,8 +336,12 @@ def weigh(
             s.score > crit.threshold and not run.by_name[s.name].no_evidence(run.limits)
             for s in effects
         )
-        confounded = run.limits.passed_twice < PASSED_TWICE_LEAST and any(
-            s.score > crit.threshold and run.by_name[s.name].no_evidence(run.limits)
+        # no evidence only because the records move one way (not a failed search)
+        both_ways = dataclasses.replace(run.limits, passed_twice=1.0)
+        confounded = any(
+            s.score > crit.threshold
+            and run.by_name[s.name].no_evidence(run.limits)
+            and not run.by_name[s.name].no_evidence(both_ways)
             for s in effects
         )
         undecided = inconclusive(
