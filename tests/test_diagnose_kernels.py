@@ -231,7 +231,7 @@ def test_position_noise_predicted_where_the_excitation_fills_the_spectrum(loop):
     assert _position_noise(x, F) == _prediction_noise(x, F)
 
 
-def test_share_of_the_range_passed_twice():
+def test_share_of_samples_where_the_axis_passes_twice():
     """Closed forms of the share of samples at positions passed twice: a ramp (x monotone in t)
     has none, even under white noise of σ (±5σ never reverses it: a reversal is a move back by
     10σ); a ramp up to 1 over half the record, then back to 1 − r over the other half, has

@@ -196,7 +196,7 @@ def inconclusive(
     decided: bool,
     absent: bool,
     seen: bool,
-    confounded: bool = False,
+    confounded: bool,
 ) -> dict | None:
     """Why the records cannot decide whether an effect is there, and what to record instead; or
     None. Three reasons, unless a look-alike explains the gap (``decided``: the record shows that

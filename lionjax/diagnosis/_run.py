@@ -292,6 +292,10 @@ def prepare(
     feedback, F_ref = _feedback(np.asarray(valid.x), np.asarray(valid.F))
     closed_loop = feedback >= crit.feedback_share
     outside = _outside(train, valid, problem.v_train, problem.v_valid)
+    # each record's share of samples where the axis passes twice (a record that is both, once)
+    passed_twice = [_passed_twice(np.asarray(valid.x), sx)]
+    if train is not valid:
+        passed_twice.append(_passed_twice(np.asarray(train.x), problem.position_noise[0]))
     xt = np.asarray(train.x)
     limits = Limits(
         float(min(np.max(np.abs(np.asarray(train.F))), np.max(np.abs(Fv)))),
@@ -306,10 +310,7 @@ def prepare(
         stuck_share=problem.stuck_share,
         sticks=problem.sticks,
         outside=outside["position"] > 0,
-        passed_twice=max(
-            _passed_twice(np.asarray(rec.x), s)
-            for rec, s in zip((train, valid), problem.position_noise, strict=True)
-        ),
+        passed_twice=max(passed_twice),
     )
     return Run(
         problem=dataclasses.replace(problem, limits=limits),

@@ -235,8 +235,8 @@ class AbstractCandidate(eqx.Module):
         return ()
 
 
-#: The least share of its range a record passes twice (:attr:`Limits.passed_twice`) for a
-#: force of position to be told from one of time.
+#: The least share of a record's samples at positions the axis passes twice
+#: (:attr:`Limits.passed_twice`) for a force of position to be told from one of time.
 PASSED_TWICE_LEAST = 0.5
 
 
@@ -245,8 +245,9 @@ class AbstractPositionOrTime(AbstractCandidate):
     position-dependent damping or gain) or of time alone (a drifting force sensor). Where the
     axis passes each position once, x is a monotone function of time, so every function of x is
     one of time and back: a spring, a drift and any slow trend fit each other's columns. Where
-    neither record passes :data:`PASSED_TWICE_LEAST` of its range twice, the records cannot tell
-    it from the others: it is refused, and its fit is no evidence."""
+    under :data:`PASSED_TWICE_LEAST` of either record's samples lie at positions the axis passes
+    twice, the records cannot tell it from the others: it is refused, and its fit is no
+    evidence."""
 
     def refusal(self, lim: Limits, gap_before: float, gap_after: float) -> str:
         if not self.no_evidence(lim):
