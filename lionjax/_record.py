@@ -216,6 +216,39 @@ class Record(eqx.Module):
         F = jnp.mean(self.F[..., : n * r].reshape(*self.F.shape[:-1], n, r), axis=-1)
         return Record(x, F, self.dt * r, self.t0, units=self.units)
 
+    def hold_force(self) -> Record:
+        """The record with a force sampled at instants turned into the force held over each
+        interval, which lionjax reads (F zero-order hold; docs/data.md, "Timing within a sample").
+
+        A measured force — a motor current, a load cell — read at the instants tₖ is F(tₖ); read
+        as held over [tₖ, tₖ₊₁), it acts half a sample early, which the diagnosis reads as a
+        delay of −½ sample and a resonance's fit suffers from. With F straight between its samples
+        (MATLAB's InterSample ``'foh'``), its mean over each interval is
+
+            F'ₖ = (Fₖ + Fₖ₊₁)/2,    x'ₖ = xₖ,    k = 0 … T − 2,
+
+        the held force with the same impulse ∫F dt per interval; the response to it differs from
+        the response to the straight-line force by at most b·h²·|ΔF|/12 in position (h = dt, ΔF
+        the force's change since the start): a bounded hold error, as :meth:`decimate`'s. Use
+        it on records whose force is sampled, not on a commanded force that the drive holds.
+
+        Returns:
+            a :class:`Record` of T − 1 samples (the last sample has no interval after it), with
+            the same dt, t0 and units; ``extras`` keep their samples (the last one dropped).
+
+        Raises:
+            InputError: a record of fewer than 2 samples.
+        """
+        T = self.n_samples
+        if T < 2:
+            raise InputError(
+                f"Record.hold_force: the record has {T} sample(s); the held force over an "
+                "interval needs the samples at both its ends (at least 2)."
+            )
+        F = 0.5 * (self.F[..., :-1] + self.F[..., 1:])
+        extras = {k: v[..., :-1] for k, v in self.extras.items()}
+        return Record(self.x[..., :-1], F, self.dt, self.t0, extras, units=self.units)
+
     @classmethod
     def from_samples(
         cls,

@@ -464,3 +464,54 @@ def test_decimate_against_numpy_and_the_plant():
         sampled = lj.Record(fine.x[::k], fine.F[::k], fine.dt * k)
         naive = np.asarray(lj.least_squares(lj.MassDamper(), sampled).theta)
         assert np.max(np.abs(naive / [22.0, 1.916] - 1)) > 3e-3
+
+
+def test_hold_force_against_an_ode_solver_and_the_first_order_hold():
+    """Record.hold_force turns a force sampled at instants into the held force (Fₖ + Fₖ₊₁)/2
+    (numpy reference, batched, extras truncated). A mass–damper (a = 6, b = 2.5) under a smooth
+    multisine to 29 Hz, integrated by scipy's DOP853 (rtol 10⁻¹¹) and sampled at 1 kHz, force
+    read at the instants: least squares reading F as held is off by more than 0.2 % (measured
+    0.49 % in a, 0.31 % in b); after hold_force it lies within 2·10⁻⁴ of the truth (measured
+    3·10⁻⁵) and of the core's exact first-order hold (MassDamper(F_hold="foh")) on the raw
+    record."""
+    from scipy.integrate import solve_ivp
+
+    rng = np.random.default_rng(0)
+    x, F = rng.standard_normal((2, 3, 50))
+    rec = lj.Record(x, F, np.full(3, 1e-3), np.full(3, 0.5), extras={"i": x})
+    h = rec.hold_force()
+    np.testing.assert_allclose(h.F, 0.5 * (F[:, :-1] + F[:, 1:]), rtol=1e-6)
+    np.testing.assert_array_equal(h.x, x[:, :-1])
+    np.testing.assert_array_equal(h.extras["i"], x[:, :-1])
+    assert h.n_samples == 49 and h.units == rec.units
+    np.testing.assert_allclose(h.t0, 0.5) and np.testing.assert_allclose(h.dt, 1e-3)
+    with pytest.raises(lj.InputError, match="at least 2"):
+        lj.Record([0.0], [1.0], 1e-3).hold_force()
+
+    a, b, dt = 6.0, 2.5, 1e-3
+    f = np.array([0.7, 1.9, 3.3, 6.1, 11.0, 17.0, 29.0])
+    amp, phase = rng.uniform(0.5, 1.0, f.size), rng.uniform(0, 2 * np.pi, f.size)
+
+    def force(t):
+        return np.sum(
+            amp[:, None] * np.sin(2 * np.pi * f[:, None] * np.atleast_1d(t) + phase[:, None]), 0
+        )
+
+    t = np.arange(8000) * dt
+    sol = solve_ivp(
+        lambda t, y: [y[1], -a * y[1] + b * force(t)[0]],
+        (0, t[-1]),
+        [0.0, 0.0],
+        t_eval=t,
+        rtol=1e-11,
+        atol=1e-13,
+        method="DOP853",
+    )
+    sampled = lj.Record(sol.y[0], force(t), dt)
+    truth = np.array([a, b])
+    zoh = np.asarray(lj.least_squares(lj.MassDamper(), sampled).theta)
+    foh = np.asarray(lj.least_squares(lj.MassDamper(F_hold="foh"), sampled).theta)
+    held = np.asarray(lj.least_squares(lj.MassDamper(), sampled.hold_force()).theta)
+    assert np.max(np.abs(zoh / truth - 1)) > 2e-3
+    np.testing.assert_allclose(held, truth, rtol=2e-4)
+    np.testing.assert_allclose(held, foh, rtol=2e-4)

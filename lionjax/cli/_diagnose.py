@@ -9,7 +9,8 @@ of one's own (docs/effects.md). --json writes the payload (baseline, where, regi
 effects, stack, verdict, confidence, ambiguous, final, and the decimation applied);
 --plot writes a one-page summary (PNG/PDF/SVG by extension). Long records are streamed (the
 fits accumulated chunk by chunk, only the raw samples held whole; --streamed on/off/auto);
---decimate R (or auto) diagnoses records at R× the sample interval.
+--decimate R (or auto) diagnoses records at R× the sample interval; --F-hold foh reads a force
+sampled at instants (a measured current) as the held force over each interval.
 
 --pairs DIR diagnoses every pair NAME_train.* / NAME_valid.* of a folder (or --pairs FILE.csv,
 a manifest with the columns name,train,valid) in one process, sharing the compiled programs
@@ -98,6 +99,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("input files")
     g.add_argument("--columns", help="map column names, e.g. t=time,x=pos,F=force")
     g.add_argument("--force-scale", type=float, help="multiply F by this (e.g. N/V)")
+    g.add_argument(
+        "--F-hold",
+        choices=("zoh", "foh"),
+        default="zoh",
+        help="F between samples: zoh, held by the drive over each interval (a command; "
+        "default); foh, sampled at instants (a measured current or load cell), diagnosed as "
+        "the held force (F_k + F_k+1)/2 (Record.hold_force)",
+    )
     g.add_argument("--resample", action="store_true", help="resample a non-uniform record (linear)")
     add_units_argument(g)
 
@@ -226,6 +235,13 @@ def _run_one(args) -> int:
             valid = _load(args.validate, args)
     else:
         valid = None
+    if args.F_hold == "foh":
+        train = train.hold_force()
+        valid = valid.hold_force() if valid is not None else None
+        print(
+            "F sampled at instants (--F-hold foh): diagnosed as the held force "
+            f"(F_k + F_k+1)/2 over each interval, {train.n_samples} training samples"
+        )
     r = args.decimate
     if r == "auto":
         r = lj.diagnosis.decimation_for(
@@ -258,6 +274,7 @@ def _run_one(args) -> int:
     out = d.to_json()
     out["files"] = {"train": str(args.data), "validate": str(args.validate or args.data)}
     out["decimate"] = {"factor": r, "dt_recorded": dt0}
+    out["F_hold"] = args.F_hold
     out["candidates"] = [c.name for c in library]
     base = out["baseline"]
     print(
@@ -329,7 +346,8 @@ def _run_one(args) -> int:
         print(
             f"  τ < 0: the recorded force lags the force acting by {number(-tau, '.3g')} s "
             f"({number(-fin['params'].get('tau_samples', math.nan), '.2g')} samples): a filtered "
-            "or late force reading (half a sample: a force sampled at instants, read as held)"
+            "or late force reading (half a sample: a force sampled at instants, read as held"
+            + (": --F-hold foh reads it so)" if args.F_hold == "zoh" else ")")
         )
     if args.json:
         write_json(args.json, out)

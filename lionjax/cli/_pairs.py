@@ -160,6 +160,7 @@ def check_arguments(args, parser) -> None:
         ("--validate", args.validate, "each pair names its own validation record"),
         ("--plot", args.plot, "one figure per pair: draw a pair with TRAIN --validate VALID"),
         ("--decimate", args.decimate != 1, "decimate the files, or diagnose one pair alone"),
+        ("--F-hold", args.F_hold != "zoh", "hold the files' force, or diagnose one pair alone"),
     ):
         if given:
             parser.error(f"argument {flag} is not allowed with --pairs ({why})")
