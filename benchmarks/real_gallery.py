@@ -297,9 +297,21 @@ def _late(r):
     return _bare(r, F=0.5 * (F + np.concatenate([F[:1], F[:-1]])))
 
 
+def _averaged(r, k: int):
+    """x and F each the mean over the same bins of ``k`` samples, stamped at the bin's start (a
+    record decimated by averaging both signals): F is then the held input lionjax reads, and x
+    is low-passed and late by (k − 1)/(2k) of the new interval."""
+    import lionjax as lj
+
+    n = int(r.n_samples) // k * k
+    x, F = (np.asarray(s, np.float64)[:n].reshape(-1, k).mean(1) for s in (r.x, r.F))
+    return lj.Record(x, F, r.dt * k, 0.0, units=r.units)
+
+
 #: What a similar record of the same bench might bring, each applied to both records: their
 #: roles swapped, decimated by 2 and 4 (F averaged, x kept at the new instants: Record.decimate),
-#: the first and the second half, and a force read half a sample late.
+#: the first and the second half, a force read half a sample late, and both signals averaged
+#: over bins of 4 (x then lags the held force by 3/8 of a sample).
 PERTURBATIONS = {
     "swapped": lambda tr, va: (va, tr),
     "decimated ×2": lambda tr, va: (_bare(tr).decimate(2), _bare(va).decimate(2)),
@@ -307,6 +319,7 @@ PERTURBATIONS = {
     "first half": lambda tr, va: (_half(tr, 0), _half(va, 0)),
     "second half": lambda tr, va: (_half(tr, 1), _half(va, 1)),
     "F half a sample late": lambda tr, va: (_late(tr), _late(va)),
+    "x and F averaged ×4": lambda tr, va: (_averaged(tr, 4), _averaged(va, 4)),
 }
 
 
