@@ -11,6 +11,8 @@ from .._errors import InputError
 from .._plotting import figure, save_figure
 from .._units import unit
 
+#: The least share drawn in the "which" panel: a fit that more than doubles the gap is written.
+SHRINK_LEAST = -1.0
 #: (scale, label) of the position and of the simulation error in each unit system: a linear
 #: axis in mm and µm, a rotary one in rad and mrad.
 _SCALES = {"linear": ((1e3, "mm"), (1e6, "µm")), "rotary": ((1.0, "rad"), (1e3, "mrad"))}
@@ -45,7 +47,10 @@ def plot_diagnosis(diagnosis, path: str | Path):
     (kx, ux), (ke, ue) = _SCALES[diagnosis.units]
     a.plot(t[:n], s["x"][:n] * kx, "k", lw=1.2, label="measured")
     a.plot(t[:n], (s["x"][:n] + s["sim_base"]) * kx, "C1", lw=0.8, label="model (baseline)")
-    a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * kx, "C0", lw=0.8, label="augmented model")
+    # a stacked candidate the simulation leaves out (a flexible mode) is said in the legend
+    left = diagnosis.final.get("not_simulated") or []
+    aug = "augmented model" + (f" (without {', '.join(left)})" if left else "")
+    a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * kx, "C0", lw=0.8, label=aug)
     a.set(
         ylabel=f"x [{ux}]",
         title=f"validation: windowed simulation, restart every {float(s['H']):.0f} samples "
@@ -56,7 +61,9 @@ def plot_diagnosis(diagnosis, path: str | Path):
     loc = "best" if t.size <= 100_000 else "upper right"
     a.legend(fontsize=8, loc=loc)
     e.plot(t[:n], s["sim_base"] * ke, "C1", lw=0.6, label="baseline − measured")
-    e.plot(t[:n], s["sim_final"] * ke, "C0", lw=0.6, label="augmented − measured")
+    e.plot(
+        t[:n], s["sim_final"] * ke, "C0", lw=0.6, label=aug.replace(" model", "") + " − measured"
+    )
     e.set(xlabel="t [s]", ylabel=f"sim. error [{ue}]")
     e.legend(fontsize=7, loc=loc)
     eps.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")
@@ -84,12 +91,26 @@ def plot_diagnosis(diagnosis, path: str | Path):
     eff = diagnosis.effects
     y = np.arange(len(eff))
     colors = ["C2" if e.significant else "0.6" for e in eff]
-    which.barh(y, [e.shrink for e in eff], color=colors)
+    # each candidate alone: the share of the equation error it removes (what the diagnosis
+    # judges by) and of the simulated gap, drawn within [SHRINK_LEAST, 1] and written beyond
+    for dy, key, alpha, lab in (
+        (-0.2, "equation_shrink", 0.45, "equation error"),
+        (0.2, "shrink", 1.0, "windowed simulation"),
+    ):
+        v = np.array([getattr(e, key) for e in eff], np.float64)
+        shown = np.clip(np.nan_to_num(v, nan=0.0), SHRINK_LEAST, 1.0)
+        which.barh(y + dy, shown, height=0.4, color=colors, alpha=alpha, label=lab)
+        for yy, vv in zip(y + dy, v, strict=True):
+            if not vv >= SHRINK_LEAST:
+                txt = "diverges" if vv == -np.inf else f"{vv:.3g}"
+                which.text(SHRINK_LEAST, yy, f" {txt}", va="center", fontsize=6)
+    which.set_xlim(SHRINK_LEAST - 0.05, 1.05)
     which.set_yticks(y, [f"{e.name} (score {e.score:.3g})" for e in eff], fontsize=8)
     which.invert_yaxis()
     which.axvline(0, color="k", lw=0.5)
+    which.legend(fontsize=7, loc="lower right")
     which.set(
-        xlabel="shrink of the simulation gap (green: significant)",
+        xlabel="share each removes alone (green: significant)",
         title=f"which: verdict {diagnosis.verdict}\nstack: {', '.join(diagnosis.stack) or '—'}",
     )
     fig.tight_layout()
