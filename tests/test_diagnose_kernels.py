@@ -64,7 +64,7 @@ from lionjax.diagnosis._statistics import (
     _feedback,
     _high_band,
     _lattice_step,
-    _passed_twice,
+    _passes,
     _position_noise,
     _prediction_noise,
     _robust_diff_std,
@@ -232,25 +232,29 @@ def test_position_noise_predicted_where_the_excitation_fills_the_spectrum(loop):
 
 
 def test_share_of_samples_where_the_axis_passes_twice():
-    """Closed forms of the share of samples at positions passed twice: a ramp (x monotone in t)
-    has none, even under white noise of σ (±5σ never reverses it: a reversal is a move back by
-    10σ); a ramp up to 1 over half the record, then back to 1 − r over the other half, has
-    (1 + r)/2 (the return and the outbound's last r/2 of the time); a triangle wave or a sine
-    has all; a start far from where the axis then oscillates counts only the start's samples; a
-    staircase of small steps back (under 10σ) stays one way."""
+    """Closed forms of the share of samples at positions passed twice and of the reversals: a
+    ramp (x monotone in t) has none of either, even under white noise of σ (±5σ never reverses
+    it: a reversal is a move back by 10σ); a ramp up to 1 over half the record, then back to
+    1 − r over the other half, has (1 + r)/2 (the return and the outbound's last r/2 of the
+    time) and one reversal; a triangle wave of two periods (3 reversals) or a sine over 20 rad
+    (6) has all; a start far from where the axis then oscillates counts only the start's
+    samples; a staircase of small steps back (under 10σ) stays one way."""
     rng = np.random.default_rng(5)
     t = np.linspace(0.0, 1.0, 20001)
     sigma = 1e-4
-    assert _passed_twice(t + rng.normal(0, sigma, t.size), sigma) == 0.0
+    assert _passes(t + rng.normal(0, sigma, t.size), sigma) == (0.0, 0)
     for r in (0.1, 0.37, 0.8):
         x = np.where(t < 0.5, 2 * t, 1 - 2 * r * (t - 0.5))  # up to 1, back to 1 − r
-        assert _passed_twice(x, sigma) == pytest.approx((1 + r) / 2, abs=2e-3)
-    assert _passed_twice(np.abs(((4 * t) % 2) - 1), sigma) == pytest.approx(1.0, abs=2 / 1024)
-    assert _passed_twice(np.sin(20 * t), sigma) == pytest.approx(1.0, abs=2 / 1024)
+        share, reversals = _passes(x, sigma)
+        assert share == pytest.approx((1 + r) / 2, abs=2e-3) and reversals == 1
+    share, reversals = _passes(np.abs(((4 * t) % 2) - 1), sigma)
+    assert share == pytest.approx(1.0, abs=2 / 1024) and reversals == 3
+    share, reversals = _passes(np.sin(20 * t), sigma)
+    assert share == pytest.approx(1.0, abs=2 / 1024) and reversals == 6
     start = np.where(t < 0.01, 1000 * t, 10 + np.sin(200 * t))  # 0 → 10 in 1 %, then ±1
-    assert _passed_twice(start, sigma) == pytest.approx(1 - 0.009, abs=2e-3)
+    assert _passes(start, sigma)[0] == pytest.approx(1 - 0.009, abs=2e-3)
     jitter = t + 5 * sigma * (np.arange(t.size) % 2)  # moves back 5σ at every other sample
-    assert _passed_twice(jitter, sigma) == 0.0
+    assert _passes(jitter, sigma) == (0.0, 0)
 
 
 def test_feedback_share_tells_closed_from_open_loop():

@@ -185,7 +185,8 @@ N_EFF_LEAST = 30
 #: worth naming run from ``min_size`` to the drive's own size, and at half of it most of that
 #: range (1 − ln 2 / ln(1/min_size) on a log scale, 0.87 at min_size 0.005) could hide unseen.
 DETECTION_MOST = 0.5
-#: Velocity reversals a record needs for friction to be told apart from a constant force.
+#: Reversals (moves back by 10× the position noise, :attr:`~.effects.Limits.reversals`) a
+#: record needs for friction to be told apart from a constant force.
 REVERSALS_LEAST = 10
 
 
@@ -239,14 +240,12 @@ def inconclusive(
             "with the position noise over the response it drives)"
         )
     lo, hi = run.problem.st.excited
-    v = np.asarray(run.problem.v_valid, np.float64)
-    moving = np.abs(v) > 0.1 * float(np.quantile(np.abs(v), 0.9))
-    s = np.sign(v[moving])
-    reversals = int(np.sum(s[1:] != s[:-1]))
-    if reversals < REVERSALS_LEAST:
+    reversals = run.limits.reversals
+    if reversals is not None and reversals < REVERSALS_LEAST:
         advice.append(
             f"reverse direction at least {REVERSALS_LEAST} times (the validation record "
-            f"reverses {reversals} times: friction is then a constant force)"
+            f"reverses {reversals} time{'' if reversals == 1 else 's'}: friction is then a "
+            "constant force)"
         )
     advice.append(
         f"excite the band the model is to hold (this record: {lo:.3g}–{hi:.3g} Hz; up to the "

@@ -177,6 +177,7 @@ def report(
             "closed_loop": bool(run.closed_loop),
             # the larger of the records' shares of samples at positions passed twice (Limits)
             "passed_twice": run.limits.passed_twice,
+            "reversals": run.limits.reversals,
         },
         settings=_settings_json(run),
         steps=stk.steps,

@@ -16,7 +16,7 @@ from ._problem import ROLES, Problem
 from ._regressors import TooWide
 from ._result import EffectScore
 from ._settings import settings
-from ._statistics import _check_memory, _feedback, _passed_twice, _white_noise
+from ._statistics import _check_memory, _feedback, _passes, _white_noise
 from ._streaming import impulse_gains
 from .effects import AbstractCandidate, Design, Limits
 
@@ -293,9 +293,10 @@ def prepare(
     closed_loop = feedback >= crit.feedback_share
     outside = _outside(train, valid, problem.v_train, problem.v_valid)
     # each record's share of samples where the axis passes twice (a record that is both, once)
-    passed_twice = [_passed_twice(np.asarray(valid.x), sx)]
+    passed_twice, reversals = _passes(np.asarray(valid.x), sx)
+    passed_twice = [passed_twice]
     if train is not valid:
-        passed_twice.append(_passed_twice(np.asarray(train.x), problem.position_noise[0]))
+        passed_twice.append(_passes(np.asarray(train.x), problem.position_noise[0])[0])
     xt = np.asarray(train.x)
     limits = Limits(
         float(min(np.max(np.abs(np.asarray(train.F))), np.max(np.abs(Fv)))),
@@ -311,6 +312,7 @@ def prepare(
         sticks=problem.sticks,
         outside=outside["position"] > 0,
         passed_twice=max(passed_twice),
+        reversals=reversals,
     )
     return Run(
         problem=dataclasses.replace(problem, limits=limits),

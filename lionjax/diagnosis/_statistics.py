@@ -170,17 +170,17 @@ REVERSAL_NOISE = 10.0
 PASS_BINS = 1024
 
 
-def _passed_twice(x: np.ndarray, sx: float) -> float:
-    """The share of the samples of x (T,) at positions the axis passes at least twice: the path
-    cut at its reversals (a move back by more than :data:`REVERSAL_NOISE`·``sx`` [m]) into one-way
-    passes, each covering the positions between its ends. 0 for an axis moving one way, about 1
-    for one moving back and forth (a start far from where it then moves counts only for the
-    samples of that start)."""
+def _passes(x: np.ndarray, sx: float) -> tuple[float, int]:
+    """(the share of the samples of x (T,) at positions the axis passes at least twice, the
+    number of its reversals): the path cut at its reversals (a move back by more than
+    :data:`REVERSAL_NOISE`·``sx`` [m]) into one-way passes, each covering the positions between
+    its ends. The share is 0 for an axis moving one way, about 1 for one moving back and forth (a
+    start far from where it then moves counts only for the samples of that start)."""
     x = np.asarray(x, np.float64)
     lo, span = float(np.min(x)), float(np.ptp(x))
     h = max(REVERSAL_NOISE * sx, 1e-12 * max(span, abs(lo)))
     if not span > h:
-        return 0.0
+        return 0.0, 0
     # the path at its crossings of levels h/2 apart, then its local extrema: every reversal by
     # more than h is between two of them
     lvl = np.floor((x - lo) / (h / 2))
@@ -188,7 +188,7 @@ def _passed_twice(x: np.ndarray, sx: float) -> float:
     y = x[keep]
     d = np.sign(np.diff(y))
     ext = np.concatenate([[0], np.flatnonzero(d[1:] * d[:-1] < 0) + 1, [y.size - 1]])
-    turns, up, hi, low = [], 0, y[0], y[0]
+    turns, up, hi, low = [], 0, y[0], y[0]  # the passes' ends: the start's, then each reversal's
     for v in y[ext]:
         if up == 0:  # the first move by more than h sets the direction
             hi, low = max(hi, v), min(low, v)
@@ -202,7 +202,7 @@ def _passed_twice(x: np.ndarray, sx: float) -> float:
             turns.append(ext_v)
             up, ext_v = -up, v
     if not turns:
-        return 0.0
+        return 0.0, 0
     turns.append(ext_v)
 
     def bin_of(v):
@@ -213,7 +213,7 @@ def _passed_twice(x: np.ndarray, sx: float) -> float:
     np.add.at(cover, np.minimum(edges[:-1], edges[1:]), 1.0)
     np.add.at(cover, np.maximum(edges[:-1], edges[1:]) + 1, -1.0)
     twice = np.cumsum(cover)[:PASS_BINS] >= 2
-    return float(np.mean(twice[bin_of(x)]))
+    return float(np.mean(twice[bin_of(x)])), len(turns) - 2
 
 
 #: Largest noise of the windowed simulation's start velocity, as a share of the rms of v̂.

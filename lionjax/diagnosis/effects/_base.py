@@ -31,8 +31,9 @@ class Limits(eqx.Module):
     cycles of position steps finely over it); ``stuck_share`` the share of validation samples
     where the axis sticks; ``sticks``: it sticks on either record; ``outside``: validation
     leaves the training positions; ``passed_twice`` the larger of the two records' shares of
-    samples at positions that the axis passes at least twice
-    (:func:`~.._statistics._passed_twice`: 0 where both move one way)."""
+    samples at positions that the axis passes at least twice and ``reversals`` the validation
+    record's count of reversals (:func:`~.._statistics._passes`: 0 where both move one way; a
+    reversal a move back by 10× the position noise; None: not counted)."""
 
     F_abs_max: float
     dt: float
@@ -47,6 +48,7 @@ class Limits(eqx.Module):
     sticks: bool = False
     outside: bool = False
     passed_twice: float = 1.0
+    reversals: int | None = None
 
 
 class Design(eqx.Module):
