@@ -11,6 +11,7 @@ import math
 import jax
 import numpy as np
 import pytest
+from _reference_sim import sampled_force_axis
 
 import lionjax as lj
 from lionjax import twin as tw
@@ -86,32 +87,6 @@ def test_cli_diagnose_decimated(tmp_path):
             main([*args, "--decimate", bad])
 
 
-def _sampled_force_record(seed, n=8000, dt=1e-3, a=6.0, b=2.5):
-    """A mass–damper with no effect under a smooth multisine, integrated by scipy's DOP853
-    (rtol 10⁻¹¹), x and F both read at the instants k·dt (x with 2·10⁻⁷ m of white noise)."""
-    from scipy.integrate import solve_ivp
-
-    rng = np.random.default_rng(seed)
-    f = np.array([0.7, 1.9, 3.3, 6.1, 11.0, 17.0, 29.0])
-    amp, phase = rng.uniform(0.5, 1.0, f.size), rng.uniform(0, 2 * np.pi, f.size)
-
-    def force(t):
-        t = np.atleast_1d(t)
-        return np.sum(amp[:, None] * np.sin(2 * np.pi * f[:, None] * t + phase[:, None]), 0)
-
-    t = np.arange(n) * dt
-    ode = solve_ivp(
-        lambda t, y: [y[1], -a * y[1] + b * force(t)[0]],
-        (0, t[-1]),
-        [0.0, 0.0],
-        t_eval=t,
-        rtol=1e-11,
-        atol=1e-13,
-        method="DOP853",
-    )
-    return lj.Record(ode.y[0] + 2e-7 * rng.standard_normal(n), force(t), dt)
-
-
 def test_cli_diagnose_a_force_sampled_at_instants(tmp_path, capsys):
     """A force read at the instants acts half a sample before lionjax reads it as held: the
     plain diagnosis of a mass–damper without effects names a delay of about −½ sample and says
@@ -121,7 +96,7 @@ def test_cli_diagnose_a_force_sampled_at_instants(tmp_path, capsys):
     paths = []
     for seed in (1, 2):
         p = tmp_path / f"m{seed}.npz"
-        lj.save_record(p, _sampled_force_record(seed))
+        lj.save_record(p, lj.Record(*sampled_force_axis(seed, noise=2e-7), 1e-3))
         paths.append(str(p))
     out = tmp_path / "d.json"
     args = ["diagnose", paths[0], "--validate", paths[1], "--json", str(out)]

@@ -8,6 +8,7 @@ import jax
 import numpy as np
 import pytest
 import scipy.io
+from _reference_sim import sampled_force_axis
 
 import lionjax as lj
 from lionjax import InputError, Record, load_record, load_records, save_record, twin as tw
@@ -474,8 +475,6 @@ def test_hold_force_against_an_ode_solver_and_the_first_order_hold():
     0.49 % in a, 0.31 % in b); after hold_force it lies within 2·10⁻⁴ of the truth (measured
     3·10⁻⁵) and of the core's exact first-order hold (MassDamper(F_hold="foh")) on the raw
     record."""
-    from scipy.integrate import solve_ivp
-
     rng = np.random.default_rng(0)
     x, F = rng.standard_normal((2, 3, 50))
     rec = lj.Record(x, F, np.full(3, 1e-3), np.full(3, 0.5), extras={"i": x})
@@ -489,25 +488,7 @@ def test_hold_force_against_an_ode_solver_and_the_first_order_hold():
         lj.Record([0.0], [1.0], 1e-3).hold_force()
 
     a, b, dt = 6.0, 2.5, 1e-3
-    f = np.array([0.7, 1.9, 3.3, 6.1, 11.0, 17.0, 29.0])
-    amp, phase = rng.uniform(0.5, 1.0, f.size), rng.uniform(0, 2 * np.pi, f.size)
-
-    def force(t):
-        return np.sum(
-            amp[:, None] * np.sin(2 * np.pi * f[:, None] * np.atleast_1d(t) + phase[:, None]), 0
-        )
-
-    t = np.arange(8000) * dt
-    sol = solve_ivp(
-        lambda t, y: [y[1], -a * y[1] + b * force(t)[0]],
-        (0, t[-1]),
-        [0.0, 0.0],
-        t_eval=t,
-        rtol=1e-11,
-        atol=1e-13,
-        method="DOP853",
-    )
-    sampled = lj.Record(sol.y[0], force(t), dt)
+    sampled = lj.Record(*sampled_force_axis(0, a=a, b=b, dt=dt), dt)
     truth = np.array([a, b])
     zoh = np.asarray(lj.least_squares(lj.MassDamper(), sampled).theta)
     foh = np.asarray(lj.least_squares(lj.MassDamper(F_hold="foh"), sampled).theta)
