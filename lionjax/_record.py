@@ -227,9 +227,9 @@ class Record(eqx.Module):
 
             F'ₖ = (Fₖ + Fₖ₊₁)/2,    x'ₖ = xₖ,    k = 0 … T − 2,
 
-        the held force with the same impulse ∫F dt per interval; the response to it differs from
-        the response to the straight-line force by at most b·h²·|ΔF|/12 in position (h = dt, ΔF
-        the force's change since the start): a bounded hold error, as :meth:`decimate`'s. Use
+        the held force with the same impulse ∫F dt per interval; for ẍ = bF the response to it
+        differs from the response to the straight-line force by b·h²·ΔF/12 in position (h = dt,
+        ΔF the force's change since the start): a bounded hold error, as :meth:`decimate`'s. Use
         it on records whose force is sampled, not on a commanded force that the drive holds.
 
         Returns:

@@ -293,10 +293,10 @@ def prepare(
     closed_loop = feedback >= crit.feedback_share
     outside = _outside(train, valid, problem.v_train, problem.v_valid)
     # each record's share of samples where the axis passes twice (a record that is both, once)
-    passed_twice, reversals = _passes(np.asarray(valid.x), sx)
-    passed_twice = [passed_twice]
+    share, reversals = _passes(np.asarray(valid.x), sx)
+    shares = [share]
     if train is not valid:
-        passed_twice.append(_passes(np.asarray(train.x), problem.position_noise[0])[0])
+        shares.append(_passes(np.asarray(train.x), problem.position_noise[0])[0])
     xt = np.asarray(train.x)
     limits = Limits(
         float(min(np.max(np.abs(np.asarray(train.F))), np.max(np.abs(Fv)))),
@@ -311,7 +311,7 @@ def prepare(
         stuck_share=problem.stuck_share,
         sticks=problem.sticks,
         outside=outside["position"] > 0,
-        passed_twice=max(passed_twice),
+        passed_twice=max(shares),
         reversals=reversals,
     )
     return Run(

@@ -31,9 +31,9 @@ class Limits(eqx.Module):
     cycles of position steps finely over it); ``stuck_share`` the share of validation samples
     where the axis sticks; ``sticks``: it sticks on either record; ``outside``: validation
     leaves the training positions; ``passed_twice`` the larger of the two records' shares of
-    samples at positions that the axis passes at least twice and ``reversals`` the validation
-    record's count of reversals (:func:`~.._statistics._passes`: 0 where both move one way; a
-    reversal a move back by 10× the position noise; None: not counted)."""
+    samples at positions that the axis passes at least twice (0 where both move one way), and
+    ``reversals`` the validation record's count of reversals, each a move back by 10× the
+    position noise (None: not counted); both from :func:`~.._statistics._passes`."""
 
     F_abs_max: float
     dt: float
@@ -247,9 +247,9 @@ class AbstractPositionOrTime(AbstractCandidate):
     position-dependent damping or gain) or of time alone (a drifting force sensor). Where the
     axis passes each position once, x is a monotone function of time, so every function of x is
     one of time and back: a spring, a drift and any slow trend fit each other's columns. Where
-    under :data:`PASSED_TWICE_LEAST` of either record's samples lie at positions the axis passes
-    twice, the records cannot tell it from the others: it is refused, and its fit is no
-    evidence."""
+    under :data:`PASSED_TWICE_LEAST` of each record's samples lie at positions the axis passes
+    twice (:attr:`Limits.passed_twice`, the larger share), the records cannot tell it from the
+    others: it is refused, and its fit is no evidence."""
 
     def refusal(self, lim: Limits, gap_before: float, gap_after: float) -> str:
         if not self.no_evidence(lim):
