@@ -65,9 +65,15 @@ def test_noncollocated_mode_is_exact(monkeypatch):
     assert r["zeta_mode"] == pytest.approx(p["damping_ratio"], rel=MODE_TOL["zeta"])
     assert r["mass_ratio"] == pytest.approx(p["mass_ratio"], rel=MODE_TOL["mu"])
     assert r["input_share"] == pytest.approx(1.0, abs=MODE_TOL["kappa"])
-    # the windowed simulation is of the rigid body: the report says it leaves the mode out
-    assert d.final["not_simulated"] == ["flexible_mode"]
+    # the windowed simulation steps the mode with the axis, its unknown initial state fitted:
+    # the noise-free record's gap nearly vanishes (shrink 0.998 measured; 0.51 with the load's
+    # filters started at rest, whose error decays over 1/ζω = 0.4 s)
+    assert d.final["not_simulated"] == []
+    assert d.final["shrink"] >= SHRINK_MODE
 
+
+#: The least shrink of the simulated gap on that record.
+SHRINK_MODE = 0.99
 
 #: What the profile reaches on the noise-free mode above, the pattern search's resolution
 #: (measured: f 0.5 %, ζ 12 %, μ 5 %, κ 0.004; with (ω, ζ) held at the truth μ and κ are exact

@@ -14,7 +14,7 @@ from ..twin._windows import WINDOW_PARAMETERS
 from ._criteria import DIVERGED
 from ._lstsq import fit_batch, residual, simulate_windows
 from ._statistics import _n_eff
-from ._streaming import input_map
+from ._streaming import input_map, mode_states
 from .effects import Design, SimulatedForce, design_of
 
 
@@ -130,14 +130,17 @@ def simulate(problem, phys: dict[str, float], structure, u: np.ndarray) -> np.nd
     record driven by ``u`` [N]: the mass–damper's fitted parameters the simulator reads by name
     (:data:`~lionjax.twin._windows.WINDOW_PARAMETERS`) and each candidate's own
     :meth:`~.effects.AbstractCandidate.simulation` term: simulator parameters, a force term
-    (``"extra"``), a correction of the input (``"du"``)."""
+    (``"extra"``), a correction of the input (``"du"``), a flexible mode (``"mode"``, a
+    :class:`~lionjax.twin._windows.ModeTerm`, its states restarted by :func:`mode_states`)."""
     p = {k: float(phys.get(k, 0.0)) for k in WINDOW_PARAMETERS if k != "xc"}
     p["xc"] = float(problem.st.x_center)
     p["x_lo"], p["x_hi"] = -math.inf, math.inf  # always passed: one compiled program
-    effects, coefs = [], []
+    effects, coefs, mode = [], [], None
     du = np.zeros(problem.valid.n_samples)
     for c in structure:
         term = dict(c.simulation(phys, problem))
+        if "mode" in term:
+            mode = term.pop("mode")
         if "extra" in term:
             e, k = term.pop("extra")
             effects.append(e)
@@ -147,15 +150,59 @@ def simulate(problem, phys: dict[str, float], structure, u: np.ndarray) -> np.nd
         p.update({k: float(v) for k, v in term.items()})
     extra = SimulatedForce(tuple(effects), tuple(coefs)) if effects else None
     valid, H = problem.valid, problem.H
-    e = simulate_windows(
-        p,
-        np.asarray(u, np.float64) + du,
-        valid.x,
-        problem.x_start,
-        problem.v_start,
-        problem.st.dt,
-        H,
-        extra=extra,
-        t0=float(valid.t0),
-    )
-    return e[: (valid.n_samples // H) * H]
+    u = np.asarray(u, np.float64) + du
+
+    def run(mode_starts=None):
+        return simulate_windows(
+            p,
+            u,
+            valid.x,
+            problem.x_start,
+            problem.v_start,
+            problem.st.dt,
+            H,
+            extra=extra,
+            t0=float(valid.t0),
+            mode=None if mode_starts is None else (mode, mode_starts),
+        )
+
+    n = (valid.n_samples // H) * H
+    if mode is None:
+        return run()[:n]
+    return _with_mode(problem, mode, u, run)[:n]
+
+
+def _with_mode(problem, mode, u: np.ndarray, run) -> np.ndarray:
+    """The windowed simulation error with a flexible mode, its states restarted from
+    :func:`mode_states` corrected for their unknown initial state: the causal filters start the
+    record at rest, and their error, a free response of D (decaying as e^{−ζωt}, over 1/ζω
+    seconds: long for a light mode), is fitted by least squares on the scored samples (four
+    coefficients: the load's and the input filter's, as the equation error refits its
+    initial-state columns on validation), the simulation being linear in them but for friction."""
+    dt, w, z = problem.st.dt, float(mode.omega), float(mode.zeta)
+    valid = problem.valid
+    starts = mode_states(valid.x, problem.x_start, problem.v_start, u, dt, w, z)
+    e0 = run(starts)
+    t = np.arange(valid.n_samples) * dt
+    wd = w * math.sqrt(max(1.0 - z * z, 1e-12))
+    decay = np.exp(-z * w * t)
+    basis = []
+    for c, s in ((np.cos(wd * t), np.sin(wd * t)), (np.sin(wd * t), -np.cos(wd * t))):
+        f = decay * c  # a free response of D and its derivative
+        f_dot = decay * (-z * w * c - wd * s)
+        for sign, cols in ((-1.0, (0, 1)), (1.0, (2, 3))):  # the load's error enters d with −
+            b = np.zeros_like(starts)
+            b[:, cols[0]], b[:, cols[1]] = sign * f, sign * f_dot
+            basis.append(b)
+    scale = max(float(np.std(starts[:, 0])), 1e-300), max(float(np.std(starts[:, 2])), 1e-300)
+    basis = [b * scale[0 if i % 2 == 0 else 1] for i, b in enumerate(basis)]
+    g0 = problem.gap_from(e0.size)
+    n = (valid.n_samples // problem.H) * problem.H
+    if not np.all(np.isfinite(e0[g0:n])):
+        return e0
+    J = np.stack([run(starts + b)[g0:n] - e0[g0:n] for b in basis], axis=1)
+    if not np.all(np.isfinite(J)):
+        return e0
+    c = np.linalg.lstsq(J, -e0[g0:n], rcond=None)[0]
+    e = run(starts + sum(ci * b for ci, b in zip(c, basis, strict=True)))
+    return e if np.sqrt(np.mean(e[g0:n] ** 2)) <= np.sqrt(np.mean(e0[g0:n] ** 2)) else e0

@@ -184,14 +184,17 @@ SIM_SEGMENT = 1 << 16
 
 
 def simulate_windows(
-    p, u, x_meas, x_start, v_start, dt, H: int, extra=None, t0: float = 0.0
+    p, u, x_meas, x_start, v_start, dt, H: int, extra=None, t0: float = 0.0, mode=None
 ) -> np.ndarray:
     """Windowed simulation error x_sim − x_meas [m] (T,) of the twin's exact-hold simulator
     (:func:`lionjax.twin._windows.windowed_errors`), each window of ``H`` samples started from
     (x_start, v_start) at its first sample, 0 after the last whole window; a long record in
     segments of whole windows (independent: the same steps). ``extra``: an optional force term
-    ``extra(x, v, u, t)`` [N], elementwise, t = t0 + k·dt."""
+    ``extra(x, v, u, t)`` [N], elementwise, t = t0 + k·dt. ``mode``: an optional (ModeTerm,
+    its start states (T, 4))."""
     signals = [np.asarray(a, np.float64) for a in (u, x_meas, x_start, v_start)]
+    if mode is not None:
+        signals.append(np.asarray(mode[1], np.float64))
     T, H = signals[0].size, int(H)
     Tn = (T // H) * H
     long = padded_length(T) > STREAM_ABOVE and Tn > 2 * SIM_SEGMENT
@@ -201,10 +204,14 @@ def simulate_windows(
     for s0 in range(0, Tn, seg):
         n = min(seg, Tn - s0)
         Tp = padded_length(n)
-        args = [np.concatenate([a[s0 : s0 + n], np.full(Tp - n, a[s0 + n - 1])]) for a in signals]
+        args = [
+            np.concatenate([a[s0 : s0 + n], a[s0 + n - 1 : s0 + n].repeat(Tp - n, 0)])
+            for a in signals
+        ]
         t = None
         if extra is not None:
             t = jnp.asarray(float(t0) + float(dt) * np.arange(s0, s0 + Tp), jnp.float64)
-        out = windowed_errors(pj, *args, _f(dt), _i(H), _i(n), extra, t, span=window_span(H))
+        kw = {} if mode is None else {"mode": mode[0], "s_start": args.pop()}
+        out = windowed_errors(pj, *args, _f(dt), _i(H), _i(n), extra, t, span=window_span(H), **kw)
         e[s0 : s0 + n] = np.asarray(out)[:n]
     return e

@@ -408,6 +408,26 @@ def mode_filtered(u, foh: float, dt: float, omega: float, zeta: float) -> np.nda
     return V[3] + w * V[2]
 
 
+def mode_states(x, x_start, v_start, u, dt: float, omega: float, zeta: float) -> np.ndarray:
+    """A flexible mode's states (d, ḋ, z₁, z₂) at every sample (T, 4), where the windowed
+    simulation restarts them (:class:`~lionjax.twin._windows.ModeTerm`): the load's position
+    y = ((2ζωs + ω²)/D)[x] and ẏ from the measured x (first-order hold; causal, as the load
+    answers the axis' past), d = x_start − y, ḋ = v_start − ẏ at the axis' start states; the
+    input's z₁ = (1/D)[u], z₂ = (s/D)[u] (held). Outputs of the bank Λ = (s + ω)·D, exactly."""
+    w, z = float(omega), float(zeta)
+    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
+    bank = FilterBank.from_poles(np.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
+    dsc = Discrete.of(bank, dt)
+    V = filtered(dsc, np.asarray(x, np.float64), 1.0)
+    # (2ζωs + ω²)(s + ω) = 2ζω·s² + (2ζω² + ω²)·s + ω³
+    c2, c1, c0 = 2 * z * w, 2 * z * w * w + w * w, w**3
+    y = c2 * V[2] + c1 * V[1] + c0 * V[0]
+    y_dot = c2 * V[3] + c1 * V[2] + c0 * V[1]
+    U = filtered(dsc, np.asarray(u, np.float64), 0.0)
+    z1, z2 = U[1] + w * U[0], U[2] + w * U[1]
+    return np.stack([np.asarray(x_start) - y, np.asarray(v_start) - y_dot, z1, z2], axis=1)
+
+
 def impulse_gains(bank: FilterBank, dt, a) -> tuple[float, float]:
     """(Σh_x², Σh_F²) of ε₁'s responses to unit white noise on x (foh) and F (zoh): as
     ε₁ ∋ (s² + as)/Λ[x] − b/Λ[F], noises σ_x, σ_F add σ_x²Σh_x² + b²σ_F²Σh_F² to its variance."""

@@ -9,7 +9,8 @@ solution
 :func:`windowed_errors` steps the model with effects (offset F₀, spring k, Coulomb friction F_c
 with sticking, position-dependent a(x), b(x): polynomial and localized) over a record,
 restarting every H samples from given states: the "windowed simulation" the diagnosis scores a
-model by. It is tested against
+model by; with a flexible mode (:class:`ModeTerm`) the axis and the mode step together, exactly
+for their linear part. It is tested against
 :func:`lionjax.twin.simulate` (one window, linear model) and against scipy's exact ZOH
 discretisation (restarts from arbitrary states).
 """
@@ -69,6 +70,52 @@ def exact_hold_step(x, v, c, a, h):
     return x + v * phi1 + c * phi2, v * jnp.exp(-ah) + c * phi1
 
 
+class ModeTerm(eqx.Module):
+    """A flexible mode in the windowed simulation: the measured axis x carries a share μ of the
+    mass, coupled to the rest at ω [rad/s] with damping ratio ζ, and a share κ of the input
+    passes through the mode (κ = 0 collocated, 1 not). With the deflection d = x − y (y the
+    load's position, ÿ = 2ζω·ḋ + ω²·d) and r = ((2ζωs + ω²)/D)[u], D = s² + 2ζωs + ω²,
+
+        (1 − μ)·ẍ = −aẋ − Kx − μ·(2ζω·ḋ + ω²·d) + b·((1 − κ)·u + κ·r) + N,
+
+    which is ẍ + aẋ + Kx − μ·s²(s²/D)[x] = b·(u − κ·(s²/D)[u]) + N: the diagnosis' mode
+    (docs/method.md, "Flexible mode"), N the forces held over each step. States (d, ḋ, z₁, z₂)
+    beside (x, v), r = ω²z₁ + 2ζω·z₂ with ż₁ = z₂, ż₂ = −ω²z₁ − 2ζω·z₂ + u. All shapes ``()``.
+    """
+
+    mu: Float[Array, ""]
+    omega: Float[Array, ""]
+    zeta: Float[Array, ""]
+    kappa: Float[Array, ""]
+
+    def matrices(self, a, b, K, h):
+        """(Φ (6, 6), Γ_u (6,), Γ_N (6,), Φ_d (2, 2)): one interval h of the states (x, v, d, ḋ,
+        z₁, z₂) with u [N] and N [m/s²] held, exactly (e^{Mh} of the system with its two inputs
+        appended as states), and of (d, ḋ) while the axis is held still (ẍ = 0)."""
+        mu, w, z, kap = self.mu, self.omega, self.zeta, self.kappa
+        c = 1.0 / (1.0 - mu)
+        zero = jnp.zeros_like(w)
+        one = jnp.ones_like(w)
+        acc = c * jnp.stack(
+            [-K, -a, -mu * w * w, -2 * mu * z * w, b * kap * w * w, 2 * b * kap * z * w]
+        )
+        rows = [
+            jnp.stack([zero, one, zero, zero, zero, zero]),
+            acc,
+            jnp.stack([zero, zero, zero, one, zero, zero]),
+            acc + jnp.stack([zero, zero, -w * w, -2 * z * w, zero, zero]),
+            jnp.stack([zero, zero, zero, zero, zero, one]),
+            jnp.stack([zero, zero, zero, zero, -w * w, -2 * z * w]),
+        ]
+        Bu = jnp.stack([zero, c * b * (1 - kap), zero, c * b * (1 - kap), zero, one])
+        BN = jnp.stack([zero, c, zero, c, zero, zero])
+        M = jnp.zeros((8, 8), w.dtype)
+        M = M.at[:6, :6].set(jnp.stack(rows)).at[:6, 6].set(Bu).at[:6, 7].set(BN)
+        E = jax.scipy.linalg.expm(M * h)
+        Md = jnp.stack([jnp.stack([zero, one]), jnp.stack([-w * w, -2 * z * w])])
+        return E[:6, :6], E[:6, 6], E[:6, 7], jax.scipy.linalg.expm(Md * h)
+
+
 def exact_spring_step(x, v, c, a, K, h):
     """(x, v) after one interval h of ẍ = −aẋ − Kx + c with c held, exactly (K ≠ 0):
     the deviation from the equilibrium x* = c/K evolves by e^{Mh}, M = [[0, 1], [−K, −a]],
@@ -104,6 +151,8 @@ def windowed_errors(
     t: Float[Array, " T"] | None = None,
     *,
     span: int | None = None,
+    mode: ModeTerm | None = None,
+    s_start: Float[Array, "T 4"] | None = None,
 ) -> Float[Array, " T"]:
     """Windowed simulation error x_sim − x_meas [m]: 0 from sample ``n_valid`` on.
 
@@ -128,6 +177,13 @@ def windowed_errors(
     steps, instead of the record in T (a scan step costs about a microsecond on a CPU, whatever
     it computes; windows are independent). The steps are the same, so the result is too. Without
     it the record is one scan of T steps. ``extra`` must then be elementwise in its arguments.
+
+    ``mode``: a flexible mode (:class:`ModeTerm`), its states (d, ḋ, z₁, z₂) restarted from
+    ``s_start`` (T, 4) with (x, v). Each step then advances the six states by the exact solution
+    of their linear system (a, b, k, the mode) with u held, every other force (offset, friction,
+    ``extra``, and a(x) − a, b(x) − b) held over the step as N; friction sticks as above, the
+    mode's force and its share of the input counted among the other forces, and while the axis
+    is held still the mode swings on (ẍ = 0).
     """
     dt = jnp.asarray(dt, u.dtype)
     T = u.shape[0]
@@ -170,17 +226,60 @@ def windowed_errors(
         x1 = jnp.where(stuck, x, x1)
         return x1, v1
 
+    if mode is not None:
+        Phi, Gu, GN, Phi_d = mode.matrices(a, b, b * p["k"], dt)
+        w, z, kap = mode.omega, mode.zeta, mode.kappa
+
+        def step_mode(x, v, sm, uk, tk):
+            # the rigid forces as in `step`, then the linear part (a, b, k, the mode) exactly
+            dx = jnp.clip(x, x_lo, x_hi) - p["xc"]
+            th = jnp.tanh((x - x_s) / w_s)
+            s2 = 1.0 - th * th
+            ak = a + dx * (p["da_dx"] + dx * (a2 + dx * a3)) + a_s * th + a_b * s2
+            bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3)) + b_s * th + b_b * s2
+            held = p["F0"] + (0.0 if extra is None else extra(x, v, uk, tk))
+            d, dd, z1, z2 = (sm[..., i] for i in range(4))
+            coupling = -mode.mu / b * (2 * z * w * dd + w * w * d) - kap * (
+                uk - (w * w * z1 + 2 * z * w * z2)
+            )
+            other = uk + held - p["k"] * x + coupling
+            s = jnp.sign(v)
+            s = jnp.where(s == 0, (other > Fp).astype(s.dtype) - (other < -Fn).astype(s.dtype), s)
+            fric = jnp.where(s > 0, Fp, jnp.where(s < 0, -Fn, 0.0))
+            N = bk * (held - fric) + (bk - b) * (uk - p["k"] * x) - (ak - a) * v
+            state = jnp.concatenate([x[..., None], v[..., None], sm], -1)
+            new = state @ Phi.T + Gu * uk[..., None] + GN * N[..., None]
+            x1, v1, sm1 = new[..., 0], new[..., 1], new[..., 2:]
+            stick = sticky & (s * v1 < 0) & (other <= Fp) & (other >= -Fn)
+            stuck = (s == 0) & sticky
+            v1 = jnp.where(stick | stuck, 0.0, v1)
+            x1 = jnp.where(stuck, x, x1)
+            swing = sm[..., :2] @ Phi_d.T  # the axis held: the mode swings on
+            sm1 = sm1.at[..., :2].set(jnp.where(stuck[..., None], swing, sm1[..., :2]))
+            return x1, v1, sm1
+
     def body(carry, inp):
-        x, v = carry
-        uk, rs, xs, vs, tk = inp
+        x, v, sm = carry
+        uk, rs, xs, vs, ss, tk = inp
         x = jnp.where(rs, xs, x)
         v = jnp.where(rs, vs, v)
-        x1, v1 = step(x, v, uk, tk)
-        return (x1, v1), x
+        if mode is None:
+            x1, v1 = step(x, v, uk, tk)
+            return (x1, v1, sm), x
+        sm = jnp.where(rs[..., None], ss, sm)
+        x1, v1, sm1 = step_mode(x, v, sm, uk, tk)
+        return (x1, v1, sm1), x
 
+    if mode is not None and (s_start is None or s_start.shape != (T, 4)):
+        raise ValueError(
+            f"windowed_errors: a mode needs s_start of shape ({T}, 4) (its states at every "
+            f"sample); got {None if s_start is None else s_start.shape}"
+        )
+    ss = None if mode is None else s_start  # no mode: no states beside (x, v)
     if span is None:
-        z = jnp.zeros((), u.dtype)
-        _, xs = jax.lax.scan(body, (z, z), (u, k % H == 0, x_start, v_start, t))
+        z0 = jnp.zeros((), u.dtype)
+        carry = (z0, z0, None if mode is None else jnp.zeros((4,), u.dtype))
+        _, xs = jax.lax.scan(body, carry, (u, k % H == 0, x_start, v_start, ss, t))
     else:
         # sample w·H + j of window w at [w, j]; slots past the window (j ≥ H) or the record
         # are stepped on the last sample's values and dropped when scattered back
@@ -189,9 +288,11 @@ def windowed_errors(
         keep = (jnp.arange(span)[None, :] < H) & (idx < T)
         at = jnp.minimum(idx, T - 1)
         restart = (jnp.arange(span) == 0)[:, None] & keep.T
-        inputs = (u[at].T, restart, x_start[at].T, v_start[at].T, t[at].T)
-        z = jnp.zeros((n_w,), u.dtype)
-        _, X = jax.lax.scan(body, (z, z), inputs)
+        s_at = None if ss is None else ss[at].swapaxes(0, 1)
+        inputs = (u[at].T, restart, x_start[at].T, v_start[at].T, s_at, t[at].T)
+        z0 = jnp.zeros((n_w,), u.dtype)
+        s0 = None if mode is None else jnp.zeros((n_w, 4), u.dtype)
+        _, X = jax.lax.scan(body, (z0, z0, s0), inputs)
         xs = jnp.zeros_like(u).at[jnp.where(keep, idx, T).T].set(X, mode="drop")
     return jnp.where(k < n_valid, xs - x_meas, 0.0)
 

@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ..._models import AbstractEffect, Column
+from ...twin._windows import ModeTerm
 from .._filtering import mode_free_responses
 from .._lstsq import rss_fixed_with_columns, rss_with_columns
 from .._regressors import ModeProfileColumns
@@ -174,8 +175,13 @@ class FlexibleModeCandidate(AbstractCandidate):
     def fits_noise(self) -> bool:
         return True  # (s²/D)[x] passes the position noise through the resonance
 
-    def simulated(self) -> bool:
-        return False  # the windowed simulation is of the rigid body
+    def simulation(self, phys, problem) -> dict:
+        # the mode's states step with the axis' (ModeTerm); κ = β/b
+        b = phys.get("b", 0.0)
+        kappa = phys.get("beta", 0.0) / b if b else 0.0
+        f = lambda v: jnp.asarray(float(v), jnp.float64)  # noqa: E731 (traced: one program)
+        term = ModeTerm(f(phys.get("mass_ratio", 0.0)), f(self.omega), f(self.zeta), f(kappa))
+        return {"mode": term}
 
     def profile(self, objective, limits):
         """(ω [rad/s], ζ): least *validation* RSS / (1 − μ)² of the mode alone fitted on the
