@@ -356,9 +356,9 @@ def markdown(rows: list[dict], meta: dict) -> str:
         f"{meta['cpus']} CPU(s). Expected verdicts: `benchmarks/real/<record>/EXPECTED.md` "
         "(pre-registered). Produced by `benchmarks/real_gallery.py`.",
         "",
-        "| record | expected | verdict | confidence | stack | baseline a [1/s] | baseline b "
-        "| final model says | runtime [s] | outcome | note |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| record | expected | verdict | confidence | stack | gap shrink | baseline a [1/s] "
+        "| baseline b | final model says | runtime [s] | outcome | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         note = "; ".join([*r.get("findings", []), *r.get("warnings", []), r.get("note", "")])
@@ -366,6 +366,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
         lines.append(
             f"| {r['record']} | {r['expected']} | {r.get('verdict', '—')} | "
             f"{_fmt(r.get('confidence'), '.2f')} | {', '.join(r.get('stack', [])) or '—'} | "
+            f"{_fmt(r.get('shrink') if r.get('stack') else None, '.2f')} | "
             f"{_fmt(r.get('baseline_a'))} | {_fmt(r.get('baseline_b'))} | "
             f"{r.get('final_says', '') or '—'} | {_fmt(r.get('runtime_s'), '.0f')} | "
             f"{r['outcome']} | {note.replace('|', '/') or '—'} |"

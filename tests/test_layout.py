@@ -168,6 +168,13 @@ PRIVATE_IMPORTS = {
     ),
     ("test_windows.py", "twin._windows.window_span"): "as twin._windows.exact_hold_step",
     ("test_windows.py", "twin._windows.windowed_errors"): "as twin._windows.exact_hold_step",
+    ("test_windows.py", "twin._windows.ModeTerm"): (
+        "a flexible mode in the windowed simulation, against scipy's exact ZOH of its transfer "
+        "function and a DOP853 two-mass ODE; the diagnosis exposes only its gap"
+    ),
+    ("test_windows.py", "diagnosis._streaming.mode_states"): (
+        "the mode's restart states the diagnosis estimates from x and u, against the ODE's own"
+    ),
     ("test_plant.py", "twin._simulate.CHUNK"): (
         "where twin.simulate's scan chunks end: a record must equal the start of a longer one "
         "exactly at and across those boundaries"

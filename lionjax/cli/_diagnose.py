@@ -341,11 +341,6 @@ def _run_one(args) -> int:
         )
         + f"; gap {number(fin['gap'])} {base['gap_units']}"
     )
-    if fin.get("not_simulated"):
-        print(
-            f"  the windowed simulation leaves out {', '.join(fin['not_simulated'])}: the final "
-            "gap is the rigid body's with these parameters (the equation error judges it)"
-        )
     tau = fin["params"].get("tau")
     if tau is not None and tau < 0:
         print(

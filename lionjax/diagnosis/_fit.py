@@ -185,24 +185,29 @@ def _with_mode(problem, mode, u: np.ndarray, run) -> np.ndarray:
     e0 = run(starts)
     t = np.arange(valid.n_samples) * dt
     wd = w * math.sqrt(max(1.0 - z * z, 1e-12))
-    decay = np.exp(-z * w * t)
-    basis = []
-    for c, s in ((np.cos(wd * t), np.sin(wd * t)), (np.sin(wd * t), -np.cos(wd * t))):
-        f = decay * c  # a free response of D and its derivative
-        f_dot = decay * (-z * w * c - wd * s)
-        for sign, cols in ((-1.0, (0, 1)), (1.0, (2, 3))):  # the load's error enters d with −
-            b = np.zeros_like(starts)
-            b[:, cols[0]], b[:, cols[1]] = sign * f, sign * f_dot
-            basis.append(b)
-    scale = max(float(np.std(starts[:, 0])), 1e-300), max(float(np.std(starts[:, 2])), 1e-300)
-    basis = [b * scale[0 if i % 2 == 0 else 1] for i, b in enumerate(basis)]
+    scale = (max(float(np.std(starts[:, 0])), 1e-300), max(float(np.std(starts[:, 2])), 1e-300))
+
+    def free(i: int) -> np.ndarray:
+        # the i-th error of the states (T, 4): a free response of D and its derivative, in the
+        # load's states (d = x − y: its error enters with −) or the input filter's
+        c, s = (
+            (np.cos(wd * t), np.sin(wd * t)) if i // 2 == 0 else (np.sin(wd * t), -np.cos(wd * t))
+        )
+        decay = np.exp(-z * w * t)
+        out = np.zeros_like(starts)
+        sign, k = (-scale[0], 0) if i % 2 == 0 else (scale[1], 2)
+        out[:, k], out[:, k + 1] = sign * decay * c, sign * decay * (-z * w * c - wd * s)
+        return out
+
     g0 = problem.gap_from(e0.size)
     n = (valid.n_samples // problem.H) * problem.H
     if not np.all(np.isfinite(e0[g0:n])):
         return e0
-    J = np.stack([run(starts + b)[g0:n] - e0[g0:n] for b in basis], axis=1)
+    J = np.stack([run(starts + free(i))[g0:n] - e0[g0:n] for i in range(4)], axis=1)
     if not np.all(np.isfinite(J)):
         return e0
     c = np.linalg.lstsq(J, -e0[g0:n], rcond=None)[0]
-    e = run(starts + sum(ci * b for ci, b in zip(c, basis, strict=True)))
+    for i in range(4):
+        starts += c[i] * free(i)
+    e = run(starts)
     return e if np.sqrt(np.mean(e[g0:n] ** 2)) <= np.sqrt(np.mean(e0[g0:n] ** 2)) else e0

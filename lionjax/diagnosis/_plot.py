@@ -47,12 +47,7 @@ def plot_diagnosis(diagnosis, path: str | Path):
     (kx, ux), (ke, ue) = _SCALES[diagnosis.units]
     a.plot(t[:n], s["x"][:n] * kx, "k", lw=1.2, label="measured")
     a.plot(t[:n], (s["x"][:n] + s["sim_base"]) * kx, "C1", lw=0.8, label="model (baseline)")
-    # a stacked candidate the simulation leaves out (a flexible mode) is said in the legend
-    left = diagnosis.final.get("not_simulated") or []
-    without = f" (without {', '.join(left)})" if left else ""
-    a.plot(
-        t[:n], (s["x"][:n] + s["sim_final"]) * kx, "C0", lw=0.8, label=f"augmented model{without}"
-    )
+    a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * kx, "C0", lw=0.8, label="augmented model")
     a.set(
         ylabel=f"x [{ux}]",
         title=f"validation: windowed simulation, restart every {float(s['H']):.0f} samples "
@@ -63,7 +58,7 @@ def plot_diagnosis(diagnosis, path: str | Path):
     loc = "best" if t.size <= 100_000 else "upper right"
     a.legend(fontsize=8, loc=loc)
     e.plot(t[:n], s["sim_base"] * ke, "C1", lw=0.6, label="baseline − measured")
-    e.plot(t[:n], s["sim_final"] * ke, "C0", lw=0.6, label=f"augmented{without} − measured")
+    e.plot(t[:n], s["sim_final"] * ke, "C0", lw=0.6, label="augmented − measured")
     e.set(xlabel="t [s]", ylabel=f"sim. error [{ue}]")
     e.legend(fontsize=7, loc=loc)
     eps.plot(t, s["residual_base"], "C1", lw=0.6, label="baseline")

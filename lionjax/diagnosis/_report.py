@@ -55,9 +55,6 @@ def _final(run: Run, stk: Stack, v: Verdict) -> dict[str, Any]:
         "gap": cur.gap,
         "shrink": shrink(cur.gap, base.gap),
         "simulation": cur.simulation,
-        # stacked candidates the windowed simulation leaves out (a flexible mode): the gap and
-        # shrink are then the rigid body's with the final parameters, not the stack's
-        "not_simulated": [c.name for c in stk.cands if not c.simulated()],
         "measurement": [c.name for c in stk.cands if c.artefact()],
         "equation_gap": cur.equation_gap,
         "equation_shrink": 1 - cur.equation_gap / base.equation_gap,

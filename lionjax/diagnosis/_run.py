@@ -67,8 +67,8 @@ class Run:
 
     def by_simulation(self, cands) -> bool:
         """Whether ``cands`` are judged by the windowed simulation as well as the equation
-        error: the baseline is qualitatively wrong and the simulation models every one."""
-        return self.dominant and bool(cands) and all(k.simulated() for k in cands)
+        error: the baseline is qualitatively wrong."""
+        return self.dominant and bool(cands)
 
     def score_ms(self, cur: Fitted, ms_new: float, p: int, lo_rms: float) -> float:
         """−ΔBIC of a validated mean square ``ms_new`` against ``cur``'s with ``p`` more
@@ -127,7 +127,7 @@ class Run:
 
     def confirmed(self, stk) -> bool:
         """Whether the windowed simulation confirms the stack where the baseline is
-        qualitatively wrong: every candidate simulated, ``dominant_sim_share`` of the gap gone."""
+        qualitatively wrong: ``dominant_sim_share`` of the gap gone."""
         return (
             self.by_simulation(stk.cands)
             and sim_share(stk.fit.gap, self.base.gap) >= self.crit.dominant_sim_share
@@ -144,14 +144,12 @@ class Run:
         share = 1 - self.excess(new.ms_valid) / ex0 if ex0 > 0 else 0.0
         why = self._refused(cur, new, ks, sc)
         plausible = not why
-        # a simulated effect must not worsen the simulated gap (a fit that does describes the
+        # an effect must not worsen the simulated gap (a fit that does describes the
         # residual, not the device), where the current simulation is a reference at all (it
         # beats holding each window's start position) and the record can judge the effect
-        simulated = all(k.simulated() for k in ks)
         exempt = not any(k.simulated_gap_judges(self.problem.stuck_share, crit) for k in ks)
         worse = (
-            simulated
-            and math.isfinite(cur.gap)
+            math.isfinite(cur.gap)
             and not cur.gap >= self.problem.hold_gap
             and not new.gap <= (1 + crit.max_worsening) * cur.gap
             and not (exempt and math.isfinite(new.gap))
@@ -172,7 +170,7 @@ class Run:
         shares = (
             share >= least
             or (by_sim and sim >= crit.dominant_sim_share)
-            or (bool(cur.structure) and simulated and sim >= crit.later_sim_share)
+            or (bool(cur.structure) and sim >= crit.later_sim_share)
         )
         sig = sc > crit.threshold and shares and size >= crit.min_size and plausible and not worse
         if plausible:

@@ -307,7 +307,7 @@ def parsimony(run: Run, stk: Stack) -> Stack:
         cur = stk.fit
         extra = c.params() - run.params(simpler)
         keep = run.score_ms(f_alt, cur.ms_valid, extra, run.floor_of(stk.cands)) > crit.threshold
-        if c.simulated() and all(k.simulated() for k in simpler) and math.isfinite(f_alt.gap):
+        if math.isfinite(f_alt.gap):
             keep = keep and cur.gap <= (1 + crit.max_worsening) * f_alt.gap
             if extra <= 0:
                 keep = keep and cur.gap < (1 - crit.max_worsening) * f_alt.gap

@@ -167,10 +167,6 @@ class AbstractCandidate(eqx.Module):
         (T,)). Default: none, its fitted parameters reaching the simulator by name."""
         return {}
 
-    def simulated(self) -> bool:
-        """Whether the windowed simulation models it in full (its gap then judges it)."""
-        return True
-
     def simulated_gap_judges(self, stuck_share: float, crit) -> bool:
         """Whether the simulated gap may refuse it for growing, not only for diverging, on a
         record whose axis sticks ``stuck_share`` of the time."""
