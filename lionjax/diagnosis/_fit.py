@@ -185,35 +185,36 @@ def _with_mode(problem, mode, u: np.ndarray, run) -> np.ndarray:
     valid = problem.valid
     starts = mode_states(valid.x, problem.x_start, problem.v_start, u, dt, w, z)
     e0 = run(starts)
-    t = np.arange(valid.n_samples) * dt
-    wd = w * math.sqrt(max(1.0 - z * z, 1e-12))
-    scale = (max(float(np.std(starts[:, 0])), 1e-300), max(float(np.std(starts[:, 2])), 1e-300))
-
-    def free(i: int) -> np.ndarray:
-        # the i-th error of the states (T, 4): a free response of D and its derivative, in the
-        # load's states (d = x − y: its error enters with −) or the input filter's
-        c, s = (
-            (np.cos(wd * t), np.sin(wd * t)) if i // 2 == 0 else (np.sin(wd * t), -np.cos(wd * t))
-        )
-        decay = np.exp(-z * w * t)
-        out = np.zeros_like(starts)
-        sign, k = (-scale[0], 0) if i % 2 == 0 else (scale[1], 2)
-        out[:, k], out[:, k + 1] = sign * decay * c, sign * decay * (-z * w * c - wd * s)
-        return out
-
     H = problem.H
     g0 = problem.gap_from(e0.size)
     n = (valid.n_samples // H) * H
     if not np.all(np.isfinite(e0[g0:n])):
         return e0
     # the free responses fall below 10⁻⁹ of their start after 21/ζω: the windows beyond do not
-    # see them (a long record's prefix is simulated for the sensitivities)
+    # see them (a long record's prefix alone is corrected and simulated for the sensitivities)
     m = min(n, max(-(-int(math.ceil(21.0 / (z * w * dt))) // H) * H, g0 + H))
-    J = np.stack([run(starts + free(i), m)[g0:m] - e0[g0:m] for i in range(4)], axis=1)
+    t = np.arange(m) * dt
+    wd = w * math.sqrt(max(1.0 - z * z, 1e-12))
+    scale = (max(float(np.std(starts[:, 0])), 1e-300), max(float(np.std(starts[:, 2])), 1e-300))
+
+    def free(i: int) -> np.ndarray:
+        # the i-th error of the states (m, 4): a free response of D and its derivative, in the
+        # load's states (d = x − y: its error enters with −) or the input filter's
+        c, s = (
+            (np.cos(wd * t), np.sin(wd * t)) if i // 2 == 0 else (np.sin(wd * t), -np.cos(wd * t))
+        )
+        decay = np.exp(-z * w * t)
+        out = np.zeros((m, 4))
+        sign, k = (-scale[0], 0) if i % 2 == 0 else (scale[1], 2)
+        out[:, k], out[:, k + 1] = sign * decay * c, sign * decay * (-z * w * c - wd * s)
+        return out
+
+    head = starts[:m]
+    J = np.stack([run(head + free(i), m)[g0:m] - e0[g0:m] for i in range(4)], axis=1)
     if not np.all(np.isfinite(J)):
         return e0
     c = np.linalg.lstsq(J, -e0[g0:m], rcond=None)[0]
     for i in range(4):
-        starts += c[i] * free(i)
+        starts[:m] += c[i] * free(i)
     e = run(starts)
     return e if np.sqrt(np.mean(e[g0:n] ** 2)) <= np.sqrt(np.mean(e0[g0:n] ** 2)) else e0
