@@ -340,6 +340,11 @@ def _run_one(args) -> int:
             for k, v in fin["params"].items()
         )
         + f"; gap {number(fin['gap'])} {base['gap_units']}"
+        + (
+            f" ({fin['shrink']:.0%} of the baseline's removed)"
+            if out["stack"] and fin.get("shrink") is not None and math.isfinite(fin["shrink"])
+            else ""
+        )
     )
     tau = fin["params"].get("tau")
     if tau is not None and tau < 0:
