@@ -15,7 +15,22 @@ from .._units import unit
 SHRINK_LEAST = -1.0
 #: (scale, label) of the position and of the simulation error in each unit system: a linear
 #: axis in mm and µm, a rotary one in rad and mrad.
-_SCALES = {"linear": ((1e3, "mm"), (1e6, "µm")), "rotary": ((1.0, "rad"), (1e3, "mrad"))}
+#: A position's units by size: (factor from SI, label), largest first.
+_SCALES = {
+    "linear": ((1.0, "m"), (1e3, "mm"), (1e6, "µm"), (1e9, "nm")),
+    "rotary": ((1.0, "rad"), (1e3, "mrad"), (1e6, "µrad"), (1e9, "nrad")),
+}
+
+
+def _scale(values, units: str) -> tuple[float, str]:
+    """The (factor, label) of ``units`` in which the largest finite |value| [SI] reads between
+    1 and 1000 (the last where it is smaller; the first where larger)."""
+    v = np.abs(np.asarray(values, np.float64))
+    top = float(np.max(v[np.isfinite(v)], initial=0.0))
+    for k, label in _SCALES[units]:
+        if top * k >= 1.0:
+            return k, label
+    return _SCALES[units][-1]
 
 
 def plot_diagnosis(diagnosis, path: str | Path):
@@ -44,7 +59,8 @@ def plot_diagnosis(diagnosis, path: str | Path):
     a = fig.add_subplot(top[0])
     e = fig.add_subplot(top[1], sharex=a)
     dt = float(t[1] - t[0]) if t.size > 1 else 1.0
-    (kx, ux), (ke, ue) = _SCALES[diagnosis.units]
+    kx, ux = _scale(s["x"][:n], diagnosis.units)
+    ke, ue = _scale(np.concatenate([s["sim_base"], s["sim_final"]]), diagnosis.units)
     a.plot(t[:n], s["x"][:n] * kx, "k", lw=1.2, label="measured")
     a.plot(t[:n], (s["x"][:n] + s["sim_base"]) * kx, "C1", lw=0.8, label="model (baseline)")
     a.plot(t[:n], (s["x"][:n] + s["sim_final"]) * kx, "C0", lw=0.8, label="augmented model")
