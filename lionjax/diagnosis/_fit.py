@@ -196,17 +196,19 @@ def _with_mode(problem, mode, u: np.ndarray, run) -> np.ndarray:
     t = np.arange(m) * dt
     wd = w * math.sqrt(max(1.0 - z * z, 1e-12))
     scale = (max(float(np.std(starts[:, 0])), 1e-300), max(float(np.std(starts[:, 2])), 1e-300))
+    # D's two free responses e^{−ζωt}·cos(ω_d t) and e^{−ζωt}·sin(ω_d t), each with its
+    # derivative, computed once
+    decay = np.exp(-z * w * t)
+    cos, sin = decay * np.cos(wd * t), decay * np.sin(wd * t)
+    pairs = ((cos, -z * w * cos - wd * sin), (sin, -z * w * sin + wd * cos))
 
     def free(i: int) -> np.ndarray:
         # the i-th error of the states (m, 4): a free response of D and its derivative, in the
         # load's states (d = x − y: its error enters with −) or the input filter's
-        c, s = (
-            (np.cos(wd * t), np.sin(wd * t)) if i // 2 == 0 else (np.sin(wd * t), -np.cos(wd * t))
-        )
-        decay = np.exp(-z * w * t)
         out = np.zeros((m, 4))
         sign, k = (-scale[0], 0) if i % 2 == 0 else (scale[1], 2)
-        out[:, k], out[:, k + 1] = sign * decay * c, sign * decay * (-z * w * c - wd * s)
+        f, f_dot = pairs[i // 2]
+        out[:, k], out[:, k + 1] = sign * f, sign * f_dot
         return out
 
     head = starts[:m]

@@ -13,9 +13,8 @@ from .._units import unit
 
 #: The least share drawn in the "which" panel: a fit that more than doubles the gap is written.
 SHRINK_LEAST = -1.0
-#: (scale, label) of the position and of the simulation error in each unit system: a linear
-#: axis in mm and µm, a rotary one in rad and mrad.
-#: A position's units by size: (factor from SI, label), largest first.
+#: The units a position or a simulation error is drawn in, by size: (factor from SI, label),
+#: largest first (:func:`_scale` picks one).
 _SCALES = {
     "linear": ((1.0, "m"), (1e3, "mm"), (1e6, "µm"), (1e9, "nm")),
     "rotary": ((1.0, "rad"), (1e3, "mrad"), (1e6, "µrad"), (1e9, "nrad")),

@@ -398,13 +398,19 @@ def zero_phase(x, dt: float, omega: float, chunk: int | None = None):
     return sm, g
 
 
+def _mode_bank(dt: float, w: float, z: float) -> Discrete:
+    """The bank Λ = (s + ω)·D, D = s² + 2ζωs + ω² (ω [rad/s]), discretised at dt: its outputs
+    V₁ … V₄ = sʲ/Λ give a mode's filters exactly."""
+    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
+    bank = FilterBank.from_poles(np.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
+    return Discrete.of(bank, dt)
+
+
 def mode_filtered(u, foh: float, dt: float, omega: float, zeta: float) -> np.ndarray:
     """h = (s²/D)[u] (T,), D = s² + 2ζωs + ω² (ω [rad/s]), under the hold ``foh``: V₄ + ωV₃ of
     the bank (s + ω)·D, exactly."""
-    w, z = float(omega), float(zeta)
-    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
-    bank = FilterBank.from_poles(np.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
-    V = filtered(Discrete.of(bank, dt), u, foh)
+    w = float(omega)
+    V = filtered(_mode_bank(dt, w, float(zeta)), u, foh)
     return V[3] + w * V[2]
 
 
@@ -415,9 +421,7 @@ def mode_states(x, x_start, v_start, u, dt: float, omega: float, zeta: float) ->
     answers the axis' past), d = x_start − y, ḋ = v_start − ẏ at the axis' start states; the
     input's z₁ = (1/D)[u], z₂ = (s/D)[u] (held). Outputs of the bank Λ = (s + ω)·D, exactly."""
     w, z = float(omega), float(zeta)
-    wd = w * math.sqrt(max(1.0 - z * z, 0.0))
-    bank = FilterBank.from_poles(np.asarray([-w + 0j, -z * w + 1j * wd, -z * w - 1j * wd]))
-    dsc = Discrete.of(bank, dt)
+    dsc = _mode_bank(dt, w, z)
     V = filtered(dsc, np.asarray(x, np.float64), 1.0)
     # (2ζωs + ω²)(s + ω) = 2ζω·s² + (2ζω² + ω²)·s + ω³
     c2, c1, c0 = 2 * z * w, 2 * z * w * w + w * w, w**3

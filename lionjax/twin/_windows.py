@@ -201,18 +201,36 @@ def windowed_errors(
 
     t = jnp.zeros_like(u) if t is None else t
 
-    def step(x, v, uk, tk):
+    def coefficients(x):
+        """a(x), b(x) at x."""
         dx = jnp.clip(x, x_lo, x_hi) - p["xc"]
         th = jnp.tanh((x - x_s) / w_s)
         s2 = 1.0 - th * th
         ak = a + dx * (p["da_dx"] + dx * (a2 + dx * a3)) + a_s * th + a_b * s2
         bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3)) + b_s * th + b_b * s2
+        return ak, bk
+
+    def friction(v, other):
+        """(s, the friction force): s the direction of the motion, or at rest of a breakaway
+        (0: held), ``other`` the other forces [N]."""
+        s = jnp.sign(v)
+        s = jnp.where(s == 0, (other > Fp).astype(s.dtype) - (other < -Fn).astype(s.dtype), s)
+        return s, jnp.where(s > 0, Fp, jnp.where(s < 0, -Fn, 0.0))
+
+    def sticking(x, x1, v1, s, other):
+        """(x, v) after a step that reverses the velocity while the other forces stay within
+        [−F⁻, F⁺] (stuck: v = 0), or starts held and does not break away (x too), and
+        whether it started held."""
+        stick = sticky & (s * v1 < 0) & (other <= Fp) & (other >= -Fn)
+        stuck = (s == 0) & sticky
+        return jnp.where(stuck, x, x1), jnp.where(stick | stuck, 0.0, v1), stuck
+
+    def step(x, v, uk, tk):
+        ak, bk = coefficients(x)
         other = uk + p["F0"] - p["k"] * x
         if extra is not None:
             other = other + extra(x, v, uk, tk)
-        s = jnp.sign(v)
-        s = jnp.where(s == 0, (other > Fp).astype(s.dtype) - (other < -Fn).astype(s.dtype), s)
-        fric = jnp.where(s > 0, Fp, jnp.where(s < 0, -Fn, 0.0))
+        s, fric = friction(v, other)
         # the spring in the step's exact solution where it is not negligible (SPRING_EXACT)
         K = bk * p["k"]
         exact = jnp.abs(K) * dt * dt >= SPRING_EXACT
@@ -220,10 +238,7 @@ def windowed_errors(
         xs1, vs1 = exact_spring_step(x, v, bk * (other + p["k"] * x - fric), ak, safe_K, dt)
         xh1, vh1 = exact_hold_step(x, v, bk * (other - fric), ak, dt)
         x1, v1 = jnp.where(exact, xs1, xh1), jnp.where(exact, vs1, vh1)
-        stick = sticky & (s * v1 < 0) & (other <= Fp) & (other >= -Fn)
-        stuck = (s == 0) & sticky
-        v1 = jnp.where(stick | stuck, 0.0, v1)
-        x1 = jnp.where(stuck, x, x1)
+        x1, v1, _ = sticking(x, x1, v1, s, other)
         return x1, v1
 
     if mode is not None:
@@ -232,30 +247,20 @@ def windowed_errors(
 
         def step_mode(x, v, sm, uk, tk):
             # the rigid forces as in `step`, then the linear part (a, b, k, the mode) exactly
-            dx = jnp.clip(x, x_lo, x_hi) - p["xc"]
-            th = jnp.tanh((x - x_s) / w_s)
-            s2 = 1.0 - th * th
-            ak = a + dx * (p["da_dx"] + dx * (a2 + dx * a3)) + a_s * th + a_b * s2
-            bk = b + dx * (p["db_dx"] + dx * (b2 + dx * b3)) + b_s * th + b_b * s2
+            ak, bk = coefficients(x)
             held = p["F0"] + (0.0 if extra is None else extra(x, v, uk, tk))
             d, dd, z1, z2 = (sm[..., i] for i in range(4))
             coupling = -mode.mu / b * (2 * z * w * dd + w * w * d) - kap * (
                 uk - (w * w * z1 + 2 * z * w * z2)
             )
             other = uk + held - p["k"] * x + coupling
-            s = jnp.sign(v)
-            s = jnp.where(s == 0, (other > Fp).astype(s.dtype) - (other < -Fn).astype(s.dtype), s)
-            fric = jnp.where(s > 0, Fp, jnp.where(s < 0, -Fn, 0.0))
+            s, fric = friction(v, other)
             N = bk * (held - fric) + (bk - b) * (uk - p["k"] * x) - (ak - a) * v
             state = jnp.concatenate([x[..., None], v[..., None], sm], -1)
             new = state @ Phi.T + Gu * uk[..., None] + GN * N[..., None]
-            x1, v1, sm1 = new[..., 0], new[..., 1], new[..., 2:]
-            stick = sticky & (s * v1 < 0) & (other <= Fp) & (other >= -Fn)
-            stuck = (s == 0) & sticky
-            v1 = jnp.where(stick | stuck, 0.0, v1)
-            x1 = jnp.where(stuck, x, x1)
+            x1, v1, stuck = sticking(x, new[..., 0], new[..., 1], s, other)
             swing = sm[..., :2] @ Phi_d.T  # the axis held: the mode swings on
-            sm1 = sm1.at[..., :2].set(jnp.where(stuck[..., None], swing, sm1[..., :2]))
+            sm1 = new[..., 2:].at[..., :2].set(jnp.where(stuck[..., None], swing, new[..., 2:4]))
             return x1, v1, sm1
 
     def body(carry, inp):
